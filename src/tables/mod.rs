@@ -1,0 +1,346 @@
+//! The static model tables: everything the filters need from the kernels, computed offline in f64
+//! by `stjpdacf tables` and stored as f32 so that they live in flash.
+//!
+//! The core never factorises a fixed model matrix at run time: the Cholesky factor of `B`, the
+//! eigen-decomposition of the Gram matrix `K_u`, and the state-space forms come from here.
+//!
+//! ```
+//! use stjpdacf::tables::{DEFAULT, FORMAT_VERSION};
+//! assert_eq!(DEFAULT.version, FORMAT_VERSION);
+//! DEFAULT.validate()?;
+//! let (f, q) = DEFAULT.spatial.model.transition(DEFAULT.hyper.row_step).unwrap_or_default();
+//! assert!((f - DEFAULT.spatial.f).abs().max() < 1e-5);
+//! assert!(q[(0, 0)] > 0.0);
+//! # Ok::<(), stjpdacf::tables::TablesError>(())
+//! ```
+
+use nalgebra::{Matrix2, SMatrix, SVector};
+
+use crate::kernel::{Matern32, RbfStateSpace};
+
+#[rustfmt::skip]
+mod default;
+pub use default::DEFAULT;
+
+/// Version of the table layout; the generator writes it and [`Tables::validate`] checks it.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Tables of the reference configuration (DESIGN 2): spatial Taylor order 2, `LANES = 6`,
+/// `POINTS = 16`.
+pub type ReferenceTables = Tables<2, 6, 16>;
+
+/// Hyperparameters and model constants the tables were generated from (f32 copies; units are BEV
+/// metres and seconds).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Hyper {
+    /// Taylor order `NT` of the RBF state-space approximation.
+    pub spatial_order: u32,
+    /// RBF variance `σ_u²` (1 in the coupled model: `B` carries the variance).
+    pub spatial_variance: f32,
+    /// RBF length-scale `ℓ_u`, metres.
+    pub spatial_lengthscale: f32,
+    /// Prior variance of a lane's lateral offset state `c`, m² (DESIGN 4.0).
+    pub offset_variance: f32,
+    /// Matérn-3/2 variance `σ_t²` (1 in the coupled model).
+    pub temporal_variance: f32,
+    /// Matérn-3/2 length-scale `ℓ_t`, seconds.
+    pub temporal_lengthscale: f32,
+    /// Variance of one feature point's lateral position, m².
+    pub meas_noise: f32,
+    /// Extra variance `r₀²` added to pseudo-measurements in the temporal filter, m².
+    pub pseudo_noise: f32,
+    /// Near edge of the BEV window, metres ahead of the camera.
+    pub u_min: f32,
+    /// Far edge of the BEV window, metres ahead of the camera.
+    pub u_max: f32,
+    /// Nominal row step `Δu` of the spatial filter, metres (`spatial.f`, `spatial.q` are for it).
+    pub row_step: f32,
+    /// Nominal frame step `T`, seconds (`temporal.f`, `temporal.q` are for it).
+    pub frame_step: f32,
+    /// Fraction of the Gram matrix's variance kept by the truncated eigenbasis.
+    pub gram_variance_fraction: f32,
+}
+
+/// The spatial (along-the-road) model of one lane's curve part `g(u)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[allow(non_snake_case)]
+pub struct SpatialTables<const NT: usize> {
+    /// State-space form of the RBF kernel (companion `A`, `Qc`, Lyapunov `P∞`).
+    pub model: RbfStateSpace<NT>,
+    /// `F_u = e^{A Δu}` at the nominal row step.
+    pub f: SMatrix<f32, NT, NT>,
+    /// `Q_u = P∞ − F_u P∞ F_uᵀ` at the nominal row step (computed in f64, no cancellation).
+    pub q: SMatrix<f32, NT, NT>,
+}
+
+/// The temporal model of one index point `[f, ∂f/∂t]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TemporalTables {
+    /// The Matérn-3/2 kernel (variance, length-scale).
+    pub kernel: Matern32,
+    /// `F_t(T)` at the nominal frame step.
+    pub f: Matrix2<f32>,
+    /// `Q_t(T)` at the nominal frame step.
+    pub q: Matrix2<f32>,
+    /// `P∞_t = diag(σ_t², λ² σ_t²)`.
+    pub p_inf: Matrix2<f32>,
+}
+
+/// All static model tables for spatial order `NT`, `LANES` lane slots and `POINTS` index points.
+///
+/// Constructible in `const`/`static` context (every field is a plain value or a nalgebra matrix
+/// built with `from_array_storage`), so generated tables live in flash.
+///
+/// RAM/flash cost: `4·(NT² ·4 + 30 + POINTS·(2·POINTS + 2) + 2·LANES²) + 8` bytes
+/// (reference configuration: see `size_of::<ReferenceTables>()`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tables<const NT: usize, const LANES: usize, const POINTS: usize> {
+    /// Layout version ([`FORMAT_VERSION`]).
+    pub version: u32,
+    /// Hyperparameters and model constants.
+    pub hyper: Hyper,
+    /// Spatial RBF model.
+    pub spatial: SpatialTables<NT>,
+    /// Temporal Matérn-3/2 model.
+    pub temporal: TemporalTables,
+    /// Index points `u^f_1 < … < u^f_N`, evenly spaced over the BEV window, metres.
+    pub index_u: SVector<f32, POINTS>,
+    /// Gram matrix `K_u[i][j] = k_u(u^f_i, u^f_j)` (true RBF, no jitter).
+    pub gram: SMatrix<f32, POINTS, POINTS>,
+    /// Orthonormal eigenvectors of `K_u` as columns, by decreasing eigenvalue.
+    pub gram_eigvec: SMatrix<f32, POINTS, POINTS>,
+    /// Eigenvalues of `K_u`, decreasing (tiny negative round-off clamped to 0).
+    pub gram_eigval: SVector<f32, POINTS>,
+    /// Number of leading eigenpairs that hold `gram_variance_fraction` of the trace.
+    pub gram_rank: u32,
+    /// Coregionalisation matrix `B = W Wᵀ + diag(κ)` over lane slots (rank from the left).
+    pub coreg: SMatrix<f32, LANES, LANES>,
+    /// Lower Cholesky factor of `B`; its leading `k×k` block is the factor of `B`'s leading block,
+    /// which is what `k` active lanes use.
+    pub coreg_chol: SMatrix<f32, LANES, LANES>,
+}
+
+/// Error returned by [`Tables::validate`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum TablesError {
+    /// `version` is not [`FORMAT_VERSION`].
+    Version,
+    /// `hyper.spatial_order` differs from the type's `NT`.
+    Order,
+    /// A value is NaN or infinite.
+    NonFinite,
+    /// A variance, length-scale or step is not positive, or the window is empty.
+    NonPositive,
+    /// Index points are not increasing inside the window.
+    IndexPoints,
+    /// A covariance or factor has a non-positive diagonal, or `B` ≠ `L Lᵀ`, or is not symmetric.
+    NotPositiveDefinite,
+    /// `gram_rank` is 0 or larger than `POINTS`, or eigenvalues are not decreasing.
+    GramBasis,
+}
+
+impl core::fmt::Display for TablesError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let s = match self {
+            Self::Version => "table format version mismatch",
+            Self::Order => "table spatial order differs from the type's NT",
+            Self::NonFinite => "table holds a non-finite value",
+            Self::NonPositive => "table holds a non-positive variance, length-scale or step",
+            Self::IndexPoints => "index points are not increasing inside the window",
+            Self::NotPositiveDefinite => {
+                "a covariance or factor is not symmetric positive definite"
+            }
+            Self::GramBasis => "Gram eigenbasis is inconsistent",
+        };
+        f.write_str(s)
+    }
+}
+
+impl core::error::Error for TablesError {}
+
+/// Relative tolerance of the consistency checks in [`Tables::validate`] (f32 storage of f64 values).
+const CHECK_TOL: f32 = 1e-4;
+
+fn all_finite<'a>(it: impl IntoIterator<Item = &'a f32>) -> bool {
+    it.into_iter().all(|v| v.is_finite())
+}
+
+fn symmetric_pos_diag<const N: usize>(m: &SMatrix<f32, N, N>) -> bool {
+    let scale = m.abs().max();
+    (m - m.transpose()).abs().max() <= CHECK_TOL * scale && m.diagonal().iter().all(|d| *d > 0.0)
+}
+
+impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES, POINTS> {
+    /// Checks the tables for internal consistency: version, order, finiteness, positive scalars,
+    /// increasing index points, symmetric positive-diagonal covariances, `B = L Lᵀ`, a sound Gram
+    /// basis. Generated tables always pass; use it on tables loaded at run time.
+    ///
+    /// # Complexity
+    /// O(NT² + POINTS² + LANES³), no allocation.
+    ///
+    /// # Errors
+    /// The first [`TablesError`] found.
+    pub fn validate(&self) -> Result<(), TablesError> {
+        const { assert!(NT >= 2 && NT <= 6, "spatial Taylor order NT must be 2..=6") };
+        const { assert!(LANES >= 1 && LANES <= 16, "LANES must be 1..=16") };
+        const { assert!(POINTS >= 2 && POINTS <= 64, "POINTS must be 2..=64") };
+        if self.version != FORMAT_VERSION {
+            return Err(TablesError::Version);
+        }
+        if self.hyper.spatial_order as usize != NT {
+            return Err(TablesError::Order);
+        }
+        let h = &self.hyper;
+        let scalars = [
+            h.spatial_variance,
+            h.spatial_lengthscale,
+            h.offset_variance,
+            h.temporal_variance,
+            h.temporal_lengthscale,
+            h.meas_noise,
+            h.pseudo_noise,
+            h.u_min,
+            h.u_max,
+            h.row_step,
+            h.frame_step,
+            h.gram_variance_fraction,
+            self.spatial.model.qc,
+            self.temporal.kernel.variance,
+            self.temporal.kernel.lengthscale,
+        ];
+        let sp = &self.spatial;
+        let tp = &self.temporal;
+        if !(all_finite(&scalars)
+            && all_finite(sp.model.A.iter())
+            && all_finite(sp.model.p_inf.iter())
+            && all_finite(sp.f.iter())
+            && all_finite(sp.q.iter())
+            && all_finite(tp.f.iter())
+            && all_finite(tp.q.iter())
+            && all_finite(tp.p_inf.iter())
+            && all_finite(self.index_u.iter())
+            && all_finite(self.gram.iter())
+            && all_finite(self.gram_eigvec.iter())
+            && all_finite(self.gram_eigval.iter())
+            && all_finite(self.coreg.iter())
+            && all_finite(self.coreg_chol.iter()))
+        {
+            return Err(TablesError::NonFinite);
+        }
+        if scalars.iter().any(|v| *v <= 0.0) || h.u_max <= h.u_min || h.gram_variance_fraction > 1.0
+        {
+            return Err(TablesError::NonPositive);
+        }
+        let inside = self.index_u.iter().all(|u| *u >= h.u_min && *u <= h.u_max);
+        let increasing = self
+            .index_u
+            .iter()
+            .zip(self.index_u.iter().skip(1))
+            .all(|(a, b)| a < b);
+        if !(inside && increasing) {
+            return Err(TablesError::IndexPoints);
+        }
+        let lower =
+            self.coreg_chol.upper_triangle().abs().max() <= self.coreg_chol.diagonal().abs().max();
+        let recon = (self.coreg_chol * self.coreg_chol.transpose() - self.coreg)
+            .abs()
+            .max()
+            <= CHECK_TOL * self.coreg.abs().max();
+        if !(symmetric_pos_diag(&sp.model.p_inf)
+            && symmetric_pos_diag(&sp.q)
+            && symmetric_pos_diag(&tp.q)
+            && symmetric_pos_diag(&tp.p_inf)
+            && symmetric_pos_diag(&self.gram)
+            && symmetric_pos_diag(&self.coreg)
+            && self.coreg_chol.diagonal().iter().all(|d| *d > 0.0)
+            && lower
+            && recon)
+        {
+            return Err(TablesError::NotPositiveDefinite);
+        }
+        let rank = self.gram_rank as usize;
+        let decreasing = self
+            .gram_eigval
+            .iter()
+            .zip(self.gram_eigval.iter().skip(1))
+            .all(|(a, b)| a >= b);
+        let nonneg = self.gram_eigval.iter().all(|v| *v >= 0.0);
+        if rank == 0 || rank > POINTS || !decreasing || !nonneg {
+            return Err(TablesError::GramBasis);
+        }
+        Ok(())
+    }
+}
+
+#[cfg(feature = "defmt")]
+impl<const NT: usize, const LANES: usize, const POINTS: usize> defmt::Format
+    for Tables<NT, LANES, POINTS>
+{
+    fn format(&self, f: defmt::Formatter<'_>) {
+        defmt::write!(
+            f,
+            "Tables {{ version: {}, NT: {}, LANES: {}, POINTS: {}, hyper: {} }}",
+            self.version,
+            NT,
+            LANES,
+            POINTS,
+            self.hyper
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_tables_are_valid() {
+        assert_eq!(DEFAULT.validate(), Ok(()));
+    }
+
+    #[test]
+    fn validate_catches_broken_tables() {
+        let mut t = DEFAULT;
+        t.version += 1;
+        assert_eq!(t.validate(), Err(TablesError::Version));
+        let mut t = DEFAULT;
+        t.hyper.spatial_order = 3;
+        assert_eq!(t.validate(), Err(TablesError::Order));
+        let mut t = DEFAULT;
+        t.gram[(3, 4)] = f32::NAN;
+        assert_eq!(t.validate(), Err(TablesError::NonFinite));
+        let mut t = DEFAULT;
+        t.hyper.row_step = 0.0;
+        assert_eq!(t.validate(), Err(TablesError::NonPositive));
+        let mut t = DEFAULT;
+        t.index_u[2] = t.index_u[1];
+        assert_eq!(t.validate(), Err(TablesError::IndexPoints));
+        let mut t = DEFAULT;
+        t.coreg[(0, 1)] += 1.0;
+        assert_eq!(t.validate(), Err(TablesError::NotPositiveDefinite));
+        let mut t = DEFAULT;
+        t.gram_rank = 0;
+        assert_eq!(t.validate(), Err(TablesError::GramBasis));
+    }
+
+    #[test]
+    fn nominal_tables_match_runtime_discretisation() {
+        let (f, q) = DEFAULT
+            .temporal
+            .kernel
+            .transition(DEFAULT.hyper.frame_step)
+            .unwrap();
+        assert!((f - DEFAULT.temporal.f).abs().max() < 1e-6);
+        assert!((q - DEFAULT.temporal.q).abs().max() <= 1e-4 * DEFAULT.temporal.q.abs().max());
+        let (f, q) = DEFAULT
+            .spatial
+            .model
+            .transition(DEFAULT.hyper.row_step)
+            .unwrap();
+        assert!((f - DEFAULT.spatial.f).abs().max() < 1e-5);
+        assert!((q - DEFAULT.spatial.q).abs().max() <= 1e-4 * DEFAULT.spatial.q.abs().max());
+    }
+}
