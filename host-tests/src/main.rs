@@ -29,6 +29,9 @@ enum Command {
         #[arg(long, default_value = "DEFAULT")]
         name: String,
     },
+    /// Print how well the RBF state-space approximation of each Taylor order matches the true
+    /// kernel (a Markdown table, as in the README).
+    Kernels,
 }
 
 fn main() -> Result<()> {
@@ -52,6 +55,12 @@ fn main() -> Result<()> {
                     h.index_points
                 );
             }
+        }
+        Command::Kernels => {
+            print!(
+                "{}",
+                stjpdacf_host::reference::statespace::approximation_table(2..=6)
+            );
         }
     }
     Ok(())
