@@ -3,4 +3,5 @@
 //! against; it is itself checked against the golden values of independent implementations
 //! (GPy, scipy, filterpy, Stone Soup) in `host-tests/tests/`.
 
+pub mod jpda;
 pub mod statespace;
