@@ -4,3 +4,4 @@
 //! (GPy, scipy, filterpy, Stone Soup) in `host-tests/tests/`.
 
 pub mod statespace;
+pub mod temporal;
