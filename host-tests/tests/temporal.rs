@@ -13,8 +13,8 @@ use nalgebra::{DMatrix, DVector};
 use serde_json::Value;
 use stjpdacf_host::reference::statespace::Matern32;
 use stjpdacf_host::reference::temporal::{
-    fixed_lag_smooth, predict, rts_smooth, run_filter, update, CoupledTemporalModel, FilterStep,
-    FixedLagSmoother, Gaussian, LaneMeasurement, LinearGaussianModel,
+    fixed_lag_smooth, predict, rts_gain, rts_smooth, run_filter, update, CoupledTemporalModel,
+    FilterStep, FixedLagSmoother, Gaussian, LaneMeasurement, LinearGaussianModel,
 };
 
 const TOL: f64 = 1e-10;
@@ -673,4 +673,90 @@ fn fixed_lag_window_is_bounded_and_lag0_is_filter() {
         ..steps[1].clone()
     };
     assert!(sm.push(bad).is_err());
+}
+
+/// At the reference configuration the RBF Gram matrix K_u is numerically singular, so P̄₀ and
+/// P_{k+1|k} are only semi-definite and the RTS gain cannot use Cholesky. The smoother must still
+/// give positive semi-definite smoothed covariances no larger than the filtered ones:
+/// min eig(P_{k|N}) ≥ −1e-12·max|P_{k|N}| and min eig(P_{k|k} − P_{k|N}) ≥ −1e-12·max|P_{k|k}|.
+#[test]
+fn rts_with_singular_gram_stays_psd() {
+    let path = stjpdacf_host::repo_root().join(stjpdacf_host::tablegen::DEFAULT_HYPER);
+    let hyper = stjpdacf_host::hyper::HyperFile::load(&path).unwrap();
+    let tables = stjpdacf_host::tablegen::ModelTables::from_hyper(&hyper).unwrap();
+    let model = CoupledTemporalModel::from_tables(&tables).unwrap();
+    let lanes = 4;
+    let n = model.points();
+    let mut state = model.prior(lanes, DVector::zeros(2 * lanes * n)).unwrap();
+    assert!(
+        state.cov.clone().cholesky().is_none(),
+        "premise: P̄₀ is numerically singular at the reference configuration"
+    );
+    let mut steps = Vec::new();
+    for k in 0..5 {
+        let obs: Vec<Option<LaneMeasurement>> = (0..lanes)
+            .map(|d| {
+                (d != 2 && !(k == 1 && d == 3)).then(|| LaneMeasurement {
+                    z: (0..n)
+                        .map(|i| Some(3.7 * d as f64 + 0.01 * (i * k) as f64))
+                        .collect(),
+                    cov: DMatrix::identity(n, n) * 0.01,
+                })
+            })
+            .collect();
+        let t = (k > 0).then_some(hyper.temporal.frame_step);
+        let s = model.step(&state, t, &obs).unwrap();
+        state = s.filtered.clone();
+        steps.push(s);
+    }
+    let rts = rts_smooth(&steps).unwrap();
+    for (k, (s, sm)) in steps.iter().zip(&rts.smoothed).enumerate() {
+        let min_sm = sm.cov.clone().symmetric_eigen().eigenvalues.min();
+        assert!(
+            min_sm >= -1e-12 * sm.cov.amax(),
+            "step {k}: smoothed covariance has eigenvalue {min_sm:e}"
+        );
+        let shrink = (&s.filtered.cov - &sm.cov)
+            .symmetric_eigen()
+            .eigenvalues
+            .min();
+        assert!(
+            shrink >= -1e-12 * s.filtered.cov.amax(),
+            "step {k}: P_k|k - P_k|N has eigenvalue {shrink:e}"
+        );
+        assert!(sm.mean.iter().all(|v| v.is_finite()));
+    }
+}
+
+/// With a rank-deficient P_{k+1|k} the gain is the minimum-norm solution of
+/// P_{k+1|k} Gᵀ = F P_{k|k}: it solves the equation, is finite and bounded, and equals
+/// P_{k|k} Fᵀ (P_{k+1|k})⁺ computed from an explicit eigen-decomposition.
+#[test]
+fn rts_gain_with_rank_deficient_prediction() {
+    // P = V Vᵀ of rank 2 in 4 dimensions, F invertible, Q = 0.
+    let v = DMatrix::from_row_slice(4, 2, &[1.0, 0.2, 0.5, -0.3, -0.4, 1.0, 0.3, 0.7]);
+    let p = &v * v.transpose();
+    let f = DMatrix::from_row_slice(
+        4,
+        4,
+        &[
+            0.9, 0.1, 0.0, 0.0, -0.1, 0.8, 0.05, 0.0, 0.0, 0.0, 1.0, 0.2, 0.0, 0.1, 0.0, 0.7,
+        ],
+    );
+    let pp = &f * &p * f.transpose();
+    let g = rts_gain(&p, &f, &pp).unwrap();
+    assert!(g.iter().all(|x| x.is_finite()));
+    let residual = (&pp * g.transpose() - &f * &p).amax();
+    assert!(residual <= 1e-12, "residual {residual:e}");
+    // Pseudo-inverse from the eigen-decomposition of the symmetric P_{k+1|k}.
+    let eig = pp.clone().symmetric_eigen();
+    let cut = 1e-10 * eig.eigenvalues.amax();
+    let inv = eig.eigenvalues.map(|l| if l > cut { 1.0 / l } else { 0.0 });
+    let pinv = &eig.eigenvectors * DMatrix::from_diagonal(&inv) * eig.eigenvectors.transpose();
+    let expected = &p * f.transpose() * pinv;
+    let err = (&g - &expected).amax();
+    assert!(
+        err <= 1e-10 * expected.amax().max(1.0),
+        "gain error {err:e}"
+    );
 }

@@ -18,8 +18,9 @@
 //! compared with. Nothing here uses the core crate.
 //!
 //! Factorisations: innovation covariances `S` are factorised by Cholesky (they contain `R`, which is
-//! positive definite); the RTS gain solves with `P_{k+1|k}` by Cholesky and falls back to LU when
-//! Cholesky fails on a numerically semi-definite `P_{k+1|k}` (no jitter is added anywhere).
+//! positive definite); the RTS gain solves with `P_{k+1|k}` by Cholesky and, when `P_{k+1|k}` is
+//! numerically singular (a singular Gram matrix `K_u` makes it so), by the SVD pseudo-inverse
+//! ([`rts_gain`]). No jitter is added anywhere.
 
 use std::collections::VecDeque;
 
@@ -237,22 +238,38 @@ pub fn run_filter(
     Ok(out)
 }
 
-/// The RTS gain `G_k = P_{k|k} Fᵀ P_{k+1|k}⁻¹`, computed by solving `P_{k+1|k} Gᵀ = F P_{k|k}`
-/// (Cholesky, LU if Cholesky fails), never by forming the inverse.
+/// The RTS gain `G_k = P_{k|k} Fᵀ P_{k+1|k}⁻¹`, computed by solving `P_{k+1|k} Gᵀ = F P_{k|k}`,
+/// never by forming the inverse. Cholesky is used when `P_{k+1|k}` is numerically positive definite
+/// (every pivot `L_ii² > n·ε·max L_jj²`); otherwise — e.g. with a numerically singular Gram matrix
+/// `K_u`, as at the reference configuration — the minimum-norm solution through the SVD with
+/// singular values below `n·ε·σ_max` treated as zero (the pseudo-inverse). That solution is exact:
+/// the columns of `F P_{k|k}` lie in the range of `P_{k+1|k} = F P_{k|k} Fᵀ + Q`.
 pub fn rts_gain(
     filtered_cov: &DMatrix<f64>,
     f: &DMatrix<f64>,
     predicted_cov: &DMatrix<f64>,
 ) -> Result<DMatrix<f64>> {
+    let n = predicted_cov.nrows();
+    ensure!(
+        predicted_cov.shape() == (n, n) && f.shape() == (n, n) && filtered_cov.shape() == (n, n),
+        "RTS gain: shapes P_k|k {:?}, F {:?}, P_k+1|k {:?}",
+        filtered_cov.shape(),
+        f.shape(),
+        predicted_cov.shape()
+    );
     let rhs = f * filtered_cov;
-    let gt = match predicted_cov.clone().cholesky() {
-        Some(c) => c.solve(&rhs),
-        None => predicted_cov
-            .clone()
-            .lu()
-            .solve(&rhs)
-            .context("predicted covariance P_{k+1|k} is singular")?,
-    };
+    let tol = n as f64 * f64::EPSILON;
+    if let Some(c) = predicted_cov.clone().cholesky() {
+        let d = c.l_dirty().diagonal().map(|v| v * v);
+        if d.min() > tol * d.max() {
+            return Ok(c.solve(&rhs).transpose());
+        }
+    }
+    let svd = predicted_cov.clone().svd(true, true);
+    let eps = tol * svd.singular_values.max();
+    let gt = svd
+        .solve(&rhs, eps)
+        .map_err(|e| anyhow::anyhow!("pseudo-inverse solve with P_k+1|k: {e}"))?;
     Ok(gt.transpose())
 }
 
