@@ -5,3 +5,4 @@
 
 pub mod jpda;
 pub mod statespace;
+pub mod temporal;
