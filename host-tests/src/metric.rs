@@ -255,8 +255,8 @@ pub fn bench_one_submit(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
 }
 
 /// Stricter than the original (which would silently count a repeated prediction twice): every
-/// `raw_file` appears once in the ground truth, once in the predictions, and every ground-truth
-/// frame has a prediction. Inputs that pass are scored by [`bench_one_submit`] exactly as the
+/// `raw_file` appears once in the ground truth and once in the predictions, every prediction's
+/// `raw_file` is in the ground truth, and every ground-truth frame has a prediction. Inputs that pass are scored by [`bench_one_submit`] exactly as the
 /// original scores them.
 pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Result<()> {
     let mut gt_files = HashSet::new();
@@ -272,6 +272,15 @@ pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
         ensure!(
             pred_files.insert(p.raw_file.as_str()),
             "predictions list {} more than once",
+            p.raw_file
+        );
+    }
+    if let Some(p) = preds
+        .iter()
+        .find(|p| !gt_files.contains(p.raw_file.as_str()))
+    {
+        bail!(
+            "prediction for {}: raw_file not in the ground truth",
             p.raw_file
         );
     }
@@ -377,11 +386,11 @@ mod tests {
         let gt: Vec<f64> = ys.iter().map(|y| 2.0 * y + 5.0).collect();
         let shift = |d: f64| gt.iter().map(|x| x + d).collect::<Vec<_>>();
         assert_eq!(
-            bench(&[shift(44.0)], &[gt.clone()], &ys, 0.0).unwrap(),
+            bench(&[shift(44.0)], std::slice::from_ref(&gt), &ys, 0.0).unwrap(),
             score(1.0, 0.0, 0.0)
         );
         assert_eq!(
-            bench(&[shift(45.0)], &[gt.clone()], &ys, 0.0).unwrap(),
+            bench(&[shift(45.0)], std::slice::from_ref(&gt), &ys, 0.0).unwrap(),
             score(0.0, 1.0, 1.0)
         );
         // The same 44 px shift on a vertical lane (threshold 20) misses everywhere.
@@ -414,12 +423,18 @@ mod tests {
         let mut gt = vertical(300.0);
         gt.iter_mut().skip(10).for_each(|v| *v = -2.0);
         assert_eq!(
-            bench(&[gt.clone()], &[gt.clone()], &ys, 0.0).unwrap(),
+            bench(
+                std::slice::from_ref(&gt),
+                std::slice::from_ref(&gt),
+                &ys,
+                0.0
+            )
+            .unwrap(),
             score(1.0, 0.0, 0.0)
         );
         // pred exact where valid, but present (300) where the truth is missing -> 10/20.
         assert_eq!(
-            bench(&[vertical(300.0)], &[gt.clone()], &ys, 0.0).unwrap(),
+            bench(&[vertical(300.0)], std::slice::from_ref(&gt), &ys, 0.0).unwrap(),
             score(0.5, 1.0, 1.0)
         );
         // pred missing where the truth is valid: the 10 missing-missing rows count -> 10/20.
@@ -438,7 +453,7 @@ mod tests {
         // 17 of 20 rows correct: 0.85, matched.
         let p = off(gt.clone(), 3, 50.0);
         assert_eq!(
-            bench(&[p], &[gt.clone()], &ys, 0.0).unwrap(),
+            bench(&[p], std::slice::from_ref(&gt), &ys, 0.0).unwrap(),
             score(0.85, 0.0, 0.0)
         );
         // 16 of 20 rows correct: 0.8, a false negative, and the prediction a false positive.
@@ -555,7 +570,7 @@ mod tests {
         let ys = rows20();
         let gt = vec![vertical(300.0)];
         let short = vec![300.0; 19];
-        let e = bench(&[short.clone()], &gt, &ys, 0.0).unwrap_err();
+        let e = bench(std::slice::from_ref(&short), &gt, &ys, 0.0).unwrap_err();
         assert!(
             format!("{e}").contains("predicted lane 0 has 19 values"),
             "{e}"
