@@ -4,8 +4,10 @@
 //! This crate uses `std` freely; the no_std core is the `stjpdacf` crate.
 
 pub mod hyper;
+pub mod metric;
 pub mod reference;
 pub mod tablegen;
+pub mod tusimple;
 
 /// The repository root (this crate's parent folder), for tools and tests that read bundled data.
 pub fn repo_root() -> std::path::PathBuf {
