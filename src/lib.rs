@@ -35,4 +35,5 @@
 
 pub mod kernel;
 pub mod math;
+pub mod spatial;
 pub mod tables;

@@ -1,0 +1,173 @@
+//! The spatial JPDACF: a coupled multi-lane filter that walks the BEV rows near to far
+//! (DESIGN 4.1), with `u` (metres ahead) as its "time" axis.
+//!
+//! * [`Stacked`] — the joint Gaussian of up to `LANES` lane tracks, each with `NS` state entries
+//!   (`[c, g, dg/du, …]`: the lane offset and the RBF state, `NS = NT + 1`), kept as `LANES × LANES`
+//!   blocks so the Kronecker-structured prediction costs O(D² NS³), not O((D NS)³).
+//! * [`row`] — one row step: gating, bounded joint-event enumeration, joint-Gaussian event
+//!   weights, and the exact moment-matched update of the event mixture.
+//!
+//! ```
+//! use nalgebra::{SMatrix, SVector};
+//! use stjpdacf::spatial::{row, Stacked};
+//! let mut s: Stacked<2, 2> = Stacked::new();
+//! s.push(SVector::from([0.0, 0.0]), &SMatrix::identity())?;
+//! s.push(SVector::from([3.5, 0.0]), &SMatrix::identity())?;
+//! let h = SVector::from([1.0, 0.0]);
+//! let params = row::RowParams::default();
+//! let out = row::update(&mut s, &h, &[0.1, 3.4, 9.0], &params, 512);
+//! assert!(!out.failed && out.beta_miss[0] < 0.5);
+//! # Ok::<(), stjpdacf::spatial::Full>(())
+//! ```
+
+pub mod row;
+
+use nalgebra::{ArrayStorage, SMatrix, SVector};
+
+/// Error returned by [`Stacked::push`]: all `LANES` slots are in use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Full;
+
+impl core::fmt::Display for Full {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("all lane slots are in use")
+    }
+}
+
+impl core::error::Error for Full {}
+
+/// Per-track means.
+pub(crate) type Means<const NS: usize, const LANES: usize> = [SVector<f32, NS>; LANES];
+/// Covariance blocks `p[i][j] = Cov(x_i, x_j)`.
+pub(crate) type Blocks<const NS: usize, const LANES: usize> =
+    [[SMatrix<f32, NS, NS>; LANES]; LANES];
+
+/// Joint Gaussian of `len() ≤ LANES` tracks with `NS` entries each: means `x[i]` and covariance
+/// blocks `p[i][j] = Cov(x_i, x_j)` (only `i, j < len()` are meaningful; the rest are zero).
+///
+/// RAM: `4 · (LANES · NS + LANES² · NS²) + 8` bytes (1,376 B for `NS = 3`, `LANES = 6`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stacked<const NS: usize, const LANES: usize> {
+    x: [SVector<f32, NS>; LANES],
+    p: [[SMatrix<f32, NS, NS>; LANES]; LANES],
+    len: usize,
+}
+
+impl<const NS: usize, const LANES: usize> Default for Stacked<NS, LANES> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const NS: usize, const LANES: usize> Stacked<NS, LANES> {
+    const ZV: SVector<f32, NS> = SMatrix::from_array_storage(ArrayStorage([[0.0; NS]; 1]));
+    const ZM: SMatrix<f32, NS, NS> = SMatrix::from_array_storage(ArrayStorage([[0.0; NS]; NS]));
+
+    /// No tracks. `const`, so a filter can live in a `static`.
+    pub const fn new() -> Self {
+        const { assert!(LANES >= 1 && LANES <= 16, "LANES must be 1..=16") };
+        const { assert!(NS >= 1 && NS <= 8, "NS must be 1..=8") };
+        Self {
+            x: [Self::ZV; LANES],
+            p: [[Self::ZM; LANES]; LANES],
+            len: 0,
+        }
+    }
+
+    /// Number of tracks.
+    pub fn len(&self) -> usize {
+        self.len.min(LANES)
+    }
+
+    /// `true` when there are no tracks.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Mean of track `i` (`None` past `len()`).
+    pub fn mean(&self, i: usize) -> Option<&SVector<f32, NS>> {
+        if i < self.len() {
+            self.x.get(i)
+        } else {
+            None
+        }
+    }
+
+    /// Covariance block `Cov(x_i, x_j)` (`None` past `len()`).
+    pub fn cov(&self, i: usize, j: usize) -> Option<&SMatrix<f32, NS, NS>> {
+        if i < self.len() && j < self.len() {
+            self.p.get(i).and_then(|r| r.get(j))
+        } else {
+            None
+        }
+    }
+
+    /// Appends a track with mean `x`, covariance `p` and zero cross-covariance to the others (set
+    /// those with [`Stacked::set_cross`] to condition the new track on the existing ones).
+    ///
+    /// # Errors
+    /// [`Full`] when `LANES` tracks exist; the state is unchanged.
+    pub fn push(&mut self, x: SVector<f32, NS>, p: &SMatrix<f32, NS, NS>) -> Result<usize, Full> {
+        let i = self.len();
+        if i >= LANES {
+            return Err(Full);
+        }
+        if let Some(v) = self.x.get_mut(i) {
+            *v = x;
+        }
+        for (r, row) in self.p.iter_mut().enumerate() {
+            for (c, b) in row.iter_mut().enumerate() {
+                if r == i || c == i {
+                    *b = if r == c { *p } else { Self::ZM };
+                }
+            }
+        }
+        self.len = i + 1;
+        Ok(i)
+    }
+
+    /// Sets `Cov(x_i, x_j) = c` and `Cov(x_j, x_i) = cᵀ` (no-op past `len()` or for `i == j`).
+    pub fn set_cross(&mut self, i: usize, j: usize, c: &SMatrix<f32, NS, NS>) {
+        if i == j || i >= self.len() || j >= self.len() {
+            return;
+        }
+        if let Some(b) = self.p.get_mut(i).and_then(|r| r.get_mut(j)) {
+            *b = *c;
+        }
+        if let Some(b) = self.p.get_mut(j).and_then(|r| r.get_mut(i)) {
+            *b = c.transpose();
+        }
+    }
+
+    /// Prediction along `u` (DESIGN 4.1 step 1): `x_i ← F x_i`,
+    /// `P_ij ← F P_ij Fᵀ + B_ij Q` for the active tracks, `B_ij` from the leading block of `b`.
+    ///
+    /// # Complexity
+    /// `len()² · 2 NS³` multiply-adds, no allocation.
+    #[allow(non_snake_case)]
+    pub fn predict<const D: usize>(
+        &mut self,
+        F: &SMatrix<f32, NS, NS>,
+        Q: &SMatrix<f32, NS, NS>,
+        b: &SMatrix<f32, D, D>,
+    ) {
+        let n = self.len();
+        for x in self.x.iter_mut().take(n) {
+            *x = F * *x;
+        }
+        let ft = F.transpose();
+        for (i, row) in self.p.iter_mut().take(n).enumerate() {
+            for (j, blk) in row.iter_mut().take(n).enumerate() {
+                let bij = b.get((i, j)).copied().unwrap_or(0.0);
+                *blk = F * *blk * ft + Q * bij;
+            }
+        }
+    }
+
+    /// Mutable access for the row update (crate-internal).
+    pub(crate) fn parts_mut(&mut self) -> (&mut Means<NS, LANES>, &mut Blocks<NS, LANES>, usize) {
+        let n = self.len();
+        (&mut self.x, &mut self.p, n)
+    }
+}
