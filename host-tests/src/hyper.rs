@@ -8,7 +8,7 @@
 //!   "window": { "u_min": 3.0, "u_max": 80.0 },
 //!   "index_points": 16,
 //!   "spatial": { "order": 2, "variance": 1.0, "lengthscale": 25.0,
-//!                "offset_variance": 25.0, "row_step": 1.203125 },
+//!                "offset_variance": 25.0, "row_step": 1.2833333333333334 },
 //!   "temporal": { "variance": 1.0, "lengthscale": 30.0, "frame_step": 0.05,
 //!                 "gram_variance_fraction": 0.999999 },
 //!   "coregionalization": { "W": [[0.95], [0.95], ...], "kappa": [0.1, 0.1, ...] },
@@ -21,7 +21,9 @@
 //!   evenly over it (DESIGN 4.0).
 //! * `spatial` — RBF kernel of a lane's curve `g(u)`: Taylor `order` N_T (2..=6), `variance` σ_u²,
 //!   `lengthscale` ℓ_u (m); `offset_variance` is the prior variance of the lane offset `c` (m²);
-//!   `row_step` is the nominal spacing of BEV rows (m) for which `F_u`, `Q_u` are tabulated.
+//!   `row_step` is the nominal spacing of BEV rows (m) for which `F_u`, `Q_u` are tabulated; the
+//!   spatial filter puts `K` rows in each index interval (docs/spatial-filter.md), so it should be
+//!   `(u_max − u_min) / ((index_points − 1)·K)` (77/60 m for the defaults, K = 4).
 //! * `temporal` — Matérn-3/2 kernel of each index point over time: `variance` σ_t², `lengthscale`
 //!   ℓ_t (s), nominal `frame_step` T (s); `gram_variance_fraction` is the share of the Gram matrix's
 //!   trace kept by the truncated eigenbasis of the temporal filter.
