@@ -3,6 +3,7 @@
 //!
 //! This crate uses `std` freely; the no_std core is the `stjpdacf` crate.
 
+pub mod camera;
 pub mod hyper;
 pub mod reference;
 pub mod tablegen;
