@@ -64,7 +64,7 @@ impl Camera {
     /// non-finite input.
     pub fn to_bev(&self, col: f64, row: f64) -> Option<(f64, f64)> {
         let dr = row - self.vp_row;
-        if !(dr > 0.0) || !col.is_finite() || !dr.is_finite() {
+        if !(dr.is_finite() && dr > 0.0 && col.is_finite()) {
             return None;
         }
         let scale = self.height_m / dr;
@@ -73,7 +73,7 @@ impl Camera {
 
     /// BEV (u, x) in metres → image (col, row); `None` unless `u > 0` and both are finite.
     pub fn to_image(&self, u: f64, x: f64) -> Option<(f64, f64)> {
-        if !(u > 0.0) || !u.is_finite() || !x.is_finite() {
+        if !(u.is_finite() && u > 0.0 && x.is_finite()) {
             return None;
         }
         Some((
