@@ -8,6 +8,7 @@ pub mod hyper;
 pub mod reference;
 pub mod tablegen;
 pub mod train;
+pub mod trainrun;
 
 /// The repository root (this crate's parent folder), for tools and tests that read bundled data.
 pub fn repo_root() -> std::path::PathBuf {

@@ -743,6 +743,52 @@ pub fn stationary_b(b: &DMatrix<f64>) -> DMatrix<f64> {
     DMatrix::from_fn(b.nrows(), b.ncols(), |i, j| p[i.abs_diff(j)])
 }
 
+/// Extends a fitted `B` over `d_fit` slots to `d ≥ d_fit` slots for which the data hold no frame:
+/// the leading block stays the fitted `B`; entries involving a new slot take the stationary
+/// profile of the fitted `B` (the value at `|i − j|`, the last value beyond its length); new
+/// slots get the mean of the fitted `κ`. If that is not positive definite, the cross terms of
+/// the new slots are shrunk by 10 % steps until `B_ext − diag(κ_ext)` is positive semi-definite.
+/// Returns `(W, κ)` with `W = V Λ^{1/2}` from the eigen-decomposition of `B_ext − diag(κ_ext)`,
+/// so `W Wᵀ + diag(κ) = B_ext` (to rounding) and the fitted block is reproduced.
+pub fn extend_stationary(
+    b_fit: &DMatrix<f64>,
+    kappa_fit: &DVector<f64>,
+    d: usize,
+) -> Result<(DMatrix<f64>, DVector<f64>)> {
+    let df = b_fit.nrows();
+    ensure!(df >= 1 && d >= df, "cannot extend {df} slots to {d}");
+    ensure!(kappa_fit.len() == df, "κ and B disagree in size");
+    let prof = stationary_profile(b_fit);
+    let at = |k: usize| prof.get(k).or(prof.last()).copied().unwrap_or(0.0);
+    let k_mean = kappa_fit.mean();
+    let kappa = DVector::from_fn(d, |i, _| if i < df { kappa_fit[i] } else { k_mean });
+    let mut shrink = 1.0;
+    for attempt in 0..=60 {
+        if attempt == 60 {
+            shrink = 0.0;
+        }
+        let m = DMatrix::from_fn(d, d, |i, j| {
+            let v = if i < df && j < df {
+                b_fit[(i, j)]
+            } else if i == j {
+                at(0)
+            } else {
+                shrink * at(i.abs_diff(j))
+            };
+            v - if i == j { kappa[i] } else { 0.0 }
+        });
+        let eig = m.symmetric_eigen();
+        let top = eig.eigenvalues.amax();
+        if eig.eigenvalues.min() >= -1e-12 * top {
+            let root = eig.eigenvalues.map(|v| v.max(0.0).sqrt());
+            let w = &eig.eigenvectors * DMatrix::from_diagonal(&root);
+            return Ok((w, kappa));
+        }
+        shrink *= 0.9;
+    }
+    bail!("could not extend B to {d} slots with B − diag(κ) positive semi-definite")
+}
+
 /// Correlation matrix `B_ij / sqrt(B_ii B_jj)`.
 pub fn correlation(b: &DMatrix<f64>) -> DMatrix<f64> {
     DMatrix::from_fn(b.nrows(), b.ncols(), |i, j| {
@@ -993,6 +1039,23 @@ mod tests {
         assert!((t - 1_494_453_497.604_532).abs() < 1e-3);
         l.raw_file = "clips/0313-1/6040/20.jpg".into();
         assert!(l.session_time().is_none());
+    }
+
+    #[test]
+    fn extension_keeps_fitted_block() {
+        // Full-rank W, as the trainer fits (rank = number of fitted slots).
+        let w = DMatrix::from_row_slice(3, 3, &[1.0, 0.2, 0.1, 0.9, -0.1, 0.2, 0.7, 0.3, -0.2]);
+        let kappa = DVector::from_vec(vec![0.1, 0.2, 0.15]);
+        let b = &w * w.transpose() + DMatrix::from_diagonal(&kappa);
+        let (we, ke) = extend_stationary(&b, &kappa, 5).unwrap();
+        let be = &we * we.transpose() + DMatrix::from_diagonal(&ke);
+        assert!((be.view((0, 0), (3, 3)) - &b).amax() < 1e-12);
+        assert_eq!(we.shape(), (5, 5));
+        let prof = stationary_profile(&b);
+        assert!((be[(4, 4)] - prof[0]).abs() < 1e-12);
+        assert!(be.clone().cholesky().is_some());
+        assert!((be[(3, 4)] - be[(4, 3)]).abs() < 1e-12);
+        assert!(extend_stationary(&b, &kappa, 2).is_err());
     }
 
     #[test]
