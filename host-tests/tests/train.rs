@@ -393,3 +393,62 @@ fn matern_gradient_and_recovery() {
         fit.variance
     );
 }
+
+#[test]
+fn pipeline_on_label_subset_writes_a_valid_file_and_report() {
+    use stjpdacf_host::camera::Camera;
+    use stjpdacf_host::trainrun::{run, write_report, TrainOptions};
+    let root = stjpdacf_host::repo_root();
+    let opts = TrainOptions {
+        labels: vec![root.join("data/tusimple/train_subset/label_data_0601_subset.json")],
+        base: root.join("data/hyper/default.json"),
+        camera: Camera::tusimple(),
+        restarts: 2,
+        seed: 3,
+        max_frames: 8,
+        spacing: 4.0,
+        max_iters: 60,
+        offset_variance: None,
+        train_offset: false,
+        use_fitted_temporal: true,
+        max_gap: 10.0,
+    };
+    let out = run(&opts, &|_, _, _| {}).unwrap();
+    let base = stjpdacf_host::hyper::HyperFile::load(&opts.base).unwrap();
+    out.hyper.validate().unwrap();
+    assert_eq!(out.frames_used, 8);
+    assert_eq!(out.hyper.lanes(), base.lanes());
+    assert_eq!(out.hyper.index_points, base.index_points);
+    assert_eq!(out.hyper.noise.pseudo, base.noise.pseudo);
+    assert_eq!(
+        out.hyper.spatial.offset_variance,
+        base.spatial.offset_variance
+    );
+    assert_eq!(out.hyper.spatial.variance, 1.0);
+    assert_eq!(out.hyper.spatial.lengthscale, out.fit.params.lengthscale);
+    let s = &out.summary;
+    assert_eq!(s["frames_total"], 12);
+    assert_eq!(s["restarts"].as_array().unwrap().len(), 2);
+    // The fitted block of B is what the file holds.
+    let b_file = out.hyper.coreg();
+    let b_fit = out.fit.params.b();
+    let df = b_fit.nrows();
+    assert!((b_file.view((0, 0), (df, df)) - &b_fit).amax() < 1e-9 * b_fit.amax());
+    // Time-stamped clips give temporal series, and the fitted ℓ_t was written.
+    assert!(s["temporal"]["series"].as_u64().unwrap() > 0);
+    assert_eq!(
+        out.hyper.temporal.lengthscale,
+        s["temporal"]["fitted"]["lengthscale"].as_f64().unwrap()
+    );
+    // The best start is at least as good as its own starting point.
+    let r0 = &out.fit.restarts[0];
+    assert!(r0.lml.unwrap() >= r0.initial_lml.unwrap());
+    let dir = std::env::temp_dir().join(format!("stjpdacf-train-report-{}", std::process::id()));
+    write_report(&dir, &out, "test").unwrap();
+    let png = std::fs::read(dir.join("b_heatmap.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    assert!(std::fs::read_to_string(dir.join("summary.md"))
+        .unwrap()
+        .contains("Restarts"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
