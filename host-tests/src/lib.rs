@@ -3,10 +3,13 @@
 //!
 //! This crate uses `std` freely; the no_std core is the `stjpdacf` crate.
 
+pub mod camera;
 pub mod hyper;
 pub mod metric;
 pub mod reference;
 pub mod tablegen;
+pub mod train;
+pub mod trainrun;
 pub mod tusimple;
 
 /// The repository root (this crate's parent folder), for tools and tests that read bundled data.
