@@ -45,6 +45,7 @@ enum Command {
         /// Print `{"Accuracy": .., "FP": .., "FN": .., "frames": ..}` instead of a table.
         #[arg(long)]
         json: bool,
+    },
     /// Train the spatial kernel, B and the noise (and fit the temporal length-scale) from
     /// TuSimple labels; writes a complete hyperparameter file.
     Train {
