@@ -6,6 +6,7 @@
 pub mod hyper;
 pub mod metric;
 pub mod reference;
+pub mod scenario;
 pub mod tablegen;
 pub mod tusimple;
 
