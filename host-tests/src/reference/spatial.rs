@@ -59,6 +59,13 @@
 //!     measurement noise is added: it is `Cov(h·x_a, h·x_b)`.
 //! 11. **Clutter points** (counter) are a row's points valid for no active track in the update's
 //!     gating (after initiation).
+//! 12. **`offset_variance`** is not in §6's table; [`Config::from_tables`] takes the tables'
+//!     `spatial.offset_variance` (25 m² in the default file), the literal reading of
+//!     "σ_c² = `offset_variance`". That value is far too broad for a prior already centred on the
+//!     starting point: the new track's first update cannot tell its point from a neighbouring
+//!     lane's, the mixture blends them and the track can stay a wide blob between two lanes, and a
+//!     tentative track started on clutter collects clutter "hits" until it confirms. With
+//!     `σ_c² ≈ 1 m²` the walk behaves (see `host-tests/tests/spatial_reference.rs`).
 
 use std::collections::BTreeMap;
 
