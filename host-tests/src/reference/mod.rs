@@ -4,5 +4,6 @@
 //! (GPy, scipy, filterpy, Stone Soup) in `host-tests/tests/`.
 
 pub mod jpda;
+pub mod spatial;
 pub mod statespace;
 pub mod temporal;

@@ -1,0 +1,978 @@
+//! The whole per-frame spatial JPDACF in f64, exactly as `docs/spatial-filter.md` specifies:
+//! row binning (§1), the per-lane model with an offset state (§2), the walk over the rows with
+//! initiation, update, hits and misses, confirmation, deletion, ending and merging (§3), and the
+//! backward pass that turns every confirmed track into pseudo-measurements at the index points with
+//! their N×N covariance block (§4).
+//!
+//! This is the oracle for the core's frame walk (`src/spatial/`). It reuses the single-row f64
+//! reference [`super::jpda`] (prediction, gating and the exact mixture update with the
+//! `1 − P_D P_G` miss factor) and enumerates **every** joint event: there is no event budget here;
+//! a row whose event count exceeds [`Config::max_events`] is only flagged ([`RowDiag::over_budget`])
+//! so that a comparison knows where the core approximates.
+//!
+//! # Units and sizes
+//! BEV metres: `u` ahead, `x` lateral. `N` index points over the tables' window, `K` rows per index
+//! interval, `Δu = (u_max − u_min)/((N − 1)·K)` computed from the window (the hyperparameter
+//! file's `spatial.row_step` is **not** used: the default file's 1.203125 m is not `77/60` m, the
+//! `Δu` of `K = 4`), so `F_u`, `Q_u` are recomputed at `Δu` from the RBF hyperparameters.
+//! The lane state is `[c, g, g', …]` (`NS = NT + 1`), `F = blockdiag(1, F_u)`,
+//! `Q = blockdiag(0, Q_u)`, `h = [1, 1, 0, …]`.
+//!
+//! # Readings of the specification
+//! Where `docs/spatial-filter.md` leaves room, this module reads it as follows:
+//! 1. **Ended tracks in the update** (§3.4 "no longer updated … skipped by gating"): an ended track
+//!    stays in the stacked state and is forced to *miss* in every event (it gates no point). The
+//!    event weights and `β` are those of the active tracks alone (`jpda::row_step` on the active
+//!    tracks' marginal); the mixture update is then applied to the **whole** stacked state with the
+//!    gains `P̄ H_δᵀ S_δ⁻¹` (so an ended track's state moves only through its cross-covariance with
+//!    the active tracks). This is the exact update of the model and keeps `P̄` PSD; freezing the
+//!    ended blocks instead would not.
+//! 2. **Freedom** (§3.2a) is tested against the predicted *active* (non-ended) tracks only, for the
+//!    same reason (ended tracks take no points).
+//! 3. "**fewer than LANES tracks exist**" (§3.2c) counts every track in the stacked state,
+//!    ended ones included (they keep their slot). The rank (§3.2c) also counts ended tracks and
+//!    tracks started earlier in the same row (they exist by then); the freedom of the row's points
+//!    is computed once, before any initiation of the row.
+//! 4. **Consistency** (§3.2b) is inclusive, `|x − x_b| ≤ init_gate`; a buffer entry that made a
+//!    point consistent stays in the buffer (entries leave only by age). The buffer at row `r` holds
+//!    the entries of rows `r − init_rows ..= r − 1`. Ties in `x` keep input order.
+//! 5. **The new track's prior** (§3.2d) is taken literally: `E[c] = x` (the point), so the
+//!    predicted position `h·x̄_new = x + Σ a_j E[g_j]` is not exactly the point.
+//! 6. **Hits** (§3.4): `hits` and `misses` are totals over the track's life (the rows in which it
+//!    was active, from its initiation row on); confirmation uses the total hits, deletion and
+//!    ending the consecutive misses. A track ended at row `r` is not recorded at row `r` (§3.6
+//!    records active tracks), so its recorded rows end at `r − 1`.
+//! 7. **Merge** (§3.5): a pair is two tracks at adjacent positions of the full rank list (an ended
+//!    track in between separates them), both active after step 4; "predicted positions" are
+//!    `h·x̄` of the row's predicted state (for a track started in the row: its prior). The count of
+//!    consecutive near rows is kept per pair of track identities and reset when they are not near
+//!    or not adjacent. Pairs are checked left to right; a pair involving a track already deleted
+//!    in this row is skipped.
+//! 8. **No active track** in a row: no update (the filtered state is the prediction, 0 events); all
+//!    of the row's points count as clutter.
+//! 9. **A numerical failure** of the row update (`row_step` returns `None`) leaves the predicted
+//!    state as the filtered one and counts as a miss of every active track (as the core does);
+//!    the row is flagged [`RowDiag::failed`].
+//! 10. **Pseudo-measurements** (§4) cover the index points `i` with `i·K` inside the track's
+//!     *recorded* rows (initiation row to last recorded row), not only its hit extent. The output
+//!     covariance is N×N with zero rows and columns at missing index points (still PSD). No
+//!     measurement noise is added: it is `Cov(h·x_a, h·x_b)`.
+//! 11. **Clutter points** (counter) are a row's points valid for no active track in the update's
+//!     gating (after initiation).
+//! 12. **`offset_variance`** is not in §6's table; [`Config::from_tables`] takes the tables'
+//!     `spatial.offset_variance` (25 m² in the default file), the literal reading of
+//!     "σ_c² = `offset_variance`". That value is far too broad for a prior already centred on the
+//!     starting point: the new track's first update cannot tell its point from a neighbouring
+//!     lane's, the mixture blends them and the track can stay a wide blob between two lanes, and a
+//!     tentative track started on clutter collects clutter "hits" until it confirms. With
+//!     `σ_c² ≈ 1 m²` the walk behaves (see `host-tests/tests/spatial_reference.rs`).
+
+use std::collections::BTreeMap;
+
+use anyhow::{ensure, Context, Result};
+use nalgebra::{DMatrix, DVector};
+
+use super::jpda::{self, Estimate, MissConvention, RowParams};
+use super::statespace::RbfTaylor;
+use crate::tablegen::ModelTables;
+
+/// The parameters of the frame walk (`spatial::Config` of the core; defaults of §6).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    /// Number of lane slots D (at most the size of B).
+    pub lanes: usize,
+    /// Detection probability of a lane in a row.
+    pub pd: f64,
+    /// Gate probability `P_G`.
+    pub pg: f64,
+    /// χ²(1) gate threshold `γ` (inclusive).
+    pub gamma: f64,
+    /// Poisson clutter density per metre of lateral extent per row.
+    pub clutter_density: f64,
+    /// Lateral variance of a point, m².
+    pub r: f64,
+    /// Event budget `E` of the core (only flagged here; the reference enumerates everything).
+    pub max_events: usize,
+    /// Rows the initiation buffer remembers.
+    pub init_rows: usize,
+    /// Lateral distance (m) that makes two free points consistent.
+    pub init_gate: f64,
+    /// Tentative tracks at once.
+    pub max_tentative: usize,
+    /// Hits that confirm a tentative track.
+    pub confirm_hits: usize,
+    /// Consecutive misses that delete a tentative track.
+    pub tentative_misses: usize,
+    /// Consecutive misses that end a confirmed track.
+    pub max_misses: usize,
+    /// Lateral distance (m) under which two adjacent tracks are near-duplicates.
+    pub merge_distance: f64,
+    /// Consecutive near rows that trigger a merge.
+    pub merge_rows: usize,
+    /// Prior variance `σ_c²` of a new track's offset, m².
+    pub offset_variance: f64,
+}
+
+impl Config {
+    /// The §6 defaults, with `r` = the tables' measurement noise, `offset_variance` = the tables'
+    /// `spatial.offset_variance` and `lanes` = the size of the tables' B.
+    pub fn from_tables(t: &ModelTables) -> Self {
+        Self {
+            lanes: t.coreg.nrows(),
+            pd: 0.9,
+            pg: 0.99,
+            gamma: 6.634897,
+            clutter_density: 0.05,
+            r: t.hyper.noise.measurement,
+            max_events: 512,
+            init_rows: 3,
+            init_gate: 0.5,
+            max_tentative: 2,
+            confirm_hits: 4,
+            tentative_misses: 3,
+            max_misses: 8,
+            merge_distance: 0.3,
+            merge_rows: 3,
+            offset_variance: t.hyper.spatial.offset_variance,
+        }
+    }
+
+    fn row_params(&self) -> RowParams {
+        RowParams {
+            pd: self.pd,
+            pg: self.pg,
+            gamma: self.gamma,
+            clutter_density: self.clutter_density,
+            r: self.r,
+            miss: MissConvention::Pg,
+        }
+    }
+}
+
+/// The per-lane model and the row grid of one frame (§1, §2).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Model {
+    /// Window start `u_min`, m.
+    pub u_min: f64,
+    /// Window end `u_max`, m.
+    pub u_max: f64,
+    /// Index points N.
+    pub points: usize,
+    /// Rows per index interval K.
+    pub k: usize,
+    /// Row spacing `Δu = (u_max − u_min)/((N − 1)·K)`.
+    pub du: f64,
+    /// Rows R = (N − 1)·K + 1.
+    pub rows: usize,
+    /// `F = blockdiag(1, F_u(Δu))` (`NS × NS`).
+    pub f: DMatrix<f64>,
+    /// `Q = blockdiag(0, Q_u(Δu))`.
+    pub q: DMatrix<f64>,
+    /// `P∞_u` of the GP part (`NT × NT`).
+    pub p_inf_u: DMatrix<f64>,
+    /// `h = [1, 1, 0, …]` (`1 × NS`).
+    pub h: DMatrix<f64>,
+    /// Coregionalisation `B` (D×D).
+    pub b: DMatrix<f64>,
+}
+
+impl Model {
+    /// The model of the tables' hyperparameters with `k` rows per index interval; `F_u` and `Q_u`
+    /// are computed at `Δu` from the window (not at the file's `row_step`).
+    pub fn new(t: &ModelTables, k: usize) -> Result<Self> {
+        ensure!(k >= 1, "K must be at least 1");
+        let hp = &t.hyper;
+        let n = hp.index_points;
+        ensure!(n >= 2, "need at least two index points");
+        let (u_min, u_max) = (hp.window.u_min, hp.window.u_max);
+        let du = (u_max - u_min) / ((n - 1) * k) as f64;
+        let rbf = RbfTaylor {
+            variance: hp.spatial.variance,
+            lengthscale: hp.spatial.lengthscale,
+            order: hp.spatial.order,
+        };
+        let p_inf_u = rbf.p_inf().context("spatial Lyapunov equation")?;
+        let (fu, qu) = rbf.transition(du).context("spatial transition")?;
+        let nt = fu.nrows();
+        let ns = nt + 1;
+        let mut f = DMatrix::zeros(ns, ns);
+        f[(0, 0)] = 1.0;
+        f.view_mut((1, 1), (nt, nt)).copy_from(&fu);
+        let mut q = DMatrix::zeros(ns, ns);
+        q.view_mut((1, 1), (nt, nt)).copy_from(&qu);
+        let mut h = DMatrix::zeros(1, ns);
+        h[(0, 0)] = 1.0;
+        h[(0, 1)] = 1.0;
+        Ok(Self {
+            u_min,
+            u_max,
+            points: n,
+            k,
+            du,
+            rows: (n - 1) * k + 1,
+            f,
+            q,
+            p_inf_u,
+            h,
+            b: t.coreg.clone(),
+        })
+    }
+
+    /// State size NS = NT + 1.
+    pub fn ns(&self) -> usize {
+        self.f.nrows()
+    }
+
+    /// Longitudinal position `u_r` of row `r`.
+    pub fn row_u(&self, r: usize) -> f64 {
+        self.u_min + r as f64 * self.du
+    }
+
+    /// Index point `u^f_i`.
+    pub fn index_u(&self, i: usize) -> f64 {
+        self.u_min + i as f64 * (self.u_max - self.u_min) / (self.points - 1) as f64
+    }
+
+    /// The row of a point at `u` (§1: `round((u − u_min)/Δu)`, ties to even), `None` when it is
+    /// outside `0..R` or `u` is not finite.
+    pub fn row_of(&self, u: f64) -> Option<usize> {
+        let v = ((u - self.u_min) / self.du).round_ties_even();
+        if v.is_finite() && v >= 0.0 && v <= (self.rows - 1) as f64 {
+            Some(v as usize)
+        } else {
+            None
+        }
+    }
+}
+
+/// Why input points were not used.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Rejected {
+    /// A non-finite coordinate.
+    pub non_finite: usize,
+    /// A row outside `0..R`.
+    pub out_of_window: usize,
+    /// The row already held `PER_ROW` points.
+    pub row_full: usize,
+}
+
+/// Frame counters.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Points rejected by binning, by reason.
+    pub rejected: Rejected,
+    /// Consistent free points that could not start a track (tentative or slot budget full).
+    pub no_slot: usize,
+    /// Points valid for no active track in the update (summed over rows).
+    pub clutter_points: usize,
+    /// Tracks started.
+    pub initiated: usize,
+    /// Tentative tracks deleted by misses.
+    pub deleted: usize,
+    /// Tracks deleted by the merge rule.
+    pub merged: usize,
+    /// Confirmed tracks ended by misses.
+    pub ended: usize,
+    /// Rows whose event count exceeded `max_events`.
+    pub over_budget_rows: usize,
+}
+
+/// A track's life stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Status {
+    /// Started, not yet confirmed.
+    Tentative,
+    /// Confirmed and still updated.
+    Confirmed,
+    /// Confirmed, then ended by `max_misses` consecutive misses: keeps its slot, takes no points.
+    Ended,
+}
+
+/// What happened in one row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RowDiag {
+    /// Row index r.
+    pub row: usize,
+    /// The row's points (lateral positions, input order).
+    pub points: Vec<f64>,
+    /// Identities of the tracks in rank order as the update saw them (after initiation).
+    pub tracks: Vec<usize>,
+    /// Status of each of those tracks during the update (before step 4).
+    pub status: Vec<Status>,
+    /// Tracks started in this row.
+    pub initiated: Vec<usize>,
+    /// Predicted stacked state after initiation (new tracks carry their prior), rank order.
+    pub predicted: Estimate,
+    /// Filtered stacked state after the update, rank order (same tracks as [`Self::tracks`]).
+    pub filtered: Estimate,
+    /// Joint events enumerated (0 when nothing was updated).
+    pub events: usize,
+    /// `events > max_events`: the core approximates this row.
+    pub over_budget: bool,
+    /// `P(missed)` per track (`None` for an ended track).
+    pub beta_miss: Vec<Option<f64>>,
+    /// Whether each track hit (`1 − β_miss ≥ 0.5`; `false` for ended tracks).
+    pub hit: Vec<bool>,
+    /// The row update failed numerically.
+    pub failed: bool,
+}
+
+/// The output of one confirmed track (§4).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackOutput {
+    /// Identity (order of initiation within the frame).
+    pub id: usize,
+    /// Rank (slot) at the end of the frame.
+    pub rank: usize,
+    /// `Confirmed` or `Ended`.
+    pub status: Status,
+    /// Row where the track was started.
+    pub start_row: usize,
+    /// Row of its first hit.
+    pub first_row: usize,
+    /// Row of its last hit.
+    pub last_row: usize,
+    /// Last recorded row (the backward pass runs from here down to `start_row`).
+    pub last_recorded_row: usize,
+    /// Hits over its life.
+    pub hits: usize,
+    /// Misses over its life.
+    pub misses: usize,
+    /// `hits / (hits + misses)`.
+    pub existence: f64,
+    /// Observed extent `[u_first_row, u_last_row]`.
+    pub extent: (f64, f64),
+    /// Smoothed lateral position `h·x_{iK|R}` at each index point, `None` outside the recorded
+    /// rows.
+    pub pseudo: Vec<Option<f64>>,
+    /// `Cov(h·x_a, h·x_b)` over the index points (N×N, zero at missing points).
+    pub pseudo_cov: DMatrix<f64>,
+    /// Smoothed marginal state of every recorded row, `start_row ..= last_recorded_row`.
+    pub smoothed: Vec<Estimate>,
+}
+
+/// Everything one frame produces.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameResult {
+    /// Per-row diagnostics, rows `0..R`.
+    pub rows: Vec<RowDiag>,
+    /// Confirmed tracks (ended or not) in rank order.
+    pub tracks: Vec<TrackOutput>,
+    /// Tracks still tentative at the end of the frame.
+    pub tentative_left: usize,
+    /// Counters.
+    pub counters: Counters,
+}
+
+/// Filtered and predicted marginal moments of one row of a track.
+#[derive(Debug, Clone)]
+struct Rec {
+    pred: Estimate,
+    filt: Estimate,
+}
+
+#[derive(Debug, Clone)]
+struct Track {
+    id: usize,
+    status: Status,
+    start_row: usize,
+    first_row: Option<usize>,
+    last_row: Option<usize>,
+    hits: usize,
+    misses: usize,
+    consecutive_misses: usize,
+    recs: Vec<Rec>,
+}
+
+/// Bins a frame's points into rows (§1): returns the rows' lateral positions and the rejections.
+pub fn bin_points(
+    model: &Model,
+    points: &[(f64, f64)],
+    per_row: usize,
+) -> (Vec<Vec<f64>>, Rejected) {
+    let mut rows = vec![Vec::new(); model.rows];
+    let mut rej = Rejected::default();
+    for &(u, x) in points {
+        if !u.is_finite() || !x.is_finite() {
+            rej.non_finite += 1;
+            continue;
+        }
+        match model.row_of(u) {
+            None => rej.out_of_window += 1,
+            Some(r) => {
+                let row: &mut Vec<f64> = &mut rows[r];
+                if row.len() >= per_row {
+                    rej.row_full += 1;
+                } else {
+                    row.push(x);
+                }
+            }
+        }
+    }
+    (rows, rej)
+}
+
+/// Marginal block `(i, j)` of a stacked covariance.
+fn block(p: &DMatrix<f64>, ns: usize, i: usize, j: usize) -> DMatrix<f64> {
+    p.view((i * ns, j * ns), (ns, ns)).into_owned()
+}
+
+fn marginal(e: &Estimate, ns: usize, i: usize) -> Estimate {
+    Estimate {
+        x: e.x.rows(i * ns, ns).into_owned(),
+        p: block(&e.p, ns, i, i),
+    }
+}
+
+/// Removes track `k` from a stacked state.
+fn remove_track(e: &Estimate, ns: usize, k: usize) -> Estimate {
+    Estimate {
+        x: e.x.clone().remove_rows(k * ns, ns),
+        p: e.p
+            .clone()
+            .remove_rows(k * ns, ns)
+            .remove_columns(k * ns, ns),
+    }
+}
+
+/// Stacked indices of a subset of tracks.
+fn indices(tracks: &[usize], ns: usize) -> Vec<usize> {
+    tracks
+        .iter()
+        .flat_map(|&t| (t * ns)..(t * ns + ns))
+        .collect()
+}
+
+/// §3.2d: the prior of a new track at rank `k` among `n + 1` (after insertion), started from the
+/// point `x`, appended into the stacked state at rank `k`.
+///
+/// `Λ = B_{n+1}⁻¹`, `a_j = −Λ_kj/Λ_kk`, `g_new = Σ a_j g_j + w`, `w ~ N(0, P∞_u/Λ_kk)`,
+/// `c_new ~ N(x, σ_c²)` independent of everything.
+pub fn insert_track(
+    state: &Estimate,
+    model: &Model,
+    k: usize,
+    x: f64,
+    offset_variance: f64,
+) -> Option<Estimate> {
+    let ns = model.ns();
+    let nt = ns - 1;
+    let n = state.x.len() / ns;
+    if k > n || n + 1 > model.b.nrows() {
+        return None;
+    }
+    let bn = model.b.view((0, 0), (n + 1, n + 1)).into_owned();
+    let lam = bn.cholesky()?.inverse();
+    let lkk = lam[(k, k)];
+    // a over the existing tracks (old indices): old i has new rank i (i < k) or i + 1.
+    let a: Vec<f64> = (0..n)
+        .map(|i| {
+            let j = if i < k { i } else { i + 1 };
+            -lam[(k, j)] / lkk
+        })
+        .collect();
+    // A: the NT × (n·NS) map x̄ ↦ Σ a_i g_i.
+    let mut amap = DMatrix::zeros(nt, n * ns);
+    for (i, &ai) in a.iter().enumerate() {
+        for c in 0..nt {
+            amap[(c, i * ns + 1 + c)] = ai;
+        }
+    }
+    let g_mean = &amap * &state.x;
+    let cov_g_x = &amap * &state.p; // NT × n·NS
+    let var_g = &cov_g_x * amap.transpose() + &model.p_inf_u / lkk;
+
+    let m = (n + 1) * ns;
+    let old = |new_idx: usize| -> Option<usize> {
+        let t = new_idx / ns;
+        match t.cmp(&k) {
+            std::cmp::Ordering::Less => Some(new_idx),
+            std::cmp::Ordering::Equal => None,
+            std::cmp::Ordering::Greater => Some(new_idx - ns),
+        }
+    };
+    let mut xn = DVector::zeros(m);
+    let mut pn = DMatrix::zeros(m, m);
+    for i in 0..m {
+        xn[i] = match old(i) {
+            Some(oi) => state.x[oi],
+            None => {
+                let c = i - k * ns;
+                if c == 0 {
+                    x
+                } else {
+                    g_mean[c - 1]
+                }
+            }
+        };
+    }
+    for i in 0..m {
+        for j in 0..m {
+            pn[(i, j)] = match (old(i), old(j)) {
+                (Some(oi), Some(oj)) => state.p[(oi, oj)],
+                (None, Some(oj)) => {
+                    let c = i - k * ns;
+                    if c == 0 {
+                        0.0
+                    } else {
+                        cov_g_x[(c - 1, oj)]
+                    }
+                }
+                (Some(oi), None) => {
+                    let c = j - k * ns;
+                    if c == 0 {
+                        0.0
+                    } else {
+                        cov_g_x[(c - 1, oi)]
+                    }
+                }
+                (None, None) => {
+                    let (ci, cj) = (i - k * ns, j - k * ns);
+                    match (ci, cj) {
+                        (0, 0) => offset_variance,
+                        (0, _) | (_, 0) => 0.0,
+                        _ => var_g[(ci - 1, cj - 1)],
+                    }
+                }
+            };
+        }
+    }
+    Some(Estimate {
+        x: xn,
+        p: (&pn + pn.transpose()) * 0.5,
+    })
+}
+
+/// The exact mixture update of the whole stacked state when only the tracks `active` (ascending
+/// stacked positions) can be detected: the events and their probabilities come from
+/// `jpda::row_step` on the active tracks' marginal; each event's mean is
+/// `x̄ + P̄ H_δᵀ S_δ⁻¹ ν_A` and its covariance `P̄ − P̄ H_δᵀ S_δ⁻¹ H_δ P̄` over the full state.
+/// With every track active this equals `row_step`'s `mixture`.
+pub fn mixture_update_full(
+    pred: &Estimate,
+    h: &DMatrix<f64>,
+    r: f64,
+    zs: &[f64],
+    active: &[usize],
+    row: &jpda::RowResult,
+) -> Option<Estimate> {
+    let ns = h.ncols();
+    let n = pred.x.len();
+    let d = pred.x.len() / ns;
+    let hbar = jpda::stack_h(d, h);
+    let pht = &pred.p * hbar.transpose(); // n × d
+    let zhat = &hbar * &pred.x;
+    let sfull = &hbar * &pht + DMatrix::<f64>::identity(d, d) * r;
+    type Pat = (DMatrix<f64>, DMatrix<f64>); // gain, covariance
+    let mut cache: BTreeMap<Vec<usize>, Pat> = BTreeMap::new();
+    let mut means = Vec::with_capacity(row.events.len());
+    let mut keys = Vec::with_capacity(row.events.len());
+    for ev in &row.events {
+        let det: Vec<usize> = ev
+            .iter()
+            .enumerate()
+            .filter(|(_, a)| a.is_some())
+            .map(|(t, _)| *active.get(t).unwrap_or(&usize::MAX))
+            .collect();
+        if det.iter().any(|&t| t >= d) {
+            return None;
+        }
+        if !cache.contains_key(&det) {
+            let pat = if det.is_empty() {
+                (DMatrix::zeros(n, 0), pred.p.clone())
+            } else {
+                let s = sfull.select_rows(&det).select_columns(&det);
+                let g = pht.select_columns(&det);
+                let chol = s.clone().cholesky()?;
+                let gain = chol.solve(&g.transpose()).transpose();
+                let p = &pred.p - &gain * &s * gain.transpose();
+                (gain, (&p + p.transpose()) * 0.5)
+            };
+            cache.insert(det.clone(), pat);
+        }
+        let (gain, _) = cache.get(&det)?;
+        let nu = DVector::from_iterator(
+            det.len(),
+            ev.iter()
+                .enumerate()
+                .filter_map(|(t, a)| a.map(|j| (t, j)))
+                .map(|(t, j)| zs[j] - zhat[active[t]]),
+        );
+        means.push(&pred.x + gain * nu);
+        keys.push(det);
+    }
+    let mut x = DVector::zeros(n);
+    for (m, &p) in means.iter().zip(&row.event_probs) {
+        x += m * p;
+    }
+    let mut p = DMatrix::zeros(n, n);
+    for ((m, key), &w) in means.iter().zip(&keys).zip(&row.event_probs) {
+        let dx = m - &x;
+        p += (&cache.get(key)?.1 + &dx * dx.transpose()) * w;
+    }
+    Some(Estimate {
+        x,
+        p: (&p + p.transpose()) * 0.5,
+    })
+}
+
+/// One frame of the spatial JPDACF (§3, §4) on the BEV points `(u, x)`, with at most `per_row`
+/// points per row.
+pub fn run_frame(
+    model: &Model,
+    cfg: &Config,
+    points: &[(f64, f64)],
+    per_row: usize,
+) -> FrameResult {
+    let ns = model.ns();
+    let lanes = cfg.lanes.min(model.b.nrows());
+    let params = cfg.row_params();
+    let (rows, rejected) = bin_points(model, points, per_row);
+    let mut counters = Counters {
+        rejected,
+        ..Counters::default()
+    };
+    let mut tracks: Vec<Track> = Vec::new();
+    let mut state = Estimate {
+        x: DVector::zeros(0),
+        p: DMatrix::zeros(0, 0),
+    };
+    let mut buffer: Vec<(usize, f64)> = Vec::new();
+    let mut near: BTreeMap<(usize, usize), usize> = BTreeMap::new();
+    let mut next_id = 0usize;
+    let mut diags = Vec::with_capacity(model.rows);
+
+    for (r, zs) in rows.iter().enumerate() {
+        // 1. Predict.
+        if r > 0 && !tracks.is_empty() {
+            let n = tracks.len();
+            let bn = model.b.view((0, 0), (n, n)).into_owned();
+            state = jpda::predict(&state.x, &state.p, &model.f, &model.q, &bn);
+        }
+
+        // 2. Initiation.
+        buffer.retain(|&(br, _)| br + cfg.init_rows >= r);
+        let active_idx: Vec<usize> = (0..tracks.len())
+            .filter(|&i| tracks[i].status != Status::Ended)
+            .collect();
+        let gating = jpda::gate(&state.x, &state.p, &model.h, cfg.r, zs, cfg.gamma);
+        let mut free: Vec<f64> = zs
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| !active_idx.iter().any(|&t| gating.valid[t][*j]))
+            .map(|(_, &x)| x)
+            .collect();
+        free.sort_by(f64::total_cmp);
+        let mut initiated = Vec::new();
+        let mut new_buffer = Vec::new();
+        for &x in &free {
+            let consistent = buffer
+                .iter()
+                .any(|&(_, bx)| (x - bx).abs() <= cfg.init_gate);
+            let mut started = false;
+            if consistent {
+                let tentative = tracks
+                    .iter()
+                    .filter(|t| t.status == Status::Tentative)
+                    .count();
+                if tentative < cfg.max_tentative && tracks.len() < lanes {
+                    let k = (0..tracks.len())
+                        .filter(|&i| {
+                            let hx = state.x[i * ns] + state.x[i * ns + 1];
+                            hx < x
+                        })
+                        .count();
+                    if let Some(s) = insert_track(&state, model, k, x, cfg.offset_variance) {
+                        state = s;
+                        tracks.insert(
+                            k,
+                            Track {
+                                id: next_id,
+                                status: Status::Tentative,
+                                start_row: r,
+                                first_row: None,
+                                last_row: None,
+                                hits: 0,
+                                misses: 0,
+                                consecutive_misses: 0,
+                                recs: Vec::new(),
+                            },
+                        );
+                        initiated.push(next_id);
+                        next_id += 1;
+                        counters.initiated += 1;
+                        started = true;
+                    }
+                } else {
+                    counters.no_slot += 1;
+                }
+            }
+            if !started {
+                new_buffer.push((r, x));
+            }
+        }
+        buffer.extend(new_buffer);
+        let predicted = state.clone();
+
+        // 3. Update.
+        let active: Vec<usize> = (0..tracks.len())
+            .filter(|&i| tracks[i].status != Status::Ended)
+            .collect();
+        let mut beta_miss: Vec<Option<f64>> = tracks
+            .iter()
+            .map(|t| (t.status != Status::Ended).then_some(1.0))
+            .collect();
+        let mut events = 0;
+        let mut failed = false;
+        if active.is_empty() {
+            counters.clutter_points += zs.len();
+        } else {
+            let idx = indices(&active, ns);
+            let sub_x = predicted.x.select_rows(&idx);
+            let sub_p = predicted.p.select_rows(&idx).select_columns(&idx);
+            let res = jpda::row_step(&sub_x, &sub_p, &model.h, zs, &params);
+            let upd = res.as_ref().and_then(|rs| {
+                if active.len() == tracks.len() {
+                    Some(rs.mixture.clone())
+                } else {
+                    mixture_update_full(&predicted, &model.h, cfg.r, zs, &active, rs)
+                }
+            });
+            match (res, upd) {
+                (Some(rs), Some(u)) => {
+                    state = u;
+                    events = rs.events.len();
+                    for (a, &t) in active.iter().enumerate() {
+                        beta_miss[t] = Some(rs.beta[a][0]);
+                    }
+                    counters.clutter_points += (0..zs.len())
+                        .filter(|&j| !rs.gating.valid.iter().any(|v| v[j]))
+                        .count();
+                }
+                _ => {
+                    failed = true;
+                    counters.clutter_points += zs.len();
+                }
+            }
+        }
+        let over_budget = events > cfg.max_events;
+        if over_budget {
+            counters.over_budget_rows += 1;
+        }
+        let filtered = state.clone();
+        let hit: Vec<bool> = beta_miss
+            .iter()
+            .map(|b| b.is_some_and(|b| 1.0 - b >= 0.5))
+            .collect();
+        let diag_tracks: Vec<usize> = tracks.iter().map(|t| t.id).collect();
+        let diag_status: Vec<Status> = tracks.iter().map(|t| t.status).collect();
+
+        // 4. Hits and misses.
+        let mut delete = vec![false; tracks.len()];
+        for (i, t) in tracks.iter_mut().enumerate() {
+            if t.status == Status::Ended {
+                continue;
+            }
+            if hit[i] {
+                t.hits += 1;
+                t.consecutive_misses = 0;
+                t.last_row = Some(r);
+                if t.first_row.is_none() {
+                    t.first_row = Some(r);
+                }
+                if t.status == Status::Tentative && t.hits >= cfg.confirm_hits {
+                    t.status = Status::Confirmed;
+                }
+            } else {
+                t.misses += 1;
+                t.consecutive_misses += 1;
+                if t.status == Status::Tentative && t.consecutive_misses >= cfg.tentative_misses {
+                    delete[i] = true;
+                    counters.deleted += 1;
+                } else if t.status == Status::Confirmed && t.consecutive_misses >= cfg.max_misses {
+                    t.status = Status::Ended;
+                    counters.ended += 1;
+                }
+            }
+        }
+
+        // 5. Merge (on the predicted positions of the row).
+        let pos: Vec<f64> = (0..tracks.len())
+            .map(|i| predicted.x[i * ns] + predicted.x[i * ns + 1])
+            .collect();
+        let mut new_near = BTreeMap::new();
+        let mut to_merge = Vec::new();
+        for i in 0..tracks.len().saturating_sub(1) {
+            let (a, b) = (&tracks[i], &tracks[i + 1]);
+            let live = |k: usize, t: &Track| !delete[k] && t.status != Status::Ended;
+            if !live(i, a) || !live(i + 1, b) {
+                continue;
+            }
+            if (pos[i] - pos[i + 1]).abs() <= cfg.merge_distance {
+                let c = near.get(&(a.id, b.id)).copied().unwrap_or(0) + 1;
+                new_near.insert((a.id, b.id), c);
+                if c >= cfg.merge_rows {
+                    to_merge.push(i);
+                }
+            }
+        }
+        near = new_near;
+        for i in to_merge {
+            if delete[i] || delete[i + 1] {
+                continue;
+            }
+            let (a, b) = (&tracks[i], &tracks[i + 1]);
+            let loser = if a.hits != b.hits {
+                if a.hits < b.hits {
+                    i
+                } else {
+                    i + 1
+                }
+            } else if a.start_row != b.start_row {
+                if a.start_row > b.start_row {
+                    i
+                } else {
+                    i + 1
+                }
+            } else if a.id > b.id {
+                i
+            } else {
+                i + 1
+            };
+            delete[loser] = true;
+            counters.merged += 1;
+            let id = tracks[loser].id;
+            near.retain(|&(l, rr), _| l != id && rr != id);
+        }
+
+        // Remove deleted tracks (highest rank first).
+        for i in (0..tracks.len()).rev() {
+            if delete[i] {
+                state = remove_track(&state, ns, i);
+                tracks.remove(i);
+            }
+        }
+
+        // 6. Record the active tracks' marginal moments (found by identity in the row's ranks).
+        for t in tracks.iter_mut() {
+            if t.status == Status::Ended {
+                continue;
+            }
+            let Some(k) = diag_tracks.iter().position(|&id| id == t.id) else {
+                continue;
+            };
+            t.recs.push(Rec {
+                pred: marginal(&predicted, ns, k),
+                filt: marginal(&filtered, ns, k),
+            });
+        }
+
+        diags.push(RowDiag {
+            row: r,
+            points: zs.clone(),
+            tracks: diag_tracks,
+            status: diag_status,
+            initiated,
+            predicted,
+            filtered,
+            events,
+            over_budget,
+            beta_miss,
+            hit,
+            failed,
+        });
+    }
+
+    let tentative_left = tracks
+        .iter()
+        .filter(|t| t.status == Status::Tentative)
+        .count();
+    let outputs = tracks
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| t.status != Status::Tentative)
+        .filter_map(|(rank, t)| backward(model, t, rank))
+        .collect();
+    FrameResult {
+        rows: diags,
+        tracks: outputs,
+        tentative_left,
+        counters,
+    }
+}
+
+/// §4: the backward RTS pass over one confirmed track and its pseudo-measurements.
+fn backward(model: &Model, t: &Track, rank: usize) -> Option<TrackOutput> {
+    let n_rec = t.recs.len();
+    let first_row = t.first_row?;
+    let last_row = t.last_row?;
+    if n_rec == 0 {
+        return None;
+    }
+    let last_rec = t.start_row + n_rec - 1;
+    // Smoothed moments and gains (gains[i] links recorded row i to i + 1).
+    let mut sm: Vec<Estimate> = t.recs.iter().map(|rc| rc.filt.clone()).collect();
+    let mut gains: Vec<DMatrix<f64>> = vec![DMatrix::zeros(0, 0); n_rec];
+    for i in (0..n_rec.saturating_sub(1)).rev() {
+        let pf = &t.recs[i].filt;
+        let pp = &t.recs[i + 1].pred;
+        let chol = pp.p.clone().cholesky()?;
+        // G = P_f Fᵀ P_p⁻¹  ⇔  P_p Gᵀ = F P_f.
+        let g = chol.solve(&(&model.f * &pf.p)).transpose();
+        let x = &pf.x + &g * (&sm[i + 1].x - &pp.x);
+        let p = &pf.p + &g * (&sm[i + 1].p - &pp.p) * g.transpose();
+        sm[i] = Estimate {
+            x,
+            p: (&p + p.transpose()) * 0.5,
+        };
+        gains[i] = g;
+    }
+    let n = model.points;
+    let present: Vec<usize> = (0..n)
+        .filter(|&i| {
+            let row = i * model.k;
+            row >= t.start_row && row <= last_rec
+        })
+        .collect();
+    let h = &model.h;
+    let mut pseudo = vec![None; n];
+    let mut cov = DMatrix::zeros(n, n);
+    for &a in &present {
+        let ia = a * model.k - t.start_row;
+        pseudo[a] = Some((h * &sm[ia].x)[(0, 0)]);
+        // Walk forward: M = G_a ⋯ G_{b−1}.
+        let mut m = DMatrix::<f64>::identity(model.ns(), model.ns());
+        let mut ib_prev = ia;
+        for &b in present.iter().filter(|&&b| b >= a) {
+            let ib = b * model.k - t.start_row;
+            for g in gains.iter().take(ib).skip(ib_prev) {
+                m = &m * g;
+            }
+            ib_prev = ib;
+            let c = (h * &m * &sm[ib].p * h.transpose())[(0, 0)];
+            cov[(a, b)] = c;
+            cov[(b, a)] = c;
+        }
+    }
+    let total = t.hits + t.misses;
+    Some(TrackOutput {
+        id: t.id,
+        rank,
+        status: t.status,
+        start_row: t.start_row,
+        first_row,
+        last_row,
+        last_recorded_row: last_rec,
+        hits: t.hits,
+        misses: t.misses,
+        existence: if total > 0 {
+            t.hits as f64 / total as f64
+        } else {
+            0.0
+        },
+        extent: (model.row_u(first_row), model.row_u(last_row)),
+        pseudo,
+        pseudo_cov: cov,
+        smoothed: sm,
+    })
+}
