@@ -20,6 +20,7 @@
 //! # Ok::<(), stjpdacf::spatial::Full>(())
 //! ```
 
+pub mod filter;
 pub mod row;
 
 use nalgebra::{ArrayStorage, SMatrix, SVector};
@@ -163,6 +164,132 @@ impl<const NS: usize, const LANES: usize> Stacked<NS, LANES> {
                 *blk = F * *blk * ft + Q * bij;
             }
         }
+    }
+
+    /// Inserts a track at rank `k ≤ len()` with mean `x`, covariance `p` and cross-covariances
+    /// `cross[j] = Cov(x_new, x_j)` for the existing ranks `j < len()` (before insertion). Tracks
+    /// at ranks `≥ k` move one rank right.
+    ///
+    /// # Errors
+    /// [`Full`] when `LANES` tracks exist or `k > len()`; the state is unchanged.
+    ///
+    /// # Complexity
+    /// O(LANES² · NS²) copies.
+    pub fn insert(
+        &mut self,
+        k: usize,
+        x: SVector<f32, NS>,
+        p: &SMatrix<f32, NS, NS>,
+        cross: &[SMatrix<f32, NS, NS>; LANES],
+    ) -> Result<(), Full> {
+        let n = self.len();
+        if n >= LANES || k > n {
+            return Err(Full);
+        }
+        let old_x = self.x;
+        let old_p = self.p;
+        // new rank i ← old rank (i if i < k, i − 1 if i > k); rank k is the new track.
+        let old = |i: usize| {
+            if i < k {
+                Some(i)
+            } else if i > k {
+                Some(i - 1)
+            } else {
+                None
+            }
+        };
+        for (i, xi) in self.x.iter_mut().enumerate().take(n + 1) {
+            *xi = match old(i) {
+                Some(o) => old_x.get(o).copied().unwrap_or_else(SVector::zeros),
+                None => x,
+            };
+        }
+        for (i, row) in self.p.iter_mut().enumerate().take(n + 1) {
+            for (j, blk) in row.iter_mut().enumerate().take(n + 1) {
+                *blk = match (old(i), old(j)) {
+                    (Some(oi), Some(oj)) => old_p
+                        .get(oi)
+                        .and_then(|r| r.get(oj))
+                        .copied()
+                        .unwrap_or_else(SMatrix::zeros),
+                    (None, Some(oj)) => cross.get(oj).copied().unwrap_or_else(SMatrix::zeros),
+                    (Some(oi), None) => {
+                        cross.get(oi).map_or_else(SMatrix::zeros, |c| c.transpose())
+                    }
+                    (None, None) => *p,
+                };
+            }
+        }
+        self.len = n + 1;
+        Ok(())
+    }
+
+    /// Removes the track at rank `k` (no-op past `len()`); tracks to its right move one rank left.
+    ///
+    /// # Complexity
+    /// O(LANES² · NS²) copies.
+    pub fn remove(&mut self, k: usize) {
+        let n = self.len();
+        if k >= n {
+            return;
+        }
+        let old_x = self.x;
+        let old_p = self.p;
+        let old = |i: usize| if i < k { i } else { i + 1 };
+        for (i, xi) in self.x.iter_mut().enumerate() {
+            *xi = if i + 1 < n {
+                old_x.get(old(i)).copied().unwrap_or_else(SVector::zeros)
+            } else {
+                SVector::zeros()
+            };
+        }
+        for (i, row) in self.p.iter_mut().enumerate() {
+            for (j, blk) in row.iter_mut().enumerate() {
+                *blk = if i + 1 < n && j + 1 < n {
+                    old_p
+                        .get(old(i))
+                        .and_then(|r| r.get(old(j)))
+                        .copied()
+                        .unwrap_or_else(SMatrix::zeros)
+                } else {
+                    SMatrix::zeros()
+                };
+            }
+        }
+        self.len = n - 1;
+    }
+
+    /// Kalman update of the whole stacked state with one point `z` known to belong to track `k`
+    /// (`z = hᵀ x_k + v`, `v ~ N(0, r)`): every track moves through its cross-covariance with `k`.
+    /// Returns `false` (state unchanged) for `k ≥ len()` or a non-positive innovation variance.
+    ///
+    /// # Complexity
+    /// O(len()² · NS²).
+    pub fn update_single(&mut self, k: usize, h: &SVector<f32, NS>, z: f32, r: f32) -> bool {
+        let n = self.len();
+        let (Some(xk), Some(pkk)) = (self.mean(k), self.cov(k, k)) else {
+            return false;
+        };
+        let s = h.dot(&(pkk * h)) + r;
+        let nu = z - h.dot(xk);
+        if !(s.is_finite() && s > 0.0 && nu.is_finite()) {
+            return false;
+        }
+        let mut g = [SVector::<f32, NS>::zeros(); LANES];
+        for (i, gi) in g.iter_mut().enumerate().take(n) {
+            if let Some(pik) = self.cov(i, k) {
+                *gi = pik * h;
+            }
+        }
+        for (x, gi) in self.x.iter_mut().zip(g.iter()).take(n) {
+            *x += gi * (nu / s);
+        }
+        for (row, gi) in self.p.iter_mut().zip(g.iter()).take(n) {
+            for (blk, gj) in row.iter_mut().zip(g.iter()).take(n) {
+                *blk -= gi * gj.transpose() / s;
+            }
+        }
+        true
     }
 
     /// Mutable access for the row update (crate-internal).

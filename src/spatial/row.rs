@@ -263,7 +263,6 @@ fn count_events<const L: usize>(valid: &[u32; L], n: usize, limit: u64) -> u64 {
 /// # Complexity
 /// See the module docs: bounded by `2^LANES` patterns and `max_events` events, no allocation, no
 /// recursion.
-#[allow(non_snake_case, clippy::too_many_lines)]
 pub fn update<const NS: usize, const LANES: usize>(
     state: &mut Stacked<NS, LANES>,
     h: &SVector<f32, NS>,
@@ -271,10 +270,34 @@ pub fn update<const NS: usize, const LANES: usize>(
     params: &RowParams,
     max_events: usize,
 ) -> RowOutcome<LANES> {
+    update_masked(state, h, points, params, max_events, 0)
+}
+
+/// [`update`] with the tracks of `skip` (bit `t` = track `t`) excluded from gating and from the
+/// events: they take no points and carry no miss factor, but the joint update still moves them
+/// through their cross-covariances (the exact update for a lane that cannot be detected).
+///
+/// # Complexity
+/// As [`update`].
+#[allow(non_snake_case, clippy::too_many_lines)]
+pub fn update_masked<const NS: usize, const LANES: usize>(
+    state: &mut Stacked<NS, LANES>,
+    h: &SVector<f32, NS>,
+    points: &[f32],
+    params: &RowParams,
+    max_events: usize,
+    skip: u32,
+) -> RowOutcome<LANES> {
     let mut out = RowOutcome::<LANES>::default();
     let (xs, ps, n) = state.parts_mut();
     let m = points.len().min(MAX_ROW_POINTS);
     out.ignored_points = (points.len() - m) as u32;
+    if n == 0 {
+        out.ignored_points += points.iter().take(m).filter(|z| !z.is_finite()).count() as u32;
+        out.clutter_points = points.iter().take(m).filter(|z| z.is_finite()).count() as u32;
+        return out;
+    }
+    let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
 
     // Gating on each track's marginal (step 2), and G = P̄ H̄ᵀ, S̄ = H̄ P̄ H̄ᵀ + r I.
     let mut zhat = [0.0f32; LANES];
@@ -317,7 +340,7 @@ pub fn update<const NS: usize, const LANES: usize>(
             if let Some(v) = d2.get_mut(t).and_then(|r| r.get_mut(j)) {
                 *v = dj;
             }
-            if dj <= params.gamma {
+            if dj <= params.gamma && skip & (1 << t) == 0 {
                 mask |= 1 << j;
             }
         }
@@ -407,6 +430,9 @@ pub fn update<const NS: usize, const LANES: usize>(
     let mut bmiss = [0.0f32; LANES];
     let mut beta = [[0.0f32; MAX_ROW_POINTS]; LANES];
     for pattern in 0..(1u32 << n) {
+        if pattern & skip != 0 {
+            continue;
+        }
         let (idx, masks, k) = pattern_tracks(pattern, &out.valid, n);
         if masks.iter().take(k).any(|v| *v == 0) {
             continue;
@@ -435,8 +461,9 @@ pub fn update<const NS: usize, const LANES: usize>(
             .map(|v| 2.0 * math::ln(*v))
             .sum();
         let kf = k as f32;
-        let base =
-            -0.5 * logdet - 0.5 * kf * ln_2pi + kf * (ln_pd - ln_lambda) + (n - k) as f32 * ln_miss;
+        let base = -0.5 * logdet - 0.5 * kf * ln_2pi
+            + kf * (ln_pd - ln_lambda)
+            + (n - n_skipped - k) as f32 * ln_miss;
         let mut wd = 0.0f32;
         let mut m1 = SVector::<f32, LANES>::zeros();
         let mut m2 = SMatrix::<f32, LANES, LANES>::zeros();
@@ -491,7 +518,7 @@ pub fn update<const NS: usize, const LANES: usize>(
         }
         wtot += wd;
         for t in 0..n {
-            if pattern & (1 << t) == 0 {
+            if pattern & (1 << t) == 0 && skip & (1 << t) == 0 {
                 if let Some(b) = bmiss.get_mut(t) {
                     *b += wd;
                 }
@@ -595,7 +622,12 @@ pub fn update<const NS: usize, const LANES: usize>(
         *x += d;
     }
     for t in 0..n {
-        set(&mut out.beta_miss, t, get(&bmiss, t) / wtot);
+        let miss = if skip & (1 << t) != 0 {
+            1.0
+        } else {
+            get(&bmiss, t) / wtot
+        };
+        set(&mut out.beta_miss, t, miss);
         if let (Some(dst), Some(src)) = (out.beta.get_mut(t), beta.get(t)) {
             for (d, s) in dst.iter_mut().zip(src.iter()) {
                 *d = s / wtot;
