@@ -5,8 +5,10 @@
 
 pub mod camera;
 pub mod hyper;
+pub mod metric;
 pub mod reference;
 pub mod tablegen;
+pub mod tusimple;
 
 /// The repository root (this crate's parent folder), for tools and tests that read bundled data.
 pub fn repo_root() -> std::path::PathBuf {

@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 use stjpdacf_host::hyper::HyperFile;
+use stjpdacf_host::metric;
 use stjpdacf_host::tablegen;
 
 #[derive(Parser)]
@@ -29,6 +30,21 @@ enum Command {
         #[arg(long, default_value = "DEFAULT")]
         name: String,
     },
+    /// Print how well the RBF state-space approximation of each Taylor order matches the true
+    /// kernel (a Markdown table, as in the README).
+    Kernels,
+    /// Score TuSimple predictions against ground truth with the official TuSimple metric.
+    Eval {
+        /// Predictions (TuSimple JSON lines with `raw_file`, `lanes`, `run_time`).
+        #[arg(long)]
+        pred: PathBuf,
+        /// Ground truth (TuSimple JSON lines with `raw_file`, `lanes`, `h_samples`).
+        #[arg(long)]
+        gt: PathBuf,
+        /// Print `{"Accuracy": .., "FP": .., "FN": .., "frames": ..}` instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 fn main() -> Result<()> {
@@ -51,6 +67,26 @@ fn main() -> Result<()> {
                     t.gram_rank,
                     h.index_points
                 );
+            }
+        }
+        Command::Kernels => {
+            print!(
+                "{}",
+                stjpdacf_host::reference::statespace::approximation_table(2..=6)
+            );
+        }
+        Command::Eval { pred, gt, json } => {
+            let s = metric::evaluate_files(&pred, &gt)?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string(&s).context("serialising the score")?
+                );
+            } else {
+                println!("TuSimple metric ({} frames)", s.frames);
+                println!("  Accuracy  {:.6}", s.accuracy);
+                println!("  FP        {:.6}", s.fp);
+                println!("  FN        {:.6}", s.fn_);
             }
         }
     }

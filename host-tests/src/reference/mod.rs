@@ -3,4 +3,6 @@
 //! against; it is itself checked against the golden values of independent implementations
 //! (GPy, scipy, filterpy, Stone Soup) in `host-tests/tests/`.
 
+pub mod jpda;
 pub mod statespace;
+pub mod temporal;

@@ -23,6 +23,22 @@ pub fn discretize(a: &DMatrix<f64>, p_inf: &DMatrix<f64>, t: f64) -> (DMatrix<f6
     (f, q)
 }
 
+/// Van Loan's method: `F = e^{A t}` and `Q = ∫₀ᵗ e^{As} L Qc Lᵀ e^{Aᵀs} ds` from one exponential of
+/// the block matrix `[[−A, LQcLᵀ], [0, Aᵀ]] t` (no cancellation, unlike `P∞ − F P∞ Fᵀ` for short
+/// steps, where `Q` can be 1e-11 of `P∞`).
+pub fn van_loan(a: &DMatrix<f64>, lql: &DMatrix<f64>, t: f64) -> (DMatrix<f64>, DMatrix<f64>) {
+    let n = a.nrows();
+    let mut m = DMatrix::<f64>::zeros(2 * n, 2 * n);
+    m.view_mut((0, 0), (n, n)).copy_from(&(-a));
+    m.view_mut((0, n), (n, n)).copy_from(lql);
+    m.view_mut((n, n), (n, n)).copy_from(&a.transpose());
+    let e = (m * t).exp();
+    let f = e.view((n, n), (n, n)).transpose();
+    let q = &f * e.view((0, n), (n, n));
+    let q = (&q + q.transpose()) * 0.5;
+    (f, q)
+}
+
 /// Matérn ν = 3/2: `k(τ) = σ² (1 + λ|τ|) e^{−λ|τ|}`, `λ = √3/ℓ`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Matern32 {
@@ -282,6 +298,11 @@ impl RbfTaylor {
     pub fn transition(&self, du: f64) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
         Some(discretize(&self.a(), &self.p_inf()?, du))
     }
+    /// `F(Δu)` and `Q(Δu)` by Van Loan's method (accurate for steps far shorter than ℓ).
+    pub fn transition_van_loan(&self, du: f64) -> (DMatrix<f64>, DMatrix<f64>) {
+        let l = self.l();
+        van_loan(&self.a(), &(&l * self.qc() * l.transpose()), du)
+    }
     /// Implied covariance `H e^{A|d|} P∞ Hᵀ` of the approximated process.
     pub fn kernel_statespace(&self, d: f64) -> Option<f64> {
         let p = self.p_inf()?;
@@ -295,6 +316,46 @@ impl RbfTaylor {
     }
 }
 
+/// Lags, as multiples of ℓ, at which [`approximation_table`] compares kernels.
+pub const TABLE_LAGS: [f64; 6] = [0.0, 0.5, 1.0, 1.5, 2.0, 3.0];
+
+/// Markdown table of the RBF state-space approximation error for Taylor orders `orders`: for each
+/// lag `d/ℓ` in [`TABLE_LAGS`] the relative error `(k_ss(d) − k(d)) / k(d)` of the implied
+/// covariance `H e^{A|d|} P∞ Hᵀ` against the true RBF, in percent, and the largest absolute error
+/// over `d ∈ [0, 4ℓ]` as a fraction of σ². Independent of σ² and ℓ (both only rescale).
+pub fn approximation_table(orders: std::ops::RangeInclusive<usize>) -> String {
+    let mut s = String::from("| N_T |");
+    for r in TABLE_LAGS {
+        s.push_str(&format!(" d = {r}ℓ |"));
+    }
+    s.push_str(" max abs err / σ² |\n|---|");
+    for _ in TABLE_LAGS {
+        s.push_str("---|");
+    }
+    s.push_str("---|\n");
+    for order in orders {
+        let m = RbfTaylor {
+            variance: 1.0,
+            lengthscale: 1.0,
+            order,
+        };
+        s.push_str(&format!("| {order} |"));
+        for r in TABLE_LAGS {
+            let k = m.kernel(r);
+            let ks = m.kernel_statespace(r).unwrap_or(f64::NAN);
+            s.push_str(&format!(" {:+.2} % |", 100.0 * (ks - k) / k));
+        }
+        let max_abs = (0..=400)
+            .map(|i| {
+                let d = i as f64 * 0.01;
+                (m.kernel_statespace(d).unwrap_or(f64::NAN) - m.kernel(d)).abs()
+            })
+            .fold(0.0, f64::max);
+        s.push_str(&format!(" {max_abs:.4} |\n"));
+    }
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -305,6 +366,19 @@ mod tests {
         let mut r: Vec<f64> = poly_roots(&[2.0, -3.0, 1.0]).iter().map(|z| z.re).collect();
         r.sort_by(f64::total_cmp);
         assert!((r[0] - 1.0).abs() < 1e-14 && (r[1] - 2.0).abs() < 1e-14);
+    }
+
+    #[test]
+    fn van_loan_agrees_with_lyapunov_form_for_moderate_steps() {
+        let r = RbfTaylor {
+            variance: 1.5,
+            lengthscale: 2.0,
+            order: 3,
+        };
+        let (f, q) = r.transition(0.7).unwrap();
+        let (fv, qv) = r.transition_van_loan(0.7);
+        assert!((f - fv).abs().max() < 1e-13);
+        assert!((&q - qv).abs().max() < 1e-12 * q.abs().max());
     }
 
     #[test]

@@ -1,0 +1,668 @@
+//! The official TuSimple lane-detection metric, reproduced exactly.
+//!
+//! Followed: `LaneEval` in `evaluate/lane.py` of the `TuSimple/tusimple-benchmark` repository
+//! (version at commit `365c4cd1b0951b209da26446e413826f6aa5f5c9`, the one with the
+//! `len(gt) + 2 < len(pred)` rule and `run_time` read from the predictions). Each function here
+//! names the function of the original it reproduces; the order of operations is the original's.
+//!
+//! The rules, as the code has them (several differ from the usual prose description):
+//!
+//! * **Angle** (`get_angle`): for each ground-truth lane, a least-squares line with intercept
+//!   (`sklearn.linear_model.LinearRegression().fit(ys[:, None], xs)`) of **x on y** over the rows
+//!   where the ground truth has `x >= 0` (so `x = 0` is a valid point); `θ = arctan(k)` with `k`
+//!   the slope dx/dy. With fewer than two valid points `θ = 0`.
+//! * **Threshold**: `20 / cos θ` pixels (`pixel_thresh = 20`; the same 20 px at any image size).
+//! * **Point accuracy** (`line_accuracy`): every negative value (the `-2` of "no point"), in the
+//!   prediction or the ground truth, is replaced by `-100`; a row is correct when
+//!   `|pred - gt| < thresh` (strictly); the count is divided by **all** rows. So a row where both
+//!   are missing counts as correct, a row where only one is missing counts as wrong (unless the
+//!   threshold exceeds 100 + x), and ground-truth `-2` rows stay in the denominator; they are
+//!   excluded only from the angle fit.
+//! * **Match** (`bench`): each ground-truth lane takes its best accuracy over **all** predicted
+//!   lanes (not a one-to-one assignment; 0 with no predictions). Best `< 0.85` (`pt_thresh`) is a
+//!   false negative, otherwise the lane is matched.
+//! * **FP** = (predicted lanes − matched ground-truth lanes) / predicted lanes (0 with no
+//!   predictions). It is negative when one prediction is the best match of several ground-truth
+//!   lanes.
+//! * **More than 4 ground-truth lanes**: if there is any false negative, one is forgiven
+//!   (`fn -= 1`); the lowest best-accuracy is dropped from the sum.
+//! * **Frame accuracy** = sum of best accuracies / max(min(4, gt lanes), 1);
+//!   **FN** = false negatives / max(min(gt lanes, 4), 1) (so it can exceed 1 with 6+ lanes).
+//! * **Penalty**: `run_time > 200` ms or more than `gt + 2` predicted lanes scores the frame
+//!   (accuracy 0, FP 0, FN 1). Before that, a predicted lane whose length differs from the ground
+//!   truth's `h_samples` is an error (the original raises "Format of lanes error.").
+//! * **Submission** (`bench_one_submit`): as many predictions as ground-truth lines, or an
+//!   error; every prediction needs `raw_file`, `lanes`, `run_time` and a `raw_file` present in
+//!   the ground truth, or an error; frame scores are summed in prediction order and each sum is
+//!   divided by the number of **distinct** ground-truth `raw_file`s (a repeated ground-truth
+//!   `raw_file` keeps its last line).
+
+use std::collections::{HashMap, HashSet};
+use std::path::Path;
+
+use anyhow::{bail, ensure, Context, Result};
+use serde::Serialize;
+
+use crate::tusimple::{read_labels, read_predictions, TuSimpleRecord};
+
+/// `LaneEval.pixel_thresh`: the point threshold in pixels before the angle correction.
+pub const PIXEL_THRESH: f64 = 20.0;
+/// `LaneEval.pt_thresh`: share of correct points at which a lane counts as matched.
+pub const PT_THRESH: f64 = 0.85;
+/// A frame whose `run_time` exceeds this (milliseconds) scores accuracy 0, FP 0, FN 1.
+pub const MAX_RUN_TIME_MS: f64 = 200.0;
+/// A frame with more predicted lanes than ground-truth lanes plus this scores 0, 0, 1.
+pub const MAX_EXTRA_LANES: usize = 2;
+/// At most this many ground-truth lanes count in the accuracy and FN denominators.
+pub const MAX_COUNTED_LANES: usize = 4;
+/// The value `line_accuracy` substitutes for every negative ("no point") value.
+const MISSING: f64 = -100.0;
+
+/// Angle θ (radians) of a ground-truth lane: arctan of the least-squares slope dx/dy of x on y
+/// (with intercept) over the rows where `xs >= 0`; 0 with fewer than two such rows.
+/// Reproduces `LaneEval.get_angle` (sklearn `LinearRegression`; with all valid rows equal the
+/// minimum-norm slope 0 is taken, as `lstsq` does). `xs` and `y_samples` pair up row by row.
+pub fn lane_angle(xs: &[f64], y_samples: &[f64]) -> f64 {
+    let pts: Vec<(f64, f64)> = xs
+        .iter()
+        .zip(y_samples)
+        .filter(|(x, _)| **x >= 0.0)
+        .map(|(x, y)| (*x, *y))
+        .collect();
+    if pts.len() <= 1 {
+        return 0.0;
+    }
+    let n = pts.len() as f64;
+    let mx = pts.iter().map(|p| p.0).sum::<f64>() / n;
+    let my = pts.iter().map(|p| p.1).sum::<f64>() / n;
+    let sxy: f64 = pts.iter().map(|(x, y)| (y - my) * (x - mx)).sum();
+    let syy: f64 = pts.iter().map(|(_, y)| (y - my) * (y - my)).sum();
+    let k = if syy > 0.0 { sxy / syy } else { 0.0 };
+    k.atan()
+}
+
+/// The point threshold of a lane with angle `angle`: `PIXEL_THRESH / cos(angle)` pixels.
+pub fn lane_threshold(angle: f64) -> f64 {
+    PIXEL_THRESH / angle.cos()
+}
+
+/// Share of rows where a predicted lane is within `thresh` of a ground-truth lane, as
+/// `LaneEval.line_accuracy`: negative values on either side become −100, a row is correct when
+/// `|pred − gt| < thresh`, and the count is divided by `gt.len()` (all rows). `pred` and `gt`
+/// must have the same length (rows beyond the shorter one are not compared; [`bench`] checks).
+pub fn line_accuracy(pred: &[f64], gt: &[f64], thresh: f64) -> f64 {
+    let fix = |v: f64| if v >= 0.0 { v } else { MISSING };
+    let correct = pred
+        .iter()
+        .zip(gt)
+        .filter(|(p, g)| (fix(**p) - fix(**g)).abs() < thresh)
+        .count();
+    correct as f64 / gt.len() as f64
+}
+
+/// Scores of one frame, as returned by `LaneEval.bench`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FrameScore {
+    /// Sum of the counted ground-truth lanes' best point accuracies / counted lanes.
+    pub accuracy: f64,
+    /// (predicted − matched) / predicted; 0 with no predictions.
+    pub fp: f64,
+    /// False negatives / max(min(gt lanes, 4), 1).
+    pub fn_: f64,
+}
+
+/// The penalty score of a frame that is too slow or has too many lanes: accuracy 0, FP 0, FN 1.
+pub const PENALTY: FrameScore = FrameScore {
+    accuracy: 0.0,
+    fp: 0.0,
+    fn_: 1.0,
+};
+
+/// Score one frame: `LaneEval.bench(pred, gt, y_samples, running_time)`, in the original's order
+/// (length check, penalty, angles and thresholds, best match per ground-truth lane, FP, the
+/// more-than-4-lanes adjustments, the divisions). Errors: a predicted lane whose length is not
+/// `y_samples.len()` (checked first, as the original does); after the penalty check, empty
+/// `y_samples` or a ground-truth lane of the wrong length (the original fails on those too).
+pub fn bench(
+    pred: &[Vec<f64>],
+    gt: &[Vec<f64>],
+    y_samples: &[f64],
+    running_time: f64,
+) -> Result<FrameScore> {
+    if let Some((i, p)) = pred
+        .iter()
+        .enumerate()
+        .find(|(_, p)| p.len() != y_samples.len())
+    {
+        bail!(
+            "format of lanes error: predicted lane {i} has {} values, h_samples has {} rows",
+            p.len(),
+            y_samples.len()
+        );
+    }
+    if running_time > MAX_RUN_TIME_MS || gt.len() + MAX_EXTRA_LANES < pred.len() {
+        return Ok(PENALTY);
+    }
+    ensure!(!y_samples.is_empty(), "ground truth h_samples is empty");
+    if let Some((i, g)) = gt
+        .iter()
+        .enumerate()
+        .find(|(_, g)| g.len() != y_samples.len())
+    {
+        bail!(
+            "ground-truth lane {i} has {} values, h_samples has {} rows",
+            g.len(),
+            y_samples.len()
+        );
+    }
+    let threshs: Vec<f64> = gt
+        .iter()
+        .map(|x_gts| lane_threshold(lane_angle(x_gts, y_samples)))
+        .collect();
+    let mut line_accs = Vec::with_capacity(gt.len());
+    let mut fn_ = 0.0_f64;
+    let mut matched = 0.0_f64;
+    for (x_gts, &thresh) in gt.iter().zip(&threshs) {
+        let max_acc = pred
+            .iter()
+            .map(|x_preds| line_accuracy(x_preds, x_gts, thresh))
+            .fold(None, |m: Option<f64>, a| Some(m.map_or(a, |m| m.max(a))))
+            .unwrap_or(0.0);
+        if max_acc < PT_THRESH {
+            fn_ += 1.0;
+        } else {
+            matched += 1.0;
+        }
+        line_accs.push(max_acc);
+    }
+    let fp = pred.len() as f64 - matched;
+    if gt.len() > MAX_COUNTED_LANES && fn_ > 0.0 {
+        fn_ -= 1.0;
+    }
+    let mut s = line_accs.iter().fold(0.0_f64, |s, a| s + a);
+    if gt.len() > MAX_COUNTED_LANES {
+        s -= line_accs.iter().copied().fold(f64::INFINITY, f64::min);
+    }
+    let counted = (MAX_COUNTED_LANES.min(gt.len()) as f64).max(1.0);
+    Ok(FrameScore {
+        accuracy: s / counted,
+        fp: if pred.is_empty() {
+            0.0
+        } else {
+            fp / pred.len() as f64
+        },
+        fn_: fn_ / counted,
+    })
+}
+
+/// Scores of a whole submission, as `LaneEval.bench_one_submit` reports them.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Score {
+    /// Mean frame accuracy.
+    #[serde(rename = "Accuracy")]
+    pub accuracy: f64,
+    /// Mean frame FP rate.
+    #[serde(rename = "FP")]
+    pub fp: f64,
+    /// Mean frame FN rate.
+    #[serde(rename = "FN")]
+    pub fn_: f64,
+    /// The divisor: the number of distinct ground-truth `raw_file`s.
+    pub frames: usize,
+}
+
+/// Score predictions against ground truth: `LaneEval.bench_one_submit`, in its order. Errors, as
+/// the original raises them: a prediction count different from the ground-truth line count; a
+/// prediction without `run_time`; a prediction whose `raw_file` is not in the ground truth; a
+/// frame that [`bench`] rejects. Also an error (the original divides by zero): no ground truth.
+/// Like the original, this accepts repeated `raw_file`s; [`check_one_to_one`] rejects them.
+pub fn bench_one_submit(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Result<Score> {
+    ensure!(
+        gts.len() == preds.len(),
+        "{} predictions for {} ground-truth frames: every ground-truth frame needs one prediction",
+        preds.len(),
+        gts.len()
+    );
+    let by_file: HashMap<&str, &TuSimpleRecord> =
+        gts.iter().map(|g| (g.raw_file.as_str(), g)).collect();
+    let (mut accuracy, mut fp, mut fn_) = (0.0_f64, 0.0_f64, 0.0_f64);
+    for (i, pred) in preds.iter().enumerate() {
+        let Some(run_time) = pred.run_time else {
+            bail!("prediction {} ({}): run_time missing", i + 1, pred.raw_file);
+        };
+        let Some(gt) = by_file.get(pred.raw_file.as_str()) else {
+            bail!(
+                "prediction {} ({}): raw_file not in the ground truth",
+                i + 1,
+                pred.raw_file
+            );
+        };
+        let f = bench(&pred.lanes, &gt.lanes, &gt.h_samples, run_time)
+            .with_context(|| format!("prediction {} ({})", i + 1, pred.raw_file))?;
+        accuracy += f.accuracy;
+        fp += f.fp;
+        fn_ += f.fn_;
+    }
+    let num = by_file.len();
+    ensure!(num > 0, "no ground-truth frames");
+    let n = num as f64;
+    Ok(Score {
+        accuracy: accuracy / n,
+        fp: fp / n,
+        fn_: fn_ / n,
+        frames: num,
+    })
+}
+
+/// Stricter than the original (which would silently count a repeated prediction twice): every
+/// `raw_file` appears once in the ground truth and once in the predictions, every prediction's
+/// `raw_file` is in the ground truth, and every ground-truth frame has a prediction. Inputs that pass are scored by [`bench_one_submit`] exactly as the
+/// original scores them.
+pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Result<()> {
+    let mut gt_files = HashSet::new();
+    for g in gts {
+        ensure!(
+            gt_files.insert(g.raw_file.as_str()),
+            "ground truth lists {} more than once",
+            g.raw_file
+        );
+    }
+    let mut pred_files = HashSet::new();
+    for p in preds {
+        ensure!(
+            pred_files.insert(p.raw_file.as_str()),
+            "predictions list {} more than once",
+            p.raw_file
+        );
+    }
+    if let Some(p) = preds
+        .iter()
+        .find(|p| !gt_files.contains(p.raw_file.as_str()))
+    {
+        bail!(
+            "prediction for {}: raw_file not in the ground truth",
+            p.raw_file
+        );
+    }
+    if let Some(missing) = gts
+        .iter()
+        .find(|g| !pred_files.contains(g.raw_file.as_str()))
+    {
+        bail!("no prediction for ground-truth frame {}", missing.raw_file);
+    }
+    Ok(())
+}
+
+/// Read a prediction file and a ground-truth file (TuSimple JSON lines), check that they pair
+/// one to one ([`check_one_to_one`]) and score them ([`bench_one_submit`]). Errors name the file.
+pub fn evaluate_files(pred_path: &Path, gt_path: &Path) -> Result<Score> {
+    let gts = read_labels(gt_path)?;
+    let preds = read_predictions(pred_path)?;
+    let ctx = || {
+        format!(
+            "scoring {} against {}",
+            pred_path.display(),
+            gt_path.display()
+        )
+    };
+    check_one_to_one(&preds, &gts).with_context(ctx)?;
+    bench_one_submit(&preds, &gts).with_context(ctx)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    /// 20 rows, 100, 110, ..., 290.
+    fn rows20() -> Vec<f64> {
+        (0..20).map(|j| 100.0 + 10.0 * f64::from(j)).collect()
+    }
+
+    /// A vertical lane (constant column `x`) over 20 rows: θ = 0, threshold 20 px.
+    fn vertical(x: f64) -> Vec<f64> {
+        vec![x; 20]
+    }
+
+    /// `lane` with the first `n` rows moved by `dx`.
+    fn off(mut lane: Vec<f64>, n: usize, dx: f64) -> Vec<f64> {
+        for v in lane.iter_mut().take(n) {
+            *v += dx;
+        }
+        lane
+    }
+
+    fn score(accuracy: f64, fp: f64, fn_: f64) -> FrameScore {
+        FrameScore { accuracy, fp, fn_ }
+    }
+
+    // ---- get_angle ----
+
+    #[test]
+    fn angle_is_slope_of_x_on_y_with_intercept() {
+        // x = 2 y + 5 exactly: dx/dy = 2 (y on x would give 0.5; no intercept would not give 2).
+        let ys = [100.0, 110.0, 120.0, 130.0];
+        let xs = [205.0, 225.0, 245.0, 265.0];
+        assert_relative_eq!(lane_angle(&xs, &ys), 2f64.atan(), epsilon = 1e-12);
+        assert_relative_eq!(
+            lane_threshold(lane_angle(&xs, &ys)),
+            20.0 * 5f64.sqrt(),
+            epsilon = 1e-9
+        );
+    }
+
+    #[test]
+    fn angle_is_least_squares_over_points_with_x_at_least_zero() {
+        // Valid (y, x): (0, 0), (1, 2), (2, 3); the -2 row is left out. Mean y 1, mean x 5/3:
+        // k = ((-1)(-5/3) + 0 + (1)(4/3)) / 2 = 1.5. (Dropping x = 0 too would give k = 1;
+        // keeping the -2 row would give k = 0.)
+        let xs = [0.0, 2.0, 3.0, -2.0];
+        let ys = [0.0, 1.0, 2.0, 3.0];
+        assert_relative_eq!(lane_angle(&xs, &ys), 1.5f64.atan(), epsilon = 1e-12);
+    }
+
+    #[test]
+    fn angle_is_zero_with_fewer_than_two_points() {
+        let ys = [0.0, 1.0, 2.0];
+        assert_eq!(lane_angle(&[-2.0, 7.0, -2.0], &ys), 0.0);
+        assert_eq!(lane_angle(&[-2.0, -2.0, -2.0], &ys), 0.0);
+        assert_eq!(lane_threshold(0.0), 20.0);
+    }
+
+    // ---- line_accuracy ----
+
+    #[test]
+    fn point_threshold_is_strict() {
+        let gt = [300.0, 300.0];
+        assert_eq!(line_accuracy(&[319.9, 280.1], &gt, 20.0), 1.0);
+        assert_eq!(line_accuracy(&[320.0, 280.0], &gt, 20.0), 0.0);
+        assert_eq!(line_accuracy(&[320.0, 300.0], &gt, 20.0), 0.5);
+    }
+
+    #[test]
+    fn threshold_widens_with_the_lane_angle() {
+        // x = 2 y + 5 over 20 rows: threshold 20·√5 ≈ 44.72 px.
+        let ys = rows20();
+        let gt: Vec<f64> = ys.iter().map(|y| 2.0 * y + 5.0).collect();
+        let shift = |d: f64| gt.iter().map(|x| x + d).collect::<Vec<_>>();
+        assert_eq!(
+            bench(&[shift(44.0)], std::slice::from_ref(&gt), &ys, 0.0).unwrap(),
+            score(1.0, 0.0, 0.0)
+        );
+        assert_eq!(
+            bench(&[shift(45.0)], std::slice::from_ref(&gt), &ys, 0.0).unwrap(),
+            score(0.0, 1.0, 1.0)
+        );
+        // The same 44 px shift on a vertical lane (threshold 20) misses everywhere.
+        let v = vertical(300.0);
+        assert_eq!(
+            bench(&[off(v.clone(), 20, 44.0)], &[v], &ys, 0.0).unwrap(),
+            score(0.0, 1.0, 1.0)
+        );
+    }
+
+    #[test]
+    fn missing_points_compare_as_minus_100_over_all_rows() {
+        // row 0: gt 10, pred missing -> wrong; row 1: both missing -> correct;
+        // row 2: gt missing, pred 50 -> |50 + 100| = 150, wrong; row 3: equal -> correct.
+        let gt = [10.0, -2.0, -2.0, 30.0];
+        let pred = [-2.0, -2.0, 50.0, 30.0];
+        assert_eq!(line_accuracy(&pred, &gt, 20.0), 0.5);
+        // Any negative value is "missing", not just -2.
+        assert_eq!(line_accuracy(&[-1.0, -7.5], &[-2.0, -2.0], 20.0), 1.0);
+        // A predicted point at column 0 next to a missing truth is |0 + 100| = 100 away: correct
+        // only with a threshold above 100 (a lane at more than ~78° from vertical).
+        assert_eq!(line_accuracy(&[0.0], &[-2.0], 20.0), 0.0);
+        assert_eq!(line_accuracy(&[0.0], &[-2.0], 100.5), 1.0);
+    }
+
+    #[test]
+    fn missing_rows_of_the_truth_stay_in_the_denominator() {
+        // gt valid on 10 of 20 rows; pred exact where valid, missing elsewhere -> 20/20.
+        let ys = rows20();
+        let mut gt = vertical(300.0);
+        gt.iter_mut().skip(10).for_each(|v| *v = -2.0);
+        assert_eq!(
+            bench(
+                std::slice::from_ref(&gt),
+                std::slice::from_ref(&gt),
+                &ys,
+                0.0
+            )
+            .unwrap(),
+            score(1.0, 0.0, 0.0)
+        );
+        // pred exact where valid, but present (300) where the truth is missing -> 10/20.
+        assert_eq!(
+            bench(&[vertical(300.0)], std::slice::from_ref(&gt), &ys, 0.0).unwrap(),
+            score(0.5, 1.0, 1.0)
+        );
+        // pred missing where the truth is valid: the 10 missing-missing rows count -> 10/20.
+        assert_eq!(
+            bench(&[vec![-2.0; 20]], &[gt], &ys, 0.0).unwrap(),
+            score(0.5, 1.0, 1.0)
+        );
+    }
+
+    // ---- bench ----
+
+    #[test]
+    fn lane_matches_at_85_percent_of_points() {
+        let ys = rows20();
+        let gt = vertical(300.0);
+        // 17 of 20 rows correct: 0.85, matched.
+        let p = off(gt.clone(), 3, 50.0);
+        assert_eq!(
+            bench(&[p], std::slice::from_ref(&gt), &ys, 0.0).unwrap(),
+            score(0.85, 0.0, 0.0)
+        );
+        // 16 of 20 rows correct: 0.8, a false negative, and the prediction a false positive.
+        let p = off(gt.clone(), 4, 50.0);
+        assert_eq!(bench(&[p], &[gt], &ys, 0.0).unwrap(), score(0.8, 1.0, 1.0));
+    }
+
+    #[test]
+    fn accuracy_averages_best_matches_and_fp_fn_count_lanes() {
+        let ys = rows20();
+        let gt = vec![vertical(100.0), vertical(300.0), vertical(500.0)];
+        // Best accuracies 1.0, 0.9 (2 rows off), 0.0 (nothing near 500).
+        let pred = vec![
+            vertical(100.0),
+            off(vertical(300.0), 2, 50.0),
+            vertical(700.0),
+        ];
+        let f = bench(&pred, &gt, &ys, 0.0).unwrap();
+        assert_relative_eq!(f.accuracy, 1.9 / 3.0, epsilon = 1e-15);
+        assert_relative_eq!(f.fp, 1.0 / 3.0, epsilon = 1e-15);
+        assert_relative_eq!(f.fn_, 1.0 / 3.0, epsilon = 1e-15);
+    }
+
+    #[test]
+    fn best_match_is_not_one_to_one_so_fp_can_be_negative() {
+        // One prediction within 20 px of two ground-truth lanes matches both:
+        // matched 2, fp = 1 - 2 = -1, divided by 1 prediction.
+        let ys = rows20();
+        let gt = vec![vertical(300.0), vertical(310.0)];
+        let f = bench(&[vertical(305.0)], &gt, &ys, 0.0).unwrap();
+        assert_eq!(f, score(1.0, -1.0, 0.0));
+    }
+
+    #[test]
+    fn more_than_four_lanes_drops_the_worst_and_forgives_one_fn() {
+        let ys = rows20();
+        let gt5: Vec<Vec<f64>> = (0..5)
+            .map(|i| vertical(100.0 + 200.0 * f64::from(i)))
+            .collect();
+        // Fifth prediction far off: accs [1, 1, 1, 1, 0] -> s = 4 - 0, /4; fn 1 -> 0; fp 1/5.
+        let mut pred = gt5.clone();
+        pred[4] = vertical(1200.0);
+        assert_eq!(bench(&pred, &gt5, &ys, 0.0).unwrap(), score(1.0, 0.2, 0.0));
+        // Fifth prediction half right (0.5): still dropped from the sum although it exists.
+        let mut pred = gt5.clone();
+        pred[4] = off(gt5[4].clone(), 10, 50.0);
+        assert_eq!(bench(&pred, &gt5, &ys, 0.0).unwrap(), score(1.0, 0.2, 0.0));
+        // Fifth ground-truth lane matched at 0.9: no FN to forgive, the 0.9 is still dropped.
+        let mut pred = gt5.clone();
+        pred[4] = off(gt5[4].clone(), 2, 50.0);
+        assert_eq!(bench(&pred, &gt5, &ys, 0.0).unwrap(), score(1.0, 0.0, 0.0));
+        // Exactly 4 lanes: nothing dropped or forgiven: (1+1+1+0)/4, fp 1/4, fn 1/4.
+        let gt4 = gt5[..4].to_vec();
+        let mut pred = gt4.clone();
+        pred[3] = vertical(1200.0);
+        assert_eq!(
+            bench(&pred, &gt4, &ys, 0.0).unwrap(),
+            score(0.75, 0.25, 0.25)
+        );
+    }
+
+    #[test]
+    fn fn_is_divided_by_at_most_four_lanes() {
+        let ys = rows20();
+        let gt6: Vec<Vec<f64>> = (0..6)
+            .map(|i| vertical(100.0 + 200.0 * f64::from(i)))
+            .collect();
+        // First 4 found: accs [1, 1, 1, 1, 0, 0]; fn 2 -> 1, / 4; s = 4 - 0, / 4; fp 0 / 4.
+        let pred = gt6[..4].to_vec();
+        assert_eq!(bench(&pred, &gt6, &ys, 0.0).unwrap(), score(1.0, 0.0, 0.25));
+        // Nothing predicted: fn 6 -> 5, / 4 = 1.25 (above 1); accuracy 0; fp 0 (no predictions).
+        assert_eq!(bench(&[], &gt6, &ys, 0.0).unwrap(), score(0.0, 0.0, 1.25));
+    }
+
+    #[test]
+    fn empty_frames() {
+        let ys = rows20();
+        // No ground truth, two predictions: accuracy 0 / 1, fp 2 / 2, fn 0 / 1.
+        let pred = vec![vertical(100.0), vertical(300.0)];
+        assert_eq!(bench(&pred, &[], &ys, 0.0).unwrap(), score(0.0, 1.0, 0.0));
+        assert_eq!(bench(&[], &[], &ys, 0.0).unwrap(), score(0.0, 0.0, 0.0));
+        // Ground truth, no predictions: best accuracy 0 for each lane.
+        assert_eq!(
+            bench(&[], &[vertical(1.0)], &ys, 0.0).unwrap(),
+            score(0.0, 0.0, 1.0)
+        );
+    }
+
+    #[test]
+    fn run_time_over_200_ms_is_penalised() {
+        let ys = rows20();
+        let gt = vec![vertical(300.0)];
+        assert_eq!(bench(&gt, &gt, &ys, 200.0).unwrap(), score(1.0, 0.0, 0.0));
+        assert_eq!(bench(&gt, &gt, &ys, 200.001).unwrap(), PENALTY);
+        assert_eq!(PENALTY, score(0.0, 0.0, 1.0));
+    }
+
+    #[test]
+    fn more_than_gt_plus_two_lanes_is_penalised() {
+        let ys = rows20();
+        let gt = vec![vertical(100.0), vertical(300.0)];
+        let junk = |x: f64| vertical(x);
+        // 4 = 2 + 2 predictions: scored normally (2 matched, 2 FP of 4).
+        let pred4 = vec![gt[0].clone(), gt[1].clone(), junk(600.0), junk(900.0)];
+        assert_eq!(bench(&pred4, &gt, &ys, 0.0).unwrap(), score(1.0, 0.5, 0.0));
+        // 5 predictions: penalty, although both lanes are found.
+        let mut pred5 = pred4;
+        pred5.push(junk(1100.0));
+        assert_eq!(bench(&pred5, &gt, &ys, 0.0).unwrap(), PENALTY);
+    }
+
+    #[test]
+    fn wrong_lane_length_is_an_error_even_when_penalised() {
+        let ys = rows20();
+        let gt = vec![vertical(300.0)];
+        let short = vec![300.0; 19];
+        let e = bench(std::slice::from_ref(&short), &gt, &ys, 0.0).unwrap_err();
+        assert!(
+            format!("{e}").contains("predicted lane 0 has 19 values"),
+            "{e}"
+        );
+        assert!(bench(&[short], &gt, &ys, 500.0).is_err());
+        // A bad ground-truth lane is reported too (after the penalty check, like the original).
+        assert!(bench(&gt, &[vec![300.0; 19]], &ys, 0.0).is_err());
+    }
+
+    // ---- bench_one_submit ----
+
+    fn rec(name: &str, lanes: Vec<Vec<f64>>, run_time: Option<f64>) -> TuSimpleRecord {
+        TuSimpleRecord {
+            raw_file: name.into(),
+            lanes,
+            h_samples: rows20(),
+            run_time,
+        }
+    }
+
+    #[test]
+    fn submission_averages_frames_over_ground_truth_frames() {
+        let gts = vec![
+            rec("a", vec![vertical(100.0), vertical(300.0)], None),
+            rec("b", vec![vertical(100.0)], None),
+        ];
+        // Prediction order differs from the ground truth's; b is too slow (0, 0, 1);
+        // a finds one of its two lanes: (1 + 0) / 2, fp 0 / 1, fn 1 / 2.
+        let preds = vec![
+            rec("b", vec![vertical(100.0)], Some(250.0)),
+            rec("a", vec![vertical(100.0)], Some(5.0)),
+        ];
+        let s = bench_one_submit(&preds, &gts).unwrap();
+        assert_eq!(s.frames, 2);
+        assert_eq!(s.accuracy, 0.25);
+        assert_eq!(s.fp, 0.0);
+        assert_eq!(s.fn_, 0.75);
+        check_one_to_one(&preds, &gts).unwrap();
+    }
+
+    #[test]
+    fn submission_errors_like_the_original() {
+        let gts = vec![rec("a", vec![vertical(1.0)], None), rec("b", vec![], None)];
+        let ok = |n: &str| rec(n, vec![vertical(1.0)], Some(1.0));
+        // Count mismatch.
+        let e = bench_one_submit(&[ok("a")], &gts).unwrap_err();
+        assert!(
+            format!("{e}").contains("1 predictions for 2 ground-truth frames"),
+            "{e}"
+        );
+        // Unknown raw_file.
+        let e = bench_one_submit(&[ok("a"), ok("zzz")], &gts).unwrap_err();
+        assert!(format!("{e}").contains("zzz"), "{e}");
+        // Missing run_time.
+        let e = bench_one_submit(&[ok("a"), rec("b", vec![], None)], &gts).unwrap_err();
+        assert!(format!("{e}").contains("run_time missing"), "{e}");
+        // Lane format error, with the frame named.
+        let e =
+            bench_one_submit(&[ok("a"), rec("b", vec![vec![1.0]], Some(1.0))], &gts).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("(b): format of lanes error"),
+            "{e:#}"
+        );
+        // Nothing at all.
+        assert!(bench_one_submit(&[], &[]).is_err());
+    }
+
+    #[test]
+    fn repeated_raw_files_are_scored_as_the_original_does_but_rejected_by_the_check() {
+        // Two ground-truth lines for "a" (the last, lane at 300, wins) and two predictions for
+        // "a": 2 frames summed, divided by 1 distinct raw_file -> accuracy 2.
+        let gts = vec![
+            rec("a", vec![vertical(100.0)], None),
+            rec("a", vec![vertical(300.0)], None),
+        ];
+        let preds = vec![
+            rec("a", vec![vertical(300.0)], Some(1.0)),
+            rec("a", vec![vertical(300.0)], Some(1.0)),
+        ];
+        let s = bench_one_submit(&preds, &gts).unwrap();
+        assert_eq!((s.accuracy, s.fp, s.fn_, s.frames), (2.0, 0.0, 0.0, 1));
+        assert!(check_one_to_one(&preds, &gts).is_err());
+        // Distinct ground truth, a repeated prediction and a frame without one.
+        let gts = vec![rec("a", vec![], None), rec("b", vec![], None)];
+        let preds = vec![rec("a", vec![], Some(1.0)), rec("a", vec![], Some(1.0))];
+        let e = check_one_to_one(&preds, &gts).unwrap_err();
+        assert!(format!("{e}").contains("more than once"), "{e}");
+        let preds = vec![rec("a", vec![], Some(1.0))];
+        let e = check_one_to_one(&preds, &gts[..]).unwrap_err();
+        assert!(
+            format!("{e}").contains("no prediction for ground-truth frame b"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,356 @@
+//! TuSimple file formats: the benchmark's label / prediction records and this project's frame
+//! records, both as JSON lines (one JSON object per line).
+//!
+//! * [`TuSimpleRecord`] — a TuSimple ground-truth label or prediction:
+//!   `{"raw_file": str, "lanes": [[x, ...], ...], "h_samples": [row, ...], "run_time": ms}`.
+//!   `lanes[i][j]` is the column of lane `i` at image row `h_samples[j]`, `-2` (any negative value)
+//!   where the lane has no point. Ground truth has no `run_time`; predictions must have it (the
+//!   official scorer refuses predictions without it).
+//! * [`Frame`] — one frame of feature points for the tracker:
+//!   `{"clip": str, "t": seconds, "points": [[x, y], ...], "raw_file": str?, "h_samples": [row, ...]?}`.
+//!   Frames of one clip are consecutive; `raw_file`/`h_samples` are present on frames for which a
+//!   TuSimple prediction is to be written.
+//!
+//! Readers skip blank lines and report malformed input as `FILE:LINE: ...` errors. Unknown keys
+//! are ignored (submissions commonly carry extra keys).
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::path::Path;
+
+use anyhow::{bail, ensure, Context, Result};
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+/// The TuSimple value for "no lane point at this row".
+pub const NO_POINT: f64 = -2.0;
+
+/// A TuSimple label or prediction (one line of a TuSimple JSON-lines file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TuSimpleRecord {
+    /// Image path relative to the dataset root, e.g. `clips/0313-1/6040/20.jpg`; the join key
+    /// between predictions and ground truth.
+    pub raw_file: String,
+    /// For each lane, its column (pixels) at each of `h_samples`; negative (`-2`) = no point.
+    pub lanes: Vec<Vec<f64>>,
+    /// Image rows (pixels) at which the lanes are sampled. Required in ground truth; optional in
+    /// predictions (the scorer samples predictions at the ground truth's rows), empty if absent.
+    #[serde(default)]
+    pub h_samples: Vec<f64>,
+    /// Milliseconds spent on this frame (predictions only; ground truth has none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub run_time: Option<f64>,
+}
+
+impl TuSimpleRecord {
+    /// Check the shape: `h_samples` non-empty and every lane with one value per `h_samples` row.
+    pub fn check_shape(&self) -> Result<()> {
+        ensure!(
+            !self.h_samples.is_empty(),
+            "{}: h_samples is empty",
+            self.raw_file
+        );
+        for (i, lane) in self.lanes.iter().enumerate() {
+            ensure!(
+                lane.len() == self.h_samples.len(),
+                "{}: lane {i} has {} values but h_samples has {} rows",
+                self.raw_file,
+                lane.len(),
+                self.h_samples.len()
+            );
+        }
+        Ok(())
+    }
+}
+
+/// One frame of feature points for the tracker (one line of a frames file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Frame {
+    /// Clip identifier; frames of one clip are consecutive and a new clip resets the tracker.
+    pub clip: String,
+    /// Time stamp, seconds.
+    pub t: f64,
+    /// Feature points `[x, y]`: image pixels (x = column, y = row) or BEV metres, by context.
+    pub points: Vec<[f64; 2]>,
+    /// TuSimple image path, when a prediction is to be written for this frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub raw_file: Option<String>,
+    /// Image rows at which to report the lanes, when a prediction is to be written.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub h_samples: Option<Vec<f64>>,
+}
+
+impl Frame {
+    /// Check values: a finite time and finite points.
+    pub fn check(&self) -> Result<()> {
+        ensure!(
+            self.t.is_finite(),
+            "clip {}: time {} is not finite",
+            self.clip,
+            self.t
+        );
+        if let Some((i, p)) = self
+            .points
+            .iter()
+            .enumerate()
+            .find(|(_, p)| !(p[0].is_finite() && p[1].is_finite()))
+        {
+            bail!("clip {}: point {i} {:?} is not finite", self.clip, p);
+        }
+        Ok(())
+    }
+}
+
+/// Parse JSON lines from `reader`; `source` names the input in error messages. Blank lines are
+/// skipped; a malformed line is an error `SOURCE:LINE: ...`.
+pub fn parse_jsonl<T: DeserializeOwned, R: BufRead>(reader: R, source: &str) -> Result<Vec<T>> {
+    parse_checked(reader, source, "record", |_: &T| Ok(()))
+}
+
+/// Parse JSON lines, checking each item with `check`; both failures name `source` and the line.
+fn parse_checked<T, R, F>(reader: R, source: &str, what: &str, check: F) -> Result<Vec<T>>
+where
+    T: DeserializeOwned,
+    R: BufRead,
+    F: Fn(&T) -> Result<()>,
+{
+    let mut out = Vec::new();
+    for (i, line) in reader.lines().enumerate() {
+        let n = i + 1;
+        let line = line.with_context(|| format!("{source}:{n}: reading line"))?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let item: T = serde_json::from_str(&line)
+            .with_context(|| format!("{source}:{n}: malformed {what}"))?;
+        check(&item).with_context(|| format!("{source}:{n}: bad {what}"))?;
+        out.push(item);
+    }
+    Ok(out)
+}
+
+/// Read a JSON-lines file (see [`parse_jsonl`]).
+pub fn read_jsonl<T: DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
+    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    parse_jsonl(BufReader::new(f), &path.display().to_string())
+}
+
+/// Write items as JSON lines (one compact JSON object per line).
+pub fn write_jsonl_to<T: Serialize, W: Write>(mut w: W, items: &[T]) -> Result<()> {
+    for item in items {
+        serde_json::to_writer(&mut w, item).context("serialising a record")?;
+        w.write_all(b"\n").context("writing a record")?;
+    }
+    w.flush().context("flushing output")?;
+    Ok(())
+}
+
+/// Write items to a JSON-lines file, replacing it.
+pub fn write_jsonl<T: Serialize>(path: &Path, items: &[T]) -> Result<()> {
+    let f = File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    write_jsonl_to(BufWriter::new(f), items).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Parse TuSimple ground-truth labels and check each one's shape
+/// ([`TuSimpleRecord::check_shape`]); errors name `source` and the line.
+pub fn parse_labels<R: BufRead>(reader: R, source: &str) -> Result<Vec<TuSimpleRecord>> {
+    parse_checked(
+        reader,
+        source,
+        "TuSimple label",
+        TuSimpleRecord::check_shape,
+    )
+}
+
+/// Read a TuSimple ground-truth file (JSON lines), checking shapes.
+pub fn read_labels(path: &Path) -> Result<Vec<TuSimpleRecord>> {
+    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    parse_labels(BufReader::new(f), &path.display().to_string())
+}
+
+/// Parse TuSimple predictions. Like the official scorer, `raw_file`, `lanes` and `run_time` are
+/// required and `h_samples` is not (lane lengths are checked against the ground truth when
+/// scoring); errors name `source` and the line.
+pub fn parse_predictions<R: BufRead>(reader: R, source: &str) -> Result<Vec<TuSimpleRecord>> {
+    parse_checked(
+        reader,
+        source,
+        "TuSimple prediction",
+        |r: &TuSimpleRecord| {
+            ensure!(r.run_time.is_some(), "{}: run_time missing", r.raw_file);
+            Ok(())
+        },
+    )
+}
+
+/// Read a TuSimple prediction file (JSON lines); see [`parse_predictions`].
+pub fn read_predictions(path: &Path) -> Result<Vec<TuSimpleRecord>> {
+    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    parse_predictions(BufReader::new(f), &path.display().to_string())
+}
+
+/// Write TuSimple records as JSON lines.
+pub fn write_records(path: &Path, records: &[TuSimpleRecord]) -> Result<()> {
+    write_jsonl(path, records)
+}
+
+/// Parse frame records and check each one ([`Frame::check`]); errors name `source` and the line.
+pub fn parse_frames<R: BufRead>(reader: R, source: &str) -> Result<Vec<Frame>> {
+    parse_checked(reader, source, "frame", Frame::check)
+}
+
+/// Read a frames file (JSON lines), checking each frame.
+pub fn read_frames(path: &Path) -> Result<Vec<Frame>> {
+    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    parse_frames(BufReader::new(f), &path.display().to_string())
+}
+
+/// Write frames as JSON lines.
+pub fn write_frames(path: &Path, frames: &[Frame]) -> Result<()> {
+    write_jsonl(path, frames)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ground_truth_line_parses_without_run_time() {
+        let s = r#"{"lanes": [[-2, 10, 12], [5, 6, -2]], "h_samples": [100, 110, 120], "raw_file": "clips/a/20.jpg"}"#;
+        let v = parse_labels(s.as_bytes(), "gt").unwrap();
+        assert_eq!(v.len(), 1);
+        assert_eq!(v[0].raw_file, "clips/a/20.jpg");
+        assert_eq!(v[0].lanes[0], vec![-2.0, 10.0, 12.0]);
+        assert_eq!(v[0].h_samples, vec![100.0, 110.0, 120.0]);
+        assert_eq!(v[0].run_time, None);
+    }
+
+    #[test]
+    fn prediction_round_trips_with_run_time() {
+        let rec = TuSimpleRecord {
+            raw_file: "clips/b/20.jpg".into(),
+            lanes: vec![vec![1.5, NO_POINT]],
+            h_samples: vec![160.0, 170.0],
+            run_time: Some(3.25),
+        };
+        let mut buf = Vec::new();
+        write_jsonl_to(&mut buf, std::slice::from_ref(&rec)).unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        assert!(text.contains("\"run_time\":3.25"), "{text}");
+        assert_eq!(parse_predictions(text.as_bytes(), "p").unwrap(), vec![rec]);
+    }
+
+    #[test]
+    fn ground_truth_serialises_without_run_time_key() {
+        let rec = TuSimpleRecord {
+            raw_file: "x".into(),
+            lanes: vec![],
+            h_samples: vec![1.0],
+            run_time: None,
+        };
+        let s = serde_json::to_string(&rec).unwrap();
+        assert!(!s.contains("run_time"), "{s}");
+    }
+
+    #[test]
+    fn malformed_line_names_source_and_line() {
+        let s = "{\"raw_file\": \"a\", \"lanes\": [], \"h_samples\": [1]}\n\n{\"raw_file\": \"b\", \"lanes\": 3}\n";
+        let e = parse_labels(s.as_bytes(), "gt.json").unwrap_err();
+        let msg = format!("{e:#}");
+        assert!(
+            msg.starts_with("gt.json:3: malformed TuSimple label"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn lane_length_mismatch_is_reported() {
+        let s = "{\"raw_file\": \"a\", \"lanes\": [[1, 2]], \"h_samples\": [1, 2, 3]}";
+        let msg = format!("{:#}", parse_labels(s.as_bytes(), "gt.json").unwrap_err());
+        assert!(msg.contains("gt.json:1: bad TuSimple label"), "{msg}");
+        assert!(
+            msg.contains("lane 0 has 2 values but h_samples has 3 rows"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn prediction_needs_run_time_but_not_h_samples() {
+        let ok = r#"{"raw_file": "a", "lanes": [[1, 2]], "run_time": 10}"#;
+        let v = parse_predictions(ok.as_bytes(), "p.json").unwrap();
+        assert!(v[0].h_samples.is_empty());
+        assert_eq!(v[0].run_time, Some(10.0));
+        let bad = format!("{ok}\n{}", r#"{"raw_file": "b", "lanes": [[1, 2]]}"#);
+        let msg = format!(
+            "{:#}",
+            parse_predictions(bad.as_bytes(), "p.json").unwrap_err()
+        );
+        assert!(
+            msg.starts_with("p.json:2: bad TuSimple prediction"),
+            "{msg}"
+        );
+        assert!(msg.contains("run_time missing"), "{msg}");
+    }
+
+    #[test]
+    fn label_without_h_samples_is_reported() {
+        let s = r#"{"raw_file": "a", "lanes": []}"#;
+        let msg = format!("{:#}", parse_labels(s.as_bytes(), "gt.json").unwrap_err());
+        assert!(msg.contains("h_samples is empty"), "{msg}");
+    }
+
+    #[test]
+    fn empty_h_samples_is_reported() {
+        let s = "{\"raw_file\": \"a\", \"lanes\": [], \"h_samples\": []}";
+        let msg = format!("{:#}", parse_labels(s.as_bytes(), "gt.json").unwrap_err());
+        assert!(msg.contains("h_samples is empty"), "{msg}");
+    }
+
+    #[test]
+    fn frames_parse_with_and_without_optional_keys() {
+        let s = concat!(
+            r#"{"clip": "c1", "t": 0.0, "points": [[1, 2], [3.5, 4]]}"#,
+            "\n",
+            r#"{"clip": "c1", "t": 0.05, "points": [], "raw_file": "clips/c1/20.jpg", "h_samples": [160, 170]}"#,
+            "\n"
+        );
+        let f = parse_frames(s.as_bytes(), "frames").unwrap();
+        assert_eq!(f.len(), 2);
+        assert_eq!(f[0].points, vec![[1.0, 2.0], [3.5, 4.0]]);
+        assert_eq!(f[0].raw_file, None);
+        assert_eq!(f[1].raw_file.as_deref(), Some("clips/c1/20.jpg"));
+        assert_eq!(f[1].h_samples.as_deref(), Some(&[160.0, 170.0][..]));
+        let mut buf = Vec::new();
+        write_jsonl_to(&mut buf, &f).unwrap();
+        let text = String::from_utf8(buf).unwrap();
+        assert!(!text.lines().next().unwrap().contains("raw_file"), "{text}");
+        assert_eq!(parse_frames(text.as_bytes(), "again").unwrap(), f);
+    }
+
+    #[test]
+    fn malformed_frame_names_line() {
+        let s = "{\"clip\": \"c\", \"t\": 0, \"points\": []}\n{\"clip\": \"c\", \"t\": 1, \"points\": [[1]]}\n";
+        let msg = format!("{:#}", parse_frames(s.as_bytes(), "f.jsonl").unwrap_err());
+        assert!(msg.starts_with("f.jsonl:2: malformed frame"), "{msg}");
+    }
+
+    #[test]
+    fn files_round_trip_and_missing_file_is_named() {
+        let dir = std::env::temp_dir().join(format!("stjpdacf-tusimple-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("frames.jsonl");
+        let frames = vec![Frame {
+            clip: "c".into(),
+            t: 0.5,
+            points: vec![[1.0, 2.0]],
+            raw_file: None,
+            h_samples: None,
+        }];
+        write_frames(&p, &frames).unwrap();
+        assert_eq!(read_frames(&p).unwrap(), frames);
+        let missing = dir.join("nope.json");
+        let msg = format!("{:#}", read_labels(&missing).unwrap_err());
+        assert!(msg.contains("nope.json"), "{msg}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,162 @@
+//! End-to-end tests of the TuSimple metric and the `eval` subcommand on the bundled
+//! 512×288 TuSimple labels (`data/tusimple/sample_512x288/label_data.json`, 10 frames).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use approx::assert_relative_eq;
+use stjpdacf_host::metric::{self, bench, bench_one_submit, lane_angle, lane_threshold};
+use stjpdacf_host::tusimple::{read_labels, write_records, TuSimpleRecord};
+
+fn labels_path() -> PathBuf {
+    stjpdacf_host::repo_root().join("data/tusimple/sample_512x288/label_data.json")
+}
+
+fn labels() -> Vec<TuSimpleRecord> {
+    read_labels(&labels_path()).unwrap()
+}
+
+/// The ground truth as predictions (run_time 0 ms).
+fn as_predictions(gts: &[TuSimpleRecord]) -> Vec<TuSimpleRecord> {
+    gts.iter()
+        .map(|g| TuSimpleRecord {
+            run_time: Some(0.0),
+            ..g.clone()
+        })
+        .collect()
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("stjpdacf-tusimple-it-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn eval_cli(pred: &Path, gt: &Path, json: bool) -> std::process::Output {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_stjpdacf"));
+    c.arg("eval").arg("--pred").arg(pred).arg("--gt").arg(gt);
+    if json {
+        c.arg("--json");
+    }
+    c.output().unwrap()
+}
+
+#[test]
+fn bundled_labels_are_ten_frames_of_48_rows() {
+    let g = labels();
+    assert_eq!(g.len(), 10);
+    assert!(g
+        .iter()
+        .all(|r| r.h_samples.len() == 48 && r.run_time.is_none()));
+}
+
+#[test]
+fn ground_truth_against_itself_is_perfect() {
+    let gts = labels();
+    let s = bench_one_submit(&as_predictions(&gts), &gts).unwrap();
+    assert_eq!((s.accuracy, s.fp, s.fn_, s.frames), (1.0, 0.0, 0.0, 10));
+}
+
+#[test]
+fn shifting_one_lane_past_its_threshold_makes_it_fn_and_fp() {
+    let gts = labels();
+    let g0 = &gts[0];
+    // Lane 0 of frame 0 (x from 282 down to 172, -2 on its first 3 rows): its threshold is
+    // 20 / cos(atan(slope)) ≈ 23.6 px, so a 60 px shift misses every valid point.
+    let thresh = lane_threshold(lane_angle(&g0.lanes[0], &g0.h_samples));
+    assert!(thresh > 22.0 && thresh < 60.0, "{thresh}");
+    let mut preds = as_predictions(&gts);
+    for x in preds[0].lanes[0].iter_mut().filter(|x| **x >= 0.0) {
+        *x += 60.0;
+    }
+    let f = bench(&preds[0].lanes, &g0.lanes, &g0.h_samples, 0.0).unwrap();
+    // Lane 0's best accuracy: 4/48, from predicted lane 1 (the 3 shared -2 rows, and row 108
+    // where lane 1 is at 304 vs 282: 22 px < 23.6); the shifted lane itself gets only 3/48.
+    // The other three lanes are exact: accuracy (3 + 4/48) / 4; 1 FN of 4; 1 FP of 4.
+    assert_relative_eq!(f.accuracy, (3.0 + 4.0 / 48.0) / 4.0, epsilon = 1e-15);
+    assert_eq!((f.fp, f.fn_), (0.25, 0.25));
+    let s = bench_one_submit(&preds, &gts).unwrap();
+    assert_relative_eq!(
+        s.accuracy,
+        (9.0 + (3.0 + 4.0 / 48.0) / 4.0) / 10.0,
+        epsilon = 1e-15
+    );
+    assert_relative_eq!(s.fp, 0.025, epsilon = 1e-15);
+    assert_relative_eq!(s.fn_, 0.025, epsilon = 1e-15);
+    // A 10 px shift stays inside the threshold: that frame is still perfect on FP/FN.
+    let mut preds = as_predictions(&gts);
+    for x in preds[0].lanes[0].iter_mut().filter(|x| **x >= 0.0) {
+        *x += 10.0;
+    }
+    let s = bench_one_submit(&preds, &gts).unwrap();
+    assert_eq!((s.accuracy, s.fp, s.fn_), (1.0, 0.0, 0.0));
+}
+
+#[test]
+fn eval_cli_prints_json_and_table() {
+    let dir = temp_dir("cli");
+    let pred = dir.join("pred.json");
+    let gts = labels();
+    let mut preds = as_predictions(&gts);
+    preds[3].run_time = Some(250.0); // one frame penalised: (0, 0, 1)
+    write_records(&pred, &preds).unwrap();
+    let out = eval_cli(&pred, &labels_path(), true);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["Accuracy"].as_f64(), Some(0.9));
+    assert_eq!(v["FP"].as_f64(), Some(0.0));
+    assert_eq!(v["FN"].as_f64(), Some(0.1));
+    assert_eq!(v["frames"].as_u64(), Some(10));
+    let out = eval_cli(&pred, &labels_path(), false);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("Accuracy  0.900000"), "{text}");
+    assert!(text.contains("FN        0.100000"), "{text}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn eval_cli_reports_bad_inputs() {
+    let dir = temp_dir("bad");
+    let gts = labels();
+    // Unreadable prediction file.
+    let missing = dir.join("missing.json");
+    let out = eval_cli(&missing, &labels_path(), false);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.json"));
+    // A prediction whose raw_file is not in the ground truth.
+    let mut preds = as_predictions(&gts);
+    preds[2].raw_file = "clips/nowhere/20.jpg".into();
+    let pred = dir.join("pred.json");
+    write_records(&pred, &preds).unwrap();
+    let out = eval_cli(&pred, &labels_path(), false);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(
+        err.contains("clips/nowhere/20.jpg: raw_file not in the ground truth"),
+        "{err}"
+    );
+    // Ground truth used as predictions: no run_time, named with file and line.
+    let out = eval_cli(&labels_path(), &labels_path(), false);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(
+        err.contains("label_data.json:1: bad TuSimple prediction"),
+        "{err}"
+    );
+    assert!(err.contains("run_time missing"), "{err}");
+    // A predicted lane of the wrong length.
+    let mut preds = as_predictions(&gts);
+    preds[5].lanes[1].pop();
+    write_records(&pred, &preds).unwrap();
+    let err = metric::evaluate_files(&pred, &labels_path()).unwrap_err();
+    assert!(
+        format!("{err:#}").contains("format of lanes error"),
+        "{err:#}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
