@@ -7,6 +7,7 @@ pub mod camera;
 pub mod hyper;
 pub mod metric;
 pub mod reference;
+pub mod synth;
 pub mod tablegen;
 pub mod tusimple;
 

@@ -5,9 +5,12 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+use stjpdacf_host::camera::Camera;
 use stjpdacf_host::hyper::HyperFile;
 use stjpdacf_host::metric;
+use stjpdacf_host::synth::{self, NoiseLevel, SynthParams};
 use stjpdacf_host::tablegen;
+use stjpdacf_host::tusimple;
 
 #[derive(Parser)]
 #[command(name = "stjpdacf", version, about = "ST-JPDACF lane tracker: tools")]
@@ -44,6 +47,46 @@ enum Command {
         /// Print `{"Accuracy": .., "FP": .., "FN": .., "frames": ..}` instead of a table.
         #[arg(long)]
         json: bool,
+    },
+    /// Real-geometry replay: animate TuSimple labels into 20-frame clips of noisy feature points,
+    /// with ground truth for the last frame (and optionally every frame).
+    Synth {
+        /// TuSimple labels (JSON lines); one clip per label, in order.
+        #[arg(long)]
+        labels: PathBuf,
+        /// Output frames (JSON lines, one frame per line).
+        #[arg(long)]
+        out: PathBuf,
+        /// Output ground truth of each clip's last frame (TuSimple JSON lines).
+        #[arg(long)]
+        gt: Option<PathBuf>,
+        /// Output ground truth of every frame (TuSimple JSON lines).
+        #[arg(long)]
+        gt_all: Option<PathBuf>,
+        /// Random seed (the output is a function of the labels, parameters and seed).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Use only the first K labels.
+        #[arg(long)]
+        clips: Option<usize>,
+        /// Noise preset (see `stjpdacf_host::synth`).
+        #[arg(long, value_enum, default_value_t = NoiseLevel::Mid)]
+        noise: NoiseLevel,
+        /// Override the preset's column noise σ, px.
+        #[arg(long)]
+        pixel_noise: Option<f64>,
+        /// Override the preset's per-row detection probability.
+        #[arg(long)]
+        detect_prob: Option<f64>,
+        /// Override the preset's uniform clutter rate, points per frame.
+        #[arg(long)]
+        clutter_rate: Option<f64>,
+        /// Scale of lane drift / heading / curvature change (0 = a static road).
+        #[arg(long)]
+        motion: Option<f64>,
+        /// Camera: `tusimple` (1280x720) or a camera JSON file.
+        #[arg(long, default_value = "tusimple")]
+        camera: String,
     },
 }
 
@@ -88,6 +131,67 @@ fn main() -> Result<()> {
                 println!("  FP        {:.6}", s.fp);
                 println!("  FN        {:.6}", s.fn_);
             }
+        }
+        Command::Synth {
+            labels,
+            out,
+            gt,
+            gt_all,
+            seed,
+            clips,
+            noise,
+            pixel_noise,
+            detect_prob,
+            clutter_rate,
+            motion,
+            camera,
+        } => {
+            let cam = Camera::from_spec(&camera)?;
+            let mut params = SynthParams::preset(noise);
+            if let Some(v) = pixel_noise {
+                params.pixel_noise = v;
+            }
+            if let Some(v) = detect_prob {
+                params.detect_prob = v;
+            }
+            if let Some(v) = clutter_rate {
+                params.clutter_rate = v;
+            }
+            if let Some(v) = motion {
+                params.motion = v;
+            }
+            let mut recs = tusimple::read_labels(&labels)?;
+            if let Some(k) = clips {
+                recs.truncate(k);
+            }
+            anyhow::ensure!(!recs.is_empty(), "{}: no labels", labels.display());
+            let bar = indicatif::ProgressBar::new(recs.len() as u64);
+            let o = synth::synthesize_with_progress(&recs, &params, &cam, seed, || bar.inc(1))
+                .with_context(|| format!("synthesising from {}", labels.display()))?;
+            bar.finish_and_clear();
+            tusimple::write_frames(&out, &o.frames)?;
+            if let Some(p) = &gt {
+                tusimple::write_records(p, &o.gt_last)?;
+            }
+            if let Some(p) = &gt_all {
+                tusimple::write_records(p, &o.gt_all)?;
+            }
+            let s = &o.stats;
+            eprintln!(
+                "wrote {} frames of {} clips to {} ({} points: {} lane, {} clutter, {} shadow, {} car, {} road edge; {} lane changes, {} merges, {} far-end changes)",
+                s.frames,
+                s.clips,
+                out.display(),
+                s.total_points(),
+                s.lane_points,
+                s.clutter_points,
+                s.shadow_points,
+                s.car_points,
+                s.road_edge_points,
+                s.lane_changes,
+                s.merges,
+                s.far_end_changes
+            );
         }
     }
     Ok(())
