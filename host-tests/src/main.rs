@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 use stjpdacf_host::camera::Camera;
+use stjpdacf_host::frontend;
 use stjpdacf_host::hyper::HyperFile;
 use stjpdacf_host::metric;
 use stjpdacf_host::synth::{self, NoiseLevel, SynthParams};
@@ -87,6 +88,30 @@ enum Command {
         /// Camera: `tusimple` (1280x720) or a camera JSON file.
         #[arg(long, default_value = "tusimple")]
         camera: String,
+    },
+    /// Image front end: IPM to BEV, colour + ridge filtering, ROI, NMS per BEV row; writes the
+    /// feature points of every image under a folder as frames (image pixels).
+    Frontend {
+        /// Folder searched recursively for *.jpg / *.png; raw_file = path relative to it.
+        #[arg(long)]
+        images: PathBuf,
+        /// Output frames (JSON lines).
+        #[arg(long)]
+        out: PathBuf,
+        /// Camera: `tusimple` (the 1280x720 TuSimple camera, scaled by --scale, or to each
+        /// image's width when --scale is absent) or a camera JSON file.
+        #[arg(long, default_value = "tusimple")]
+        camera: String,
+        /// Image scale relative to the camera (0.4 for the 512x288 TuSimple sample).
+        #[arg(long)]
+        scale: Option<f64>,
+        /// TuSimple labels whose h_samples are copied to frames with the same raw_file
+        /// (default: IMAGES/label_data.json if it exists).
+        #[arg(long)]
+        labels: Option<PathBuf>,
+        /// Also write a PNG overlay per image (points red, labelled lanes green) into this folder.
+        #[arg(long)]
+        overlay: Option<PathBuf>,
     },
 }
 
@@ -191,6 +216,72 @@ fn main() -> Result<()> {
                 s.lane_changes,
                 s.merges,
                 s.far_end_changes
+            );
+        }
+        Command::Frontend {
+            images,
+            out,
+            camera,
+            scale,
+            labels,
+            overlay,
+        } => {
+            let cam = match (camera.as_str(), scale) {
+                ("tusimple", None) => None,
+                (spec, s) => {
+                    let c = Camera::from_spec(spec)?;
+                    Some(match s {
+                        Some(s) => {
+                            anyhow::ensure!(s > 0.0, "--scale must be > 0");
+                            c.scaled(s)
+                        }
+                        None => c,
+                    })
+                }
+            };
+            let labels = labels.or_else(|| {
+                let p = images.join("label_data.json");
+                p.exists().then_some(p)
+            });
+            let recs = match &labels {
+                Some(p) => tusimple::read_labels(p)?,
+                None => Vec::new(),
+            };
+            let bar = indicatif::ProgressBar::hidden();
+            let start = std::time::Instant::now();
+            let frames = frontend::run_dir(
+                &images,
+                cam.as_ref(),
+                &recs,
+                &frontend::FrontendParams::default(),
+                |k, n| {
+                    if k == 1 {
+                        bar.set_length(n as u64);
+                        bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                    }
+                    bar.set_position(k as u64);
+                },
+            )?;
+            bar.finish_and_clear();
+            tusimple::write_frames(&out, &frames)?;
+            if let Some(dir) = &overlay {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                for f in &frames {
+                    let raw = f.raw_file.as_deref().unwrap_or_default();
+                    let png = dir.join(format!("{}.png", raw.replace('/', "_")));
+                    let label = recs.iter().find(|l| l.raw_file == raw);
+                    frontend::overlay_png(&images.join(raw), &f.points, label, &png)?;
+                }
+                eprintln!("wrote overlays to {}", dir.display());
+            }
+            let n_pts: usize = frames.iter().map(|f| f.points.len()).sum();
+            eprintln!(
+                "wrote {} frames ({} feature points, {:.1} ms per image) to {}",
+                frames.len(),
+                n_pts,
+                start.elapsed().as_secs_f64() * 1e3 / frames.len() as f64,
+                out.display()
             );
         }
     }
