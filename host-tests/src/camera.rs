@@ -88,6 +88,32 @@ impl Camera {
     }
 }
 
+impl Camera {
+    /// A camera from a command-line value: `tusimple` ([`Camera::tusimple`]) or the path of a
+    /// JSON file with the fields of [`Camera`] (`width`, `height`, `vp_col`, `vp_row`,
+    /// `height_m`, `focal_px`).
+    pub fn from_spec(spec: &str) -> anyhow::Result<Self> {
+        use anyhow::Context;
+        if spec == "tusimple" {
+            return Ok(Self::tusimple());
+        }
+        let text = std::fs::read_to_string(spec)
+            .with_context(|| format!("reading camera file {spec} (or use `tusimple`)"))?;
+        let cam: Camera =
+            serde_json::from_str(&text).with_context(|| format!("{spec}: malformed camera"))?;
+        anyhow::ensure!(
+            cam.width > 0.0
+                && cam.height > 0.0
+                && cam.height_m > 0.0
+                && cam.focal_px > 0.0
+                && cam.vp_col.is_finite()
+                && cam.vp_row.is_finite(),
+            "{spec}: camera sizes, height and focal length must be positive and finite"
+        );
+        Ok(cam)
+    }
+}
+
 impl Default for Camera {
     fn default() -> Self {
         Self::tusimple()

@@ -4,10 +4,12 @@
 //! This crate uses `std` freely; the no_std core is the `stjpdacf` crate.
 
 pub mod camera;
+pub mod frontend;
 pub mod hyper;
 pub mod metric;
 pub mod reference;
 pub mod scenario;
+pub mod synth;
 pub mod tablegen;
 pub mod train;
 pub mod trainrun;

@@ -5,10 +5,14 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+use stjpdacf_host::camera::Camera;
+use stjpdacf_host::frontend;
 use stjpdacf_host::hyper::HyperFile;
 use stjpdacf_host::metric;
+use stjpdacf_host::synth::{self, NoiseLevel, SynthParams};
 use stjpdacf_host::tablegen;
-use stjpdacf_host::{camera::Camera, trainrun};
+use stjpdacf_host::trainrun;
+use stjpdacf_host::tusimple;
 
 #[derive(Parser)]
 #[command(name = "stjpdacf", version, about = "ST-JPDACF lane tracker: tools")]
@@ -91,6 +95,70 @@ enum Command {
         /// Write a report (B heat map PNG, summary.json, summary.md) into this folder.
         #[arg(long)]
         report: Option<PathBuf>,
+    },
+    /// Real-geometry replay: animate TuSimple labels into 20-frame clips of noisy feature points,
+    /// with ground truth for the last frame (and optionally every frame).
+    Synth {
+        /// TuSimple labels (JSON lines); one clip per label, in order.
+        #[arg(long)]
+        labels: PathBuf,
+        /// Output frames (JSON lines, one frame per line).
+        #[arg(long)]
+        out: PathBuf,
+        /// Output ground truth of each clip's last frame (TuSimple JSON lines).
+        #[arg(long)]
+        gt: Option<PathBuf>,
+        /// Output ground truth of every frame (TuSimple JSON lines).
+        #[arg(long)]
+        gt_all: Option<PathBuf>,
+        /// Random seed (the output is a function of the labels, parameters and seed).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Use only the first K labels.
+        #[arg(long)]
+        clips: Option<usize>,
+        /// Noise preset (see `stjpdacf_host::synth`).
+        #[arg(long, value_enum, default_value_t = NoiseLevel::Mid)]
+        noise: NoiseLevel,
+        /// Override the preset's column noise σ, px.
+        #[arg(long)]
+        pixel_noise: Option<f64>,
+        /// Override the preset's per-row detection probability.
+        #[arg(long)]
+        detect_prob: Option<f64>,
+        /// Override the preset's uniform clutter rate, points per frame.
+        #[arg(long)]
+        clutter_rate: Option<f64>,
+        /// Scale of lane drift / heading / curvature change (0 = a static road).
+        #[arg(long)]
+        motion: Option<f64>,
+        /// Camera: `tusimple` (1280x720) or a camera JSON file.
+        #[arg(long, default_value = "tusimple")]
+        camera: String,
+    },
+    /// Image front end: IPM to BEV, colour + ridge filtering, ROI, NMS per BEV row; writes the
+    /// feature points of every image under a folder as frames (image pixels).
+    Frontend {
+        /// Folder searched recursively for *.jpg / *.png; raw_file = path relative to it.
+        #[arg(long)]
+        images: PathBuf,
+        /// Output frames (JSON lines).
+        #[arg(long)]
+        out: PathBuf,
+        /// Camera: `tusimple` (the 1280x720 TuSimple camera, scaled by --scale, or to each
+        /// image's width when --scale is absent) or a camera JSON file.
+        #[arg(long, default_value = "tusimple")]
+        camera: String,
+        /// Image scale relative to the camera (0.4 for the 512x288 TuSimple sample).
+        #[arg(long)]
+        scale: Option<f64>,
+        /// TuSimple labels whose h_samples are copied to frames with the same raw_file
+        /// (default: IMAGES/label_data.json if it exists).
+        #[arg(long)]
+        labels: Option<PathBuf>,
+        /// Also write a PNG overlay per image (points red, labelled lanes green) into this folder.
+        #[arg(long)]
+        overlay: Option<PathBuf>,
     },
 }
 
@@ -210,6 +278,133 @@ fn main() -> Result<()> {
                 trainrun::write_report(&dir, &outcome, &cmd)?;
                 eprintln!("report in {}", dir.display());
             }
+        }
+        Command::Synth {
+            labels,
+            out,
+            gt,
+            gt_all,
+            seed,
+            clips,
+            noise,
+            pixel_noise,
+            detect_prob,
+            clutter_rate,
+            motion,
+            camera,
+        } => {
+            let cam = Camera::from_spec(&camera)?;
+            let mut params = SynthParams::preset(noise);
+            if let Some(v) = pixel_noise {
+                params.pixel_noise = v;
+            }
+            if let Some(v) = detect_prob {
+                params.detect_prob = v;
+            }
+            if let Some(v) = clutter_rate {
+                params.clutter_rate = v;
+            }
+            if let Some(v) = motion {
+                params.motion = v;
+            }
+            let mut recs = tusimple::read_labels(&labels)?;
+            if let Some(k) = clips {
+                recs.truncate(k);
+            }
+            anyhow::ensure!(!recs.is_empty(), "{}: no labels", labels.display());
+            let bar = indicatif::ProgressBar::new(recs.len() as u64);
+            let o = synth::synthesize_with_progress(&recs, &params, &cam, seed, || bar.inc(1))
+                .with_context(|| format!("synthesising from {}", labels.display()))?;
+            bar.finish_and_clear();
+            tusimple::write_frames(&out, &o.frames)?;
+            if let Some(p) = &gt {
+                tusimple::write_records(p, &o.gt_last)?;
+            }
+            if let Some(p) = &gt_all {
+                tusimple::write_records(p, &o.gt_all)?;
+            }
+            let s = &o.stats;
+            eprintln!(
+                "wrote {} frames of {} clips to {} ({} points: {} lane, {} clutter, {} shadow, {} car, {} road edge; {} lane changes, {} merges, {} far-end changes)",
+                s.frames,
+                s.clips,
+                out.display(),
+                s.total_points(),
+                s.lane_points,
+                s.clutter_points,
+                s.shadow_points,
+                s.car_points,
+                s.road_edge_points,
+                s.lane_changes,
+                s.merges,
+                s.far_end_changes
+            );
+        }
+        Command::Frontend {
+            images,
+            out,
+            camera,
+            scale,
+            labels,
+            overlay,
+        } => {
+            let cam = match (camera.as_str(), scale) {
+                ("tusimple", None) => None,
+                (spec, s) => {
+                    let c = Camera::from_spec(spec)?;
+                    Some(match s {
+                        Some(s) => {
+                            anyhow::ensure!(s > 0.0, "--scale must be > 0");
+                            c.scaled(s)
+                        }
+                        None => c,
+                    })
+                }
+            };
+            let labels = labels.or_else(|| {
+                let p = images.join("label_data.json");
+                p.exists().then_some(p)
+            });
+            let recs = match &labels {
+                Some(p) => tusimple::read_labels(p)?,
+                None => Vec::new(),
+            };
+            let bar = indicatif::ProgressBar::hidden();
+            let start = std::time::Instant::now();
+            let frames = frontend::run_dir(
+                &images,
+                cam.as_ref(),
+                &recs,
+                &frontend::FrontendParams::default(),
+                |k, n| {
+                    if k == 1 {
+                        bar.set_length(n as u64);
+                        bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                    }
+                    bar.set_position(k as u64);
+                },
+            )?;
+            bar.finish_and_clear();
+            tusimple::write_frames(&out, &frames)?;
+            if let Some(dir) = &overlay {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                for f in &frames {
+                    let raw = f.raw_file.as_deref().unwrap_or_default();
+                    let png = dir.join(format!("{}.png", raw.replace('/', "_")));
+                    let label = recs.iter().find(|l| l.raw_file == raw);
+                    frontend::overlay_png(&images.join(raw), &f.points, label, &png)?;
+                }
+                eprintln!("wrote overlays to {}", dir.display());
+            }
+            let n_pts: usize = frames.iter().map(|f| f.points.len()).sum();
+            eprintln!(
+                "wrote {} frames ({} feature points, {:.1} ms per image) to {}",
+                frames.len(),
+                n_pts,
+                start.elapsed().as_secs_f64() * 1e3 / frames.len() as f64,
+                out.display()
+            );
         }
     }
     Ok(())

@@ -1,0 +1,433 @@
+//! The image front end (`stjpdacf frontend`, DESIGN 1 step 1): camera image → inverse
+//! perspective mapping (IPM) to a bird's-eye-view grid → colour and ridge filtering → region of
+//! interest → non-maximum suppression per BEV row → feature points, written back as image pixels
+//! in the [`Frame`] format.
+//!
+//! # Steps and parameters ([`FrontendParams`], defaults in brackets)
+//! 1. **IPM**: one BEV row per image row whose distance is inside the window
+//!    `u_min..u_max` [3–80 m] (a row's distance is `f·h/(row − v_y)`), and lateral cells every
+//!    `dx` [0.04 m] over `|x| ≤ x_max` [12 m]. Each cell is inverse-mapped to the image with the
+//!    [`Camera`] and sampled bilinearly (RGB). Cells that fall outside the image are not road:
+//!    the **region of interest** is the BEV window ∩ the image.
+//! 2. **Colour**: intensity `I = grey + yellow_gain·max(0, (R+G)/2 − B)` [yellow_gain 0.5]
+//!    (yellow paint is lifted to the level of white paint). A peak is kept only if its colour is
+//!    white (HSV saturation ≤ `white_max_sat` [0.35]) or yellow (hue in `yellow_hue` [25°–75°] and
+//!    saturation ≥ `yellow_min_sat` [0.2]).
+//! 3. **Ridge filter across x** (lane markings are bright ridges 10–20 cm wide): the symmetric
+//!    local-threshold (dark–light–dark) filter
+//!    `R(x) = 2I(x) − I(x−τ) − I(x+τ) − |I(x−τ) − I(x+τ)|`, which responds to a bright band of
+//!    width < 2τ and not to a single step edge (shadow boundaries, the road border). τ is
+//!    `marking_width` [0.2 m] or `min_px` [1.5] image pixels at that distance, whichever is wider
+//!    (far rows are blurred over several cells). `I` is first averaged over ±τ/4.
+//! 4. **Threshold, road check and NMS per BEV row**: cells with `R ≥ ridge_threshold` [20 grey
+//!    levels] that are the maximum of R within ±τ, whose two flanks I(x±τ) are within
+//!    `road_tolerance` [60] grey levels of the row's median intensity (the road surface), refined
+//!    to sub-cell position by a parabola through the peak and its neighbours.
+//! 5. **Continuity**: a peak is kept if at least `support` [2] peaks lie within ±`support_rows`
+//!    [2] BEV rows and max(`marking_width`, 2 px) laterally (markings persist, texture does not).
+//! 6. **Output**: each peak (u, x) mapped back with [`Camera::to_image`] to (column, row).
+//!
+//! Images are read with the `image` crate (JPEG, PNG). [`overlay_png`] draws feature points (and
+//! optionally labelled lanes) over an image for inspection.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, ensure, Context, Result};
+use image::{Rgb, RgbImage};
+
+use crate::camera::Camera;
+use crate::tusimple::{Frame, TuSimpleRecord};
+
+/// Parameters of the front end (see the module doc).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrontendParams {
+    /// Nearest distance of the BEV window, m.
+    pub u_min: f64,
+    /// Farthest distance of the BEV window, m.
+    pub u_max: f64,
+    /// Half-width of the BEV window, m.
+    pub x_max: f64,
+    /// Lateral cell size, m.
+    pub dx: f64,
+    /// Weight of the yellowness `max(0, (R+G)/2 − B)` added to the grey level.
+    pub yellow_gain: f64,
+    /// Maximum HSV saturation of white paint.
+    pub white_max_sat: f64,
+    /// Hue range of yellow paint, degrees.
+    pub yellow_hue: (f64, f64),
+    /// Minimum HSV saturation of yellow paint.
+    pub yellow_min_sat: f64,
+    /// Nominal marking width τ of the ridge filter, m.
+    pub marking_width: f64,
+    /// Minimum τ in image pixels (far rows).
+    pub min_px: f64,
+    /// Minimum ridge response of a feature point, grey levels.
+    pub ridge_threshold: f64,
+    /// Largest difference (grey levels) between a ridge's flanks and the row's median intensity
+    /// (the road's grey level).
+    pub road_tolerance: f64,
+    /// Rows either side searched for continuity support.
+    pub support_rows: usize,
+    /// Peaks needed in those rows near a peak's x for it to be kept.
+    pub support: usize,
+}
+
+impl Default for FrontendParams {
+    fn default() -> Self {
+        Self {
+            u_min: 3.0,
+            u_max: 80.0,
+            x_max: 12.0,
+            dx: 0.04,
+            yellow_gain: 0.5,
+            white_max_sat: 0.35,
+            yellow_hue: (25.0, 75.0),
+            yellow_min_sat: 0.2,
+            marking_width: 0.2,
+            min_px: 1.5,
+            ridge_threshold: 20.0,
+            support_rows: 2,
+            support: 2,
+            road_tolerance: 60.0,
+        }
+    }
+}
+
+/// Bilinear RGB sample at (col, row); `None` outside the image.
+fn sample(img: &RgbImage, col: f64, row: f64) -> Option<[f64; 3]> {
+    let (w, h) = (img.width() as f64, img.height() as f64);
+    if !(col >= 0.0 && row >= 0.0 && col <= w - 1.0 && row <= h - 1.0) {
+        return None;
+    }
+    let (c0, r0) = (col.floor(), row.floor());
+    let (fc, fr) = (col - c0, row - r0);
+    let (c0, r0) = (c0 as u32, r0 as u32);
+    let c1 = (c0 + 1).min(img.width() - 1);
+    let r1 = (r0 + 1).min(img.height() - 1);
+    let mut out = [0.0; 3];
+    for (k, o) in out.iter_mut().enumerate() {
+        let p = |c: u32, r: u32| f64::from(img.get_pixel(c, r)[k]);
+        let top = p(c0, r0) * (1.0 - fc) + p(c1, r0) * fc;
+        let bot = p(c0, r1) * (1.0 - fc) + p(c1, r1) * fc;
+        *o = top * (1.0 - fr) + bot * fr;
+    }
+    Some(out)
+}
+
+/// HSV hue (degrees), saturation and value (0..255) of an RGB triple.
+fn hsv([r, g, b]: [f64; 3]) -> (f64, f64, f64) {
+    let max = r.max(g).max(b);
+    let min = r.min(g).min(b);
+    let d = max - min;
+    let s = if max > 0.0 { d / max } else { 0.0 };
+    let h = if d <= 0.0 {
+        0.0
+    } else if max == r {
+        60.0 * ((g - b) / d).rem_euclid(6.0)
+    } else if max == g {
+        60.0 * ((b - r) / d + 2.0)
+    } else {
+        60.0 * ((r - g) / d + 4.0)
+    };
+    (h, s, max)
+}
+
+/// Feature points of one image, as image pixels `[column, row]` (bottom rows first, then by
+/// column). Errors: a camera whose image size differs from the image's.
+pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f64; 2]>> {
+    ensure!(
+        (cam.width - f64::from(img.width())).abs() < 0.5
+            && (cam.height - f64::from(img.height())).abs() < 0.5,
+        "camera is {}×{} but the image is {}×{}",
+        cam.width,
+        cam.height,
+        img.width(),
+        img.height()
+    );
+    let nx = (2.0 * p.x_max / p.dx).round() as usize + 1;
+    let xs: Vec<f64> = (0..nx).map(|i| -p.x_max + i as f64 * p.dx).collect();
+    let row_far = cam.row_at(p.u_max).context("u_max must be > 0")?.ceil() as i64;
+    let row_near = cam.row_at(p.u_min).context("u_min must be > 0")?.floor() as i64;
+    let row_near = row_near.min(img.height() as i64 - 1);
+    let mut out = Vec::new();
+    let mut rgb: Vec<Option<[f64; 3]>> = vec![None; nx];
+    let mut inten = vec![f64::NAN; nx];
+    let mut smooth = vec![f64::NAN; nx];
+    let mut resp = vec![f64::NEG_INFINITY; nx];
+    // (BEV row index, u, x) of every ridge peak, bottom row first.
+    let mut peaks: Vec<(usize, f64, f64)> = Vec::new();
+    let mut row_idx = 0usize;
+    for row in (row_far.max(0)..=row_near).rev() {
+        let rowf = row as f64;
+        let Some((u, _)) = cam.to_bev(cam.vp_col, rowf) else {
+            row_idx += 1;
+            continue;
+        };
+        // IPM: this BEV row, every lateral cell, sampled in the image.
+        for (i, &x) in xs.iter().enumerate() {
+            rgb[i] = cam
+                .to_image(u, x)
+                .and_then(|(c, r)| sample(img, c, r.min(rowf)));
+            inten[i] = match rgb[i] {
+                Some([r, g, b]) => {
+                    let grey = 0.299 * r + 0.587 * g + 0.114 * b;
+                    grey + p.yellow_gain * ((r + g) / 2.0 - b).max(0.0)
+                }
+                None => f64::NAN,
+            };
+        }
+        // Ridge filter scale for this row: the marking width or min_px pixels, in cells.
+        let px_m = u / cam.focal_px;
+        let tau_m = p.marking_width.max(p.min_px * px_m);
+        let tau = ((tau_m / p.dx).round() as usize).max(1);
+        let half = tau / 4;
+        for (i, sm) in smooth.iter_mut().enumerate() {
+            let lo = i.saturating_sub(half);
+            let hi = (i + half).min(nx - 1);
+            let v = &inten[lo..=hi];
+            *sm = if v.iter().any(|x| x.is_nan()) {
+                f64::NAN
+            } else {
+                v.iter().sum::<f64>() / v.len() as f64
+            };
+        }
+        for i in 0..nx {
+            resp[i] = f64::NEG_INFINITY;
+            if i < tau || i + tau >= nx {
+                continue;
+            }
+            let (a, c, b) = (smooth[i - tau], smooth[i], smooth[i + tau]);
+            if a.is_nan() || b.is_nan() || c.is_nan() {
+                continue;
+            }
+            resp[i] = 2.0 * c - a - b - (a - b).abs();
+        }
+        // The road's grey level on this row: the median intensity over the ROI.
+        let mut vals: Vec<f64> = smooth.iter().copied().filter(|v| !v.is_nan()).collect();
+        if vals.is_empty() {
+            row_idx += 1;
+            continue;
+        }
+        vals.sort_by(f64::total_cmp);
+        let road = vals[vals.len() / 2];
+        // Threshold, road check, colour check and non-maximum suppression within ±τ.
+        for i in 0..nx {
+            let r = resp[i];
+            if r < p.ridge_threshold {
+                continue;
+            }
+            let lo = i.saturating_sub(tau);
+            let hi = (i + tau).min(nx - 1);
+            let is_max = (lo..=hi).all(|j| resp[j] < r || (resp[j] == r && j >= i));
+            if !is_max {
+                continue;
+            }
+            // Both flanks must look like road (a marking lies on the road surface).
+            let (a, b) = (smooth[i - tau], smooth[i + tau]);
+            if (a - road).abs() > p.road_tolerance || (b - road).abs() > p.road_tolerance {
+                continue;
+            }
+            let Some(c) = rgb[i] else { continue };
+            let (hue, sat, _) = hsv(c);
+            let white = sat <= p.white_max_sat;
+            let yellow = sat >= p.yellow_min_sat && hue >= p.yellow_hue.0 && hue <= p.yellow_hue.1;
+            if !(white || yellow) {
+                continue;
+            }
+            // Sub-cell refinement (parabola through the peak and its neighbours).
+            let mut off = 0.0;
+            if i > 0 && i + 1 < nx && resp[i - 1].is_finite() && resp[i + 1].is_finite() {
+                let (l, rr) = (resp[i - 1], resp[i + 1]);
+                let den = l - 2.0 * r + rr;
+                if den < 0.0 {
+                    off = (0.5 * (l - rr) / den).clamp(-0.5, 0.5);
+                }
+            }
+            peaks.push((row_idx, u, xs[i] + off * p.dx));
+        }
+        row_idx += 1;
+    }
+    // Continuity: a marking persists over neighbouring BEV rows, road texture does not. Keep a
+    // peak with at least `support` peaks within ±`support_rows` rows and a lateral distance of
+    // max(marking_width, 2 px).
+    let by_row = |r: usize| {
+        let lo = peaks.partition_point(|q| q.0 < r);
+        let hi = peaks.partition_point(|q| q.0 <= r);
+        &peaks[lo..hi]
+    };
+    for &(r, u, x) in &peaks {
+        let tol = p.marking_width.max(2.0 * u / cam.focal_px);
+        let n = (r.saturating_sub(p.support_rows)..=r + p.support_rows)
+            .filter(|&q| q != r)
+            .map(|q| by_row(q).iter().filter(|o| (o.2 - x).abs() <= tol).count())
+            .sum::<usize>();
+        if n >= p.support {
+            if let Some((col, row)) = cam.to_image(u, x) {
+                out.push([col, row.round()]);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Image files (`*.jpg`, `*.jpeg`, `*.png`, any case) under `dir`, recursively, in the order
+/// frames are written: by folder, then by numeric file stem (TuSimple's `1.jpg … 20.jpg`), then
+/// by name.
+pub fn find_images(dir: &Path) -> Result<Vec<PathBuf>> {
+    fn walk(d: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+        for e in std::fs::read_dir(d).with_context(|| format!("reading folder {}", d.display()))? {
+            let path = e
+                .with_context(|| format!("reading folder {}", d.display()))?
+                .path();
+            if path.is_dir() {
+                walk(&path, out)?;
+            } else if path
+                .extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "jpg" | "jpeg" | "png"))
+            {
+                out.push(path);
+            }
+        }
+        Ok(())
+    }
+    let mut out = Vec::new();
+    walk(dir, &mut out)?;
+    let key = |p: &PathBuf| {
+        let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+        (
+            p.parent().map(Path::to_path_buf),
+            stem.parse::<u64>().ok(),
+            p.file_name().map(|n| n.to_os_string()),
+        )
+    };
+    out.sort_by_key(key);
+    Ok(out)
+}
+
+/// `path` relative to `dir`, with `/` separators (a TuSimple `raw_file`).
+pub fn raw_file_of(dir: &Path, path: &Path) -> String {
+    let rel = path.strip_prefix(dir).unwrap_or(path);
+    rel.components()
+        .map(|c| c.as_os_str().to_string_lossy())
+        .collect::<Vec<_>>()
+        .join("/")
+}
+
+/// Read an image as RGB8.
+pub fn load_rgb(path: &Path) -> Result<RgbImage> {
+    Ok(image::open(path)
+        .with_context(|| format!("reading image {}", path.display()))?
+        .to_rgb8())
+}
+
+/// The camera for an image: `camera` if given (its size must match), else the TuSimple camera
+/// scaled to the image's width (the image must have TuSimple's 16:9 shape).
+pub fn camera_for(img: &RgbImage, camera: Option<&Camera>) -> Result<Camera> {
+    if let Some(c) = camera {
+        return Ok(*c);
+    }
+    let s = f64::from(img.width()) / 1280.0;
+    let cam = Camera::tusimple().scaled(s);
+    ensure!(
+        (cam.height - f64::from(img.height())).abs() < 1.0,
+        "a {}×{} image is not a scaled 1280×720 TuSimple frame; give --camera FILE",
+        img.width(),
+        img.height()
+    );
+    Ok(cam)
+}
+
+/// Run the front end on every image under `dir` (see [`find_images`]): one [`Frame`] per image,
+/// `raw_file` = its path relative to `dir`, `clip` = that path's folder, `t` = (n − 1)·0.05 s for
+/// a file named `n.jpg` (TuSimple's 20 fps clips) or the image's index in its folder × 0.05 s,
+/// `h_samples` from `labels` when one has the same `raw_file`. `camera`: `None` = the TuSimple
+/// camera scaled to each image. `progress` is called after each image.
+pub fn run_dir(
+    dir: &Path,
+    camera: Option<&Camera>,
+    labels: &[TuSimpleRecord],
+    p: &FrontendParams,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<Frame>> {
+    let files = find_images(dir)?;
+    if files.is_empty() {
+        bail!("no *.jpg or *.png images under {}", dir.display());
+    }
+    let mut frames: Vec<Frame> = Vec::with_capacity(files.len());
+    for (n, path) in files.iter().enumerate() {
+        let img = load_rgb(path)?;
+        let cam = camera_for(&img, camera)?;
+        let points = detect(&img, &cam, p).with_context(|| format!("{}", path.display()))?;
+        let raw_file = raw_file_of(dir, path);
+        let clip = raw_file
+            .rsplit_once('/')
+            .map(|(d, _)| d.to_string())
+            .unwrap_or_default();
+        let index_in_clip = frames.iter().rev().take_while(|f| f.clip == clip).count();
+        let t = match path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .and_then(|s| s.parse::<u64>().ok())
+        {
+            Some(k) if k >= 1 => (k - 1) as f64 * 0.05,
+            _ => index_in_clip as f64 * 0.05,
+        };
+        let h_samples = labels
+            .iter()
+            .find(|l| l.raw_file == raw_file)
+            .map(|l| l.h_samples.clone());
+        frames.push(Frame {
+            clip,
+            t,
+            points,
+            raw_file: Some(raw_file),
+            h_samples,
+        });
+        progress(n + 1, files.len());
+    }
+    Ok(frames)
+}
+
+/// Draw `points` (red dots, 3×3 px) and, if given, labelled `lanes` (green dots at the label
+/// rows) over `img`.
+pub fn overlay(img: &RgbImage, points: &[[f64; 2]], lanes: Option<&TuSimpleRecord>) -> RgbImage {
+    let mut out = img.clone();
+    let mut dot = |c: f64, r: f64, colour: Rgb<u8>, rad: i64| {
+        let (c, r) = (c.round() as i64, r.round() as i64);
+        for dr in -rad..=rad {
+            for dc in -rad..=rad {
+                let (x, y) = (c + dc, r + dr);
+                if x >= 0 && y >= 0 && (x as u32) < out.width() && (y as u32) < out.height() {
+                    out.put_pixel(x as u32, y as u32, colour);
+                }
+            }
+        }
+    };
+    if let Some(l) = lanes {
+        for lane in &l.lanes {
+            for (&x, &y) in lane.iter().zip(&l.h_samples) {
+                if x >= 0.0 {
+                    dot(x, y, Rgb([0, 255, 0]), 2);
+                }
+            }
+        }
+    }
+    for p in points {
+        dot(p[0], p[1], Rgb([255, 0, 0]), 1);
+    }
+    out
+}
+
+/// Write [`overlay`] of the image at `image` to the PNG file `out`.
+pub fn overlay_png(
+    image: &Path,
+    points: &[[f64; 2]],
+    lanes: Option<&TuSimpleRecord>,
+    out: &Path,
+) -> Result<()> {
+    let img = load_rgb(image)?;
+    overlay(&img, points, lanes)
+        .save_with_format(out, image::ImageFormat::Png)
+        .with_context(|| format!("writing {}", out.display()))
+}

@@ -1,0 +1,256 @@
+//! Tests of the image front end (`stjpdacf_host::frontend`, `stjpdacf frontend`) on the 10 real
+//! 512×288 TuSimple frames bundled in `data/tusimple/sample_512x288` (and one of them upscaled to
+//! 1280×720).
+//!
+//! Measured with the default parameters (this file's `precision_and_recall_on_real_frames` prints
+//! them): precision 0.418 (feature points within 6 px = 15 px × 0.4 of a labelled lane, on the
+//! labelled rows), mean per-lane recall 0.333 (labelled rows inside the 3–80 m window with a point
+//! within 6 px and 2 rows), 25 of 38 labelled lanes with recall ≥ 0.25. Most "false" points are
+//! real ridges that are not labelled lanes (the second line of double markings, pavement seams,
+//! cars' bright edges); most misses are faint dashed markings (e.g. clip 0313-1/14900).
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use stjpdacf_host::camera::Camera;
+use stjpdacf_host::frontend::{self, FrontendParams};
+use stjpdacf_host::tusimple::{read_frames, read_labels, write_jsonl_to, Frame, TuSimpleRecord};
+
+fn sample_dir() -> PathBuf {
+    stjpdacf_host::repo_root().join("data/tusimple/sample_512x288")
+}
+
+fn labels() -> Vec<TuSimpleRecord> {
+    read_labels(&sample_dir().join("label_data.json")).unwrap()
+}
+
+fn run() -> Vec<Frame> {
+    frontend::run_dir(
+        &sample_dir(),
+        None,
+        &labels(),
+        &FrontendParams::default(),
+        |_, _| {},
+    )
+    .unwrap()
+}
+
+/// Column of a labelled lane at image row `y` (linear between label rows), all scaled by `s`.
+fn lane_x(l: &TuSimpleRecord, lane: &[f64], y: f64, s: f64) -> Option<f64> {
+    let pts: Vec<(f64, f64)> = l
+        .h_samples
+        .iter()
+        .zip(lane)
+        .filter(|(_, &x)| x >= 0.0)
+        .map(|(&h, &x)| (h * s, x * s))
+        .collect();
+    pts.windows(2).find_map(|w| {
+        let ((ya, xa), (yb, xb)) = (w[0], w[1]);
+        (ya <= y && y <= yb).then(|| {
+            if yb > ya {
+                xa + (xb - xa) * (y - ya) / (yb - ya)
+            } else {
+                xa
+            }
+        })
+    })
+}
+
+/// (true points, points) on the labelled rows, and each lane's recall, for one frame whose
+/// pixels are the label's × `s`; tolerance `tol` px.
+fn score(f: &Frame, l: &TuSimpleRecord, s: f64, tol: f64) -> (usize, usize, Vec<f64>) {
+    let (ymin, ymax) = (l.h_samples[0] * s, l.h_samples[l.h_samples.len() - 1] * s);
+    let (mut tp, mut n) = (0, 0);
+    for p in f.points.iter().filter(|p| p[1] >= ymin && p[1] <= ymax) {
+        n += 1;
+        let hit = l
+            .lanes
+            .iter()
+            .filter_map(|lane| lane_x(l, lane, p[1], s))
+            .any(|x| (x - p[0]).abs() < tol);
+        tp += usize::from(hit);
+    }
+    let cam = Camera::tusimple().scaled(0.4 * s);
+    let row_far = cam.row_at(80.0).unwrap();
+    let mut rec = Vec::new();
+    for lane in &l.lanes {
+        let rows: Vec<(f64, f64)> = l
+            .h_samples
+            .iter()
+            .zip(lane)
+            .filter(|(&h, &x)| x >= 0.0 && h * s >= row_far)
+            .map(|(&h, &x)| (h * s, x * s))
+            .collect();
+        if rows.is_empty() {
+            continue;
+        }
+        let hit = rows
+            .iter()
+            .filter(|(y, x)| {
+                f.points
+                    .iter()
+                    .any(|p| (p[0] - x).abs() < tol && (p[1] - y).abs() <= 2.0 * s)
+            })
+            .count();
+        rec.push(hit as f64 / rows.len() as f64);
+    }
+    (tp, n, rec)
+}
+
+#[test]
+fn precision_and_recall_on_real_frames() {
+    let frames = run();
+    let labels = labels();
+    assert_eq!(frames.len(), 10);
+    let (mut tp, mut n, mut recalls) = (0, 0, Vec::new());
+    for f in &frames {
+        let l = labels
+            .iter()
+            .find(|l| Some(&l.raw_file) == f.raw_file.as_ref())
+            .unwrap();
+        let (a, b, r) = score(f, l, 1.0, 15.0 * 0.4);
+        eprintln!(
+            "{}: {b} points, precision {:.3}, lane recall {r:.2?}",
+            l.raw_file,
+            a as f64 / b as f64
+        );
+        tp += a;
+        n += b;
+        recalls.extend(r);
+    }
+    let precision = tp as f64 / n as f64;
+    let mean_recall = recalls.iter().sum::<f64>() / recalls.len() as f64;
+    let covered = recalls.iter().filter(|&&r| r >= 0.25).count();
+    eprintln!(
+        "precision {precision:.3} ({tp}/{n}), mean lane recall {mean_recall:.3}, {covered} of {} lanes ≥ 0.25",
+        recalls.len()
+    );
+    // Bounds just below the measured figures (0.418, 0.333, 25 of 38): a regression guard, not
+    // the brief's targets (0.6 / 0.5), which this front end does not reach; see the module doc.
+    assert!(precision >= 0.38, "precision {precision}");
+    assert!(mean_recall >= 0.30, "mean recall {mean_recall}");
+    assert!(
+        covered * 10 >= recalls.len() * 6,
+        "{covered} of {}",
+        recalls.len()
+    );
+    // Far better than chance: points spread uniformly would hit a ±6 px band around ~4 lanes on
+    // ~4·12/512 ≈ 9 % of the columns.
+    assert!(precision > 3.0 * 0.094);
+}
+
+#[test]
+fn frames_are_deterministic_and_well_formed() {
+    let a = run();
+    assert_eq!(a, run());
+    for f in &a {
+        let raw = f.raw_file.as_deref().unwrap();
+        assert!(
+            raw.starts_with("clips/0313-") && raw.ends_with("/20.jpg"),
+            "{raw}"
+        );
+        assert_eq!(f.clip, raw.rsplit_once('/').unwrap().0);
+        assert!((f.t - 0.95).abs() < 1e-12);
+        assert_eq!(f.h_samples.as_ref().unwrap().len(), 48);
+        assert!(!f.points.is_empty());
+        for p in &f.points {
+            assert!(
+                p[0] >= 0.0 && p[0] < 512.0 && p[1] >= 0.0 && p[1] < 288.0,
+                "{p:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn works_at_1280x720() {
+    let path = sample_dir().join("clips/0313-2/24720/20.jpg");
+    let small = frontend::load_rgb(&path).unwrap();
+    let big = image::imageops::resize(&small, 1280, 720, image::imageops::FilterType::Triangle);
+    let cam = frontend::camera_for(&big, None).unwrap();
+    assert_eq!(cam, Camera::tusimple());
+    let pts = frontend::detect(&big, &cam, &FrontendParams::default()).unwrap();
+    let label = labels()
+        .into_iter()
+        .find(|l| l.raw_file == "clips/0313-2/24720/20.jpg")
+        .unwrap();
+    let f = Frame {
+        clip: String::new(),
+        t: 0.0,
+        points: pts,
+        raw_file: None,
+        h_samples: None,
+    };
+    let (tp, n, rec) = score(&f, &label, 2.5, 15.0);
+    let precision = tp as f64 / n as f64;
+    eprintln!("1280x720: {n} points, precision {precision:.3}, lane recall {rec:.2?}");
+    // Measured: precision 0.203, recall [0.38, 0.51, 0.27, 0.65]; the same frame at 512×288:
+    // precision 0.244, recall [0.38, 0.42, 0.27, 0.53].
+    assert!(precision >= 0.18, "{precision}");
+    assert!(rec.iter().all(|&r| r >= 0.2), "{rec:?}");
+    // A camera of the wrong size is refused.
+    let e = frontend::detect(&small, &cam, &FrontendParams::default()).unwrap_err();
+    assert!(format!("{e}").contains("1280"), "{e}");
+}
+
+#[test]
+fn overlay_png_marks_points() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    let path = sample_dir().join("clips/0313-1/14900/20.jpg");
+    let out = d.join("overlay.png");
+    let label = labels()
+        .into_iter()
+        .find(|l| l.raw_file == "clips/0313-1/14900/20.jpg")
+        .unwrap();
+    frontend::overlay_png(&path, &[[100.0, 200.0], [300.0, 250.0]], Some(&label), &out).unwrap();
+    let img = frontend::load_rgb(&out).unwrap();
+    assert_eq!((img.width(), img.height()), (512, 288));
+    assert_eq!(img.get_pixel(100, 200).0, [255, 0, 0]);
+    assert_eq!(img.get_pixel(301, 251).0, [255, 0, 0]);
+    let (j, x) = label.lanes[0]
+        .iter()
+        .enumerate()
+        .find(|(_, &x)| x >= 0.0)
+        .map(|(j, &x)| (j, x))
+        .unwrap();
+    let y = label.h_samples[j];
+    assert_eq!(
+        img.get_pixel(x.round() as u32, y.round() as u32).0,
+        [0, 255, 0]
+    );
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+#[test]
+fn cli_writes_frames() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    let out = d.join("f.jsonl");
+    let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+        .args(["frontend", "--scale", "0.4", "--images"])
+        .arg(sample_dir())
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Byte-identical to the library's frames (serde_json's default float parsing is not
+    // round-trip exact, so compare the written text).
+    let mut lib = Vec::new();
+    write_jsonl_to(&mut lib, &run()).unwrap();
+    assert_eq!(std::fs::read(&out).unwrap(), lib);
+    assert_eq!(read_frames(&out).unwrap().len(), 10);
+    let empty = d.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+        .args(["frontend", "--images"])
+        .arg(&empty)
+        .arg("--out")
+        .arg(d.join("g.jsonl"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no *.jpg or *.png"));
+    std::fs::remove_dir_all(&d).unwrap();
+}
