@@ -476,7 +476,11 @@ fn deterministic() {
 }
 
 /// The B-conditioned prior (§3.2d): inserting into the exact stationary prior `B_n ⊗ P∞` gives
-/// the stationary prior `B_{n+1} ⊗ P∞` on the GP parts, with an independent offset.
+/// the stationary prior `B_{n+1} ⊗ P∞` on the GP parts, with an independent offset — exactly when
+/// the tracks keep their rank distances, i.e. a new leftmost (k = 0) or rightmost (k = n) track
+/// with a stationary (Toeplitz) B, as the defaults use. A track inserted between two others
+/// changes their rank distance: slots = ranks cannot keep the old pair's covariance exact then
+/// (a limit of the model, DESIGN 4.0), so interior insertions are checked for PSD below.
 #[test]
 fn initiation_prior_is_the_conditional_of_b() {
     let (model, cfg) = setup();
@@ -495,7 +499,10 @@ fn initiation_prior_is_the_conditional_of_b() {
         p
     };
     for n in 0..4 {
-        for k in 0..=n {
+        for k in [0, n]
+            .into_iter()
+            .collect::<std::collections::BTreeSet<_>>()
+        {
             let state = Estimate {
                 x: DVector::zeros(n * ns),
                 p: kron_prior(n, cfg.offset_variance),
