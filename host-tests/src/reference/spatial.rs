@@ -279,6 +279,8 @@ pub struct Counters {
     pub deleted: usize,
     /// Tracks deleted by the merge rule.
     pub merged: usize,
+    /// Of those, tracks that were still tentative (the core's `deleted` counter includes them).
+    pub merged_tentative: usize,
     /// Confirmed tracks ended by misses.
     pub ended: usize,
     /// Rows whose event count exceeded `max_events`.
@@ -916,6 +918,9 @@ pub fn run_frame(
                 };
                 delete[loser] = true;
                 counters.merged += 1;
+                if tracks[loser].status == Status::Tentative {
+                    counters.merged_tentative += 1;
+                }
             }
         }
 
