@@ -419,6 +419,9 @@ fn core_matches_reference_on_seeded_scenes() {
                         d.cov_rel,
                         near.len()
                     );
+                    for n in &near {
+                        println!("    near (decided alike): {n}");
+                    }
                 }
                 Err(e) if !near.is_empty() || approx > 0 => {
                     excluded.push(format!(
