@@ -4,15 +4,15 @@
 //! initiation priors, the update with ended tracks, and determinism.
 //!
 //! All scenes use the repository's default hyperparameters (`data/hyper/default.json`), `K = 4`
-//! (R = 61 rows, `Δu = 77/60` m) and `PER_ROW = 16`, and the §6 defaults of `Config` except the
-//! initiation offset variance: `σ_c² = 1 m²` instead of the tables' `offset_variance = 25 m²`
-//! (see [`tables_offset_variance_blends_neighbouring_lanes`] for what the literal 25 m² does).
+//! (R = 61 rows, `Δu = 77/60` m) and `PER_ROW = 16`, and the §6 defaults of `Config` with the
+//! tables' initiation offset variance (`offset_variance = 25 m²`).
 
 use nalgebra::{DMatrix, DVector};
 use stjpdacf_host::hyper::HyperFile;
 use stjpdacf_host::reference::jpda::{self, Estimate, MissConvention, RowParams};
 use stjpdacf_host::reference::spatial::{
-    bin_points, insert_track, mixture_update_full, run_frame, Config, FrameResult, Model, Status,
+    bin_points, condition_on_point, insert_track, mixture_update_full, run_frame, Config,
+    FrameResult, Model, Status,
 };
 use stjpdacf_host::repo_root;
 use stjpdacf_host::scenario::{Gap, Junction, Scenario, ScenarioConfig, Shape};
@@ -26,15 +26,9 @@ fn tables() -> ModelTables {
     ModelTables::from_hyper(&h).unwrap()
 }
 
-/// Initiation offset variance used by the tests, m².
-const SIGMA_C2: f64 = 1.0;
-
 fn setup() -> (Model, Config) {
     let t = tables();
-    let cfg = Config {
-        offset_variance: SIGMA_C2,
-        ..Config::from_tables(&t)
-    };
+    let cfg = Config::from_tables(&t);
     (Model::new(&t, K).unwrap(), cfg)
 }
 
@@ -70,6 +64,16 @@ fn check_invariants(res: &FrameResult, model: &Model, cfg: &Config) {
         );
         assert_sym_psd(&d.filtered.p, &format!("row {} filtered P̄", d.row));
         assert_sym_psd(&d.predicted.p, &format!("row {} predicted P̄", d.row));
+        // The points that started tracks were used by initiation, not by the update.
+        assert_eq!(
+            d.update_points.len() + d.initiated.len(),
+            d.points.len(),
+            "row {}",
+            d.row
+        );
+        if d.failed {
+            assert!(d.hit.iter().all(|h| !h));
+        }
     }
     // Ranks never swap: the relative order of two identities is the same in every row.
     let mut first_order: std::collections::BTreeMap<(usize, usize), bool> = Default::default();
@@ -97,7 +101,7 @@ fn check_invariants(res: &FrameResult, model: &Model, cfg: &Config) {
         assert_eq!(t.pseudo.len(), model.points);
         assert_sym_psd(&t.pseudo_cov, &format!("track {} pseudo covariance", t.id));
         for (i, p) in t.pseudo.iter().enumerate() {
-            let inside = i * K >= t.start_row && i * K <= t.last_recorded_row;
+            let inside = i * K >= t.first_row && i * K <= t.last_row;
             assert_eq!(p.is_some(), inside, "track {} index {i}", t.id);
             if p.is_none() {
                 assert!(t.pseudo_cov.row(i).iter().all(|&v| v == 0.0));
@@ -475,22 +479,22 @@ fn deterministic() {
     check_invariants(&ra, &model, &cfg);
 }
 
-/// The B-conditioned prior (§3.2d): inserting into the exact stationary prior `B_n ⊗ P∞` gives
-/// the stationary prior `B_{n+1} ⊗ P∞` on the GP parts, with an independent offset — exactly when
-/// the tracks keep their rank distances, i.e. a new leftmost (k = 0) or rightmost (k = n) track
-/// with a stationary (Toeplitz) B, as the defaults use. A track inserted between two others
-/// changes their rank distance: slots = ranks cannot keep the old pair's covariance exact then
-/// (a limit of the model, DESIGN 4.0), so interior insertions are checked for PSD below.
+/// The B-conditioned prior (§3.2d): inserting at rank `k` into the exact stationary prior of the
+/// slots the existing tracks occupy after the insertion (`B` over `{0..=n} ∖ {k}`, ⊗ `P∞`) gives
+/// the stationary prior `B_{n+1} ⊗ P∞` on the GP parts, with an independent offset. (The slots
+/// right of `k` shift, so with a non-Toeplitz `B` the prior *before* the shift is not the one to
+/// start from.)
 #[test]
 fn initiation_prior_is_the_conditional_of_b() {
     let (model, cfg) = setup();
     let ns = model.ns();
     let nt = ns - 1;
-    let kron_prior = |n: usize, c_var: f64| -> DMatrix<f64> {
+    let kron_prior = |slots: &[usize], c_var: f64| -> DMatrix<f64> {
+        let n = slots.len();
         let mut p = DMatrix::zeros(n * ns, n * ns);
-        for i in 0..n {
-            for j in 0..n {
-                let blk = &model.p_inf_u * model.b[(i, j)];
+        for (i, &si) in slots.iter().enumerate() {
+            for (j, &sj) in slots.iter().enumerate() {
+                let blk = &model.p_inf_u * model.b[(si, sj)];
                 p.view_mut((i * ns + 1, j * ns + 1), (nt, nt))
                     .copy_from(&blk);
             }
@@ -499,16 +503,15 @@ fn initiation_prior_is_the_conditional_of_b() {
         p
     };
     for n in 0..4 {
-        for k in [0, n]
-            .into_iter()
-            .collect::<std::collections::BTreeSet<_>>()
-        {
+        for k in 0..=n {
+            let after: Vec<usize> = (0..=n).filter(|&s| s != k).collect();
             let state = Estimate {
                 x: DVector::zeros(n * ns),
-                p: kron_prior(n, cfg.offset_variance),
+                p: kron_prior(&after, cfg.offset_variance),
             };
             let s = insert_track(&state, &model, k, 1.25, cfg.offset_variance).unwrap();
-            let want = kron_prior(n + 1, cfg.offset_variance);
+            let all: Vec<usize> = (0..=n).collect();
+            let want = kron_prior(&all, cfg.offset_variance);
             let err = (&s.p - &want).abs().max();
             assert!(err < 1e-9, "n {n} k {k}: {err}");
             assert_eq!(s.x[k * ns], 1.25);
@@ -523,7 +526,7 @@ fn initiation_prior_is_the_conditional_of_b() {
     let v = DVector::from_fn(2 * ns, |i, _| 0.02 * (i as f64 - 2.0));
     let state = Estimate {
         x: DVector::from_fn(2 * ns, |i, _| 0.3 * i as f64 - 1.0),
-        p: kron_prior(2, 2.0) + &v * v.transpose(),
+        p: kron_prior(&[0, 2], 2.0) + &v * v.transpose(),
     };
     let s = insert_track(&state, &model, 1, -0.5, cfg.offset_variance).unwrap();
     assert_sym_psd(&s.p, "inserted");
@@ -547,7 +550,7 @@ fn initiation_prior_is_the_conditional_of_b() {
     // No slot left: refused.
     let full = Estimate {
         x: DVector::zeros(model.b.nrows() * ns),
-        p: kron_prior(model.b.nrows(), 1.0),
+        p: kron_prior(&(0..model.b.nrows()).collect::<Vec<_>>(), 1.0),
     };
     assert!(insert_track(&full, &model, 0, 0.0, 1.0).is_none());
 }
@@ -615,17 +618,62 @@ fn full_state_update_with_an_ended_track() {
     assert_eq!(upd.p[(ns, ns)], pred.p[(ns, ns)]);
 }
 
-/// A finding about the specification, not a requirement: with the literal `σ_c² = offset_variance`
-/// of the tables (25 m²) a new track's first update cannot tell its own point from a neighbouring
-/// lane's (both within a fraction of σ_c), the mixture blends them, and the track stays a wide
-/// blob between two lanes that "hits" one or the other every row. With `σ_c² = 1 m²` the same
-/// frame gives the three lanes.
+/// §3.2d: the certain-association update of a new track. On its own: `h·x` of the new track moves
+/// to `h·x̄ + s/(s + r)·(x − h·x̄)` with variance `s·r/(s + r) < r` (`s = h P̄ hᵀ` of the prior), while
+/// `Var(c)` stays above `Var(c + g)` and the result stays PSD. In a frame with the tables' 25 m²: the three lanes
+/// are found, and each new track's recorded "prediction" is pinned at one of the row's points
+/// that the update did not see.
 #[test]
-fn tables_offset_variance_blends_neighbouring_lanes() {
-    let t = tables();
-    let model = Model::new(&t, K).unwrap();
-    let literal = Config::from_tables(&t);
-    assert_eq!(literal.offset_variance, 25.0);
+fn initiation_update_pins_the_new_track_at_its_point() {
+    let (model, cfg) = setup();
+    let ns = model.ns();
+    let nt = ns - 1;
+    let mut p = DMatrix::zeros(2 * ns, 2 * ns);
+    for (i, si) in [0usize, 2].into_iter().enumerate() {
+        for (j, sj) in [0usize, 2].into_iter().enumerate() {
+            p.view_mut((i * ns + 1, j * ns + 1), (nt, nt))
+                .copy_from(&(&model.p_inf_u * model.b[(si, sj)] * 0.05));
+        }
+        p[(i * ns, i * ns)] = 0.04;
+    }
+    let state = Estimate {
+        x: DVector::from_fn(2 * ns, |i, _| match i {
+            0 => -3.6,
+            i if i == ns => 3.6,
+            i => 0.01 * i as f64,
+        }),
+        p,
+    };
+    let x0 = 0.2;
+    let prior = insert_track(&state, &model, 1, x0, cfg.offset_variance).unwrap();
+    let post = condition_on_point(&prior, &model.h, 1, x0, cfg.r).unwrap();
+    assert!(condition_on_point(&prior, &model.h, 3, x0, cfg.r).is_none());
+    let hk = |k: usize| {
+        let mut h = DMatrix::zeros(1, 3 * ns);
+        h.view_mut((0, k * ns), (1, ns)).copy_from(&model.h);
+        h
+    };
+    let var = |e: &Estimate, k: usize| (hk(k) * &e.p * hk(k).transpose())[(0, 0)];
+    let mean = |e: &Estimate, k: usize| (hk(k) * &e.x)[(0, 0)];
+    let s0 = var(&prior, 1);
+    assert!(s0 > cfg.offset_variance);
+    let want_var = s0 * cfg.r / (s0 + cfg.r);
+    assert!((var(&post, 1) - want_var).abs() < 1e-12 * s0);
+    assert!(var(&post, 1) < cfg.r);
+    let want_mean = mean(&prior, 1) + s0 / (s0 + cfg.r) * (x0 - mean(&prior, 1));
+    assert!((mean(&post, 1) - want_mean).abs() < 1e-12);
+    assert!((mean(&post, 1) - x0).abs() < 1e-3);
+    // c is independent of the rest in the prior: Var(c | x) = σ_c² − σ_c⁴/(s + r), and c on its
+    // own stays more uncertain than c + g.
+    let sc2 = cfg.offset_variance;
+    let want_c = sc2 - sc2 * sc2 / (s0 + cfg.r);
+    assert!((post.p[(ns, ns)] - want_c).abs() < 1e-9 * sc2);
+    assert!(post.p[(ns, ns)] > var(&post, 1));
+    for k in [0, 2] {
+        assert!(var(&post, k) <= var(&prior, k) + 1e-15);
+    }
+    assert_sym_psd(&post.p, "conditioned");
+
     let scfg = ScenarioConfig {
         pd: 1.0,
         gaps: vec![Gap {
@@ -636,19 +684,31 @@ fn tables_offset_variance_blends_neighbouring_lanes() {
         ..ScenarioConfig::default()
     };
     let sc = Scenario::generate(&scfg, 5);
-    let res = run_frame(&model, &literal, &sc.points, PER_ROW);
-    check_invariants(&res, &model, &literal);
-    let widest = res
-        .tracks
-        .iter()
-        .flat_map(|t| (0..model.points).filter_map(|i| t.pseudo[i].map(|_| t.pseudo_cov[(i, i)])))
-        .fold(0.0, f64::max);
-    assert!(
-        widest > 1.0,
-        "{} tracks, widest pseudo variance {widest}",
-        res.tracks.len()
-    );
-    let (_, cfg) = setup();
     let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-    assert_finds_all(&sc, &res, &model, "σ_c² = 1");
+    check_invariants(&res, &model, &cfg);
+    assert_finds_all(&sc, &res, &model, "σ_c² = offset_variance");
+    let mut seen = 0;
+    for d in &res.rows {
+        for id in &d.initiated {
+            let k = d.tracks.iter().position(|t| t == id).unwrap();
+            let hx = d.predicted.x[k * ns] + d.predicted.x[k * ns + 1];
+            let v = (model.h.clone()
+                * d.predicted.p.view((k * ns, k * ns), (ns, ns))
+                * model.h.transpose())[(0, 0)];
+            assert!(v < cfg.r, "row {}: var {v}", d.row);
+            let used: Vec<f64> = d
+                .points
+                .iter()
+                .copied()
+                .filter(|x| !d.update_points.contains(x))
+                .collect();
+            assert!(
+                used.iter().any(|x| (x - hx).abs() < 3.0 * cfg.r.sqrt()),
+                "row {}: {hx} vs {used:?}",
+                d.row
+            );
+            seen += 1;
+        }
+    }
+    assert!(seen >= 3);
 }

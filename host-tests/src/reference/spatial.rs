@@ -12,60 +12,66 @@
 //!
 //! # Units and sizes
 //! BEV metres: `u` ahead, `x` lateral. `N` index points over the tables' window, `K` rows per index
-//! interval, `Δu = (u_max − u_min)/((N − 1)·K)` computed from the window (the hyperparameter
-//! file's `spatial.row_step` is **not** used: the default file's 1.203125 m is not `77/60` m, the
-//! `Δu` of `K = 4`), so `F_u`, `Q_u` are recomputed at `Δu` from the RBF hyperparameters.
+//! interval, `Δu = (u_max − u_min)/((N − 1)·K)` computed from the window, so `F_u`, `Q_u` are
+//! recomputed at `Δu` from the RBF hyperparameters (with the default file, `K = 4` gives the file's
+//! `spatial.row_step` = 77/60 m).
 //! The lane state is `[c, g, g', …]` (`NS = NT + 1`), `F = blockdiag(1, F_u)`,
 //! `Q = blockdiag(0, Q_u)`, `h = [1, 1, 0, …]`.
 //!
 //! # Readings of the specification
-//! Where `docs/spatial-filter.md` leaves room, this module reads it as follows:
-//! 1. **Ended tracks in the update** (§3.4 "no longer updated … skipped by gating"): an ended track
-//!    stays in the stacked state and is forced to *miss* in every event (it gates no point). The
-//!    event weights and `β` are those of the active tracks alone (`jpda::row_step` on the active
-//!    tracks' marginal); the mixture update is then applied to the **whole** stacked state with the
-//!    gains `P̄ H_δᵀ S_δ⁻¹` (so an ended track's state moves only through its cross-covariance with
-//!    the active tracks). This is the exact update of the model and keeps `P̄` PSD; freezing the
-//!    ended blocks instead would not.
-//! 2. **Freedom** (§3.2a) is tested against the predicted *active* (non-ended) tracks only, for the
-//!    same reason (ended tracks take no points).
+//! Where `docs/spatial-filter.md` leaves room, this module reads it as the core
+//! (`src/spatial/filter.rs`) does:
+//! 1. **Ended tracks in the update** (§3.4): an ended track stays in the stacked state and is
+//!    forced to *miss* in every event (it gates no point, carries no miss factor). The event
+//!    weights and `β` are those of the active tracks alone (`jpda::row_step` on the active tracks'
+//!    marginal); the mixture update is then applied to the **whole** stacked state with the gains
+//!    `P̄ H_δᵀ S_δ⁻¹` (so an ended track's state moves only through its cross-covariance with the
+//!    active tracks). When tracks exist but none is active, the only event is "all missed" (1
+//!    event, the state is unchanged, every point is clutter).
+//! 2. **Freedom** (§3.2a) is tested once per row, against the predicted *active* tracks, before
+//!    any initiation of the row.
 //! 3. "**fewer than LANES tracks exist**" (§3.2c) counts every track in the stacked state,
-//!    ended ones included (they keep their slot). The rank (§3.2c) also counts ended tracks and
-//!    tracks started earlier in the same row (they exist by then); the freedom of the row's points
-//!    is computed once, before any initiation of the row.
+//!    ended ones included. The rank counts every track (ended ones and tracks started earlier in
+//!    the same row), on the current state (after the earlier initiations' point updates).
 //! 4. **Consistency** (§3.2b) is inclusive, `|x − x_b| ≤ init_gate`; a buffer entry that made a
 //!    point consistent stays in the buffer (entries leave only by age). The buffer at row `r` holds
-//!    the entries of rows `r − init_rows ..= r − 1`. Ties in `x` keep input order.
-//! 5. **The new track's prior** (§3.2d) is taken literally: `E[c] = x` (the point), so the
-//!    predicted position `h·x̄_new = x + Σ a_j E[g_j]` is not exactly the point.
+//!    the entries of rows `r − init_rows ..= r − 1`. Free points are examined by increasing `x`,
+//!    ties in input order.
+//! 5. **The new track** (§3.2d): prior `E[c] = x`, `Var(c) = offset_variance` (the tables' value,
+//!    25 m² in the default file), the GP part conditioned on the others through `B`; then the
+//!    whole stacked state gets a Kalman update with the initiating point as a certain association
+//!    (`z = x`, `h` on the new track, variance `r`), and the point is removed from the points of
+//!    the row's update. Should that update be impossible (`h P h + r ≤ 0`), the track keeps its
+//!    prior, as in the core.
 //! 6. **Hits** (§3.4): `hits` and `misses` are totals over the track's life (the rows in which it
 //!    was active, from its initiation row on); confirmation uses the total hits, deletion and
 //!    ending the consecutive misses. A track ended at row `r` is not recorded at row `r` (§3.6
-//!    records active tracks), so its recorded rows end at `r − 1`.
-//! 7. **Merge** (§3.5): a pair is two tracks at adjacent positions of the full rank list (an ended
-//!    track in between separates them), both active after step 4; "predicted positions" are
-//!    `h·x̄` of the row's predicted state (for a track started in the row: its prior). The count of
-//!    consecutive near rows is kept per pair of track identities and reset when they are not near
-//!    or not adjacent. Pairs are checked left to right; a pair involving a track already deleted
-//!    in this row is skipped.
-//! 8. **No active track** in a row: no update (the filtered state is the prediction, 0 events); all
+//!    records tracks that are not ended), so its recorded rows end at `r − 1`.
+//! 7. **Merge** (§3.5): on the *filtered* positions `h·x` after the row update. One counter per
+//!    rank (the pair with its right neighbour); pairs are examined left to right, a pair with an
+//!    ended track or a track already deleted in this row (by misses or by an earlier merge of the
+//!    same row) is skipped (its counter is left as it is), otherwise its counter is incremented
+//!    when `|h·x_a − h·x_b| ≤ merge_distance` and set to 0 when not; at `merge_rows` the loser is
+//!    deleted (fewer hits; equal hits: the later start row; then the right one). Every counter is
+//!    reset to 0 whenever a track is inserted or removed.
+//! 8. **No track** in a row: no update (the filtered state is the prediction, 0 events); all
 //!    of the row's points count as clutter.
-//! 9. **A numerical failure** of the row update (`row_step` returns `None`) leaves the predicted
-//!    state as the filtered one and counts as a miss of every active track (as the core does);
-//!    the row is flagged [`RowDiag::failed`].
-//! 10. **Pseudo-measurements** (§4) cover the index points `i` with `i·K` inside the track's
-//!     *recorded* rows (initiation row to last recorded row), not only its hit extent. The output
-//!     covariance is N×N with zero rows and columns at missing index points (still PSD). No
-//!     measurement noise is added: it is `Cov(h·x_a, h·x_b)`.
-//! 11. **Clutter points** (counter) are a row's points valid for no active track in the update's
-//!     gating (after initiation).
-//! 12. **`offset_variance`** is not in §6's table; [`Config::from_tables`] takes the tables'
-//!     `spatial.offset_variance` (25 m² in the default file), the literal reading of
-//!     "σ_c² = `offset_variance`". That value is far too broad for a prior already centred on the
-//!     starting point: the new track's first update cannot tell its point from a neighbouring
-//!     lane's, the mixture blends them and the track can stay a wide blob between two lanes, and a
-//!     tentative track started on clutter collects clutter "hits" until it confirms. With
-//!     `σ_c² ≈ 1 m²` the walk behaves (see `host-tests/tests/spatial_reference.rs`).
+//! 9. **A numerical failure** of the row update (`row_step` returns `None`) leaves the state
+//!    (after initiation) as the filtered one and counts neither hits nor misses; the row is
+//!    flagged [`RowDiag::failed`].
+//! 10. **Recording** (§3.6): the "predicted" moments of row `r` are taken after initiation, i.e.
+//!     after the new tracks' point updates (which also move the other tracks through their
+//!     cross-covariances); a track started at row `r` records its prior conditioned on its point.
+//! 11. **Pseudo-measurements** (§4): the backward pass runs from the last recorded row down to the
+//!     start row; index points `i` with `i·K` inside the *hit extent* `[first_row, last_row]` get
+//!     a pseudo-measurement. The output covariance is N×N with zero rows and columns at missing
+//!     index points (still PSD). No measurement noise is added: it is `Cov(h·x_a, h·x_b)`.
+//! 12. **Clutter points** (counter) are a row's points (after initiation removed its starting
+//!     points) valid for no active track in the update's gating.
+//!
+//! [`RowDiag::margins`] records how close each of the row's discrete decisions came to its
+//! threshold, so that a comparison with an f32 implementation can tell a flipped decision from a
+//! bug.
 
 use std::collections::BTreeMap;
 
@@ -128,7 +134,7 @@ impl Config {
             init_rows: 3,
             init_gate: 0.5,
             max_tentative: 2,
-            confirm_hits: 4,
+            confirm_hits: 6,
             tentative_misses: 3,
             max_misses: 8,
             merge_distance: 0.3,
@@ -267,10 +273,14 @@ pub struct Counters {
     pub clutter_points: usize,
     /// Tracks started.
     pub initiated: usize,
+    /// Tentative tracks confirmed.
+    pub confirmed: usize,
     /// Tentative tracks deleted by misses.
     pub deleted: usize,
     /// Tracks deleted by the merge rule.
     pub merged: usize,
+    /// Of those, tracks that were still tentative (the core's `deleted` counter includes them).
+    pub merged_tentative: usize,
     /// Confirmed tracks ended by misses.
     pub ended: usize,
     /// Rows whose event count exceeded `max_events`.
@@ -288,6 +298,34 @@ pub enum Status {
     Ended,
 }
 
+/// How close a row's discrete decisions came to their thresholds (`f64::INFINITY` when the row
+/// made no such decision). An f32 implementation may decide the other way when a margin is tiny.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Margins {
+    /// `min |d² − γ|` over the freedom test (§3.2a) and the update's gating (§3.3).
+    pub gate: f64,
+    /// `min |(1 − β_miss) − 0.5|` over the active tracks (§3.4).
+    pub hit: f64,
+    /// `min ||x − x_b| − init_gate|` over the free points and the buffer entries (§3.2b).
+    pub init_gate: f64,
+    /// `min |h·x_t − x|` over the rank counts of the row's initiations (§3.2c).
+    pub rank: f64,
+    /// `min ||h·x_a − h·x_b| − merge_distance|` over the pairs tested for a merge (§3.5).
+    pub merge: f64,
+}
+
+impl Default for Margins {
+    fn default() -> Self {
+        Self {
+            gate: f64::INFINITY,
+            hit: f64::INFINITY,
+            init_gate: f64::INFINITY,
+            rank: f64::INFINITY,
+            merge: f64::INFINITY,
+        }
+    }
+}
+
 /// What happened in one row.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RowDiag {
@@ -295,13 +333,16 @@ pub struct RowDiag {
     pub row: usize,
     /// The row's points (lateral positions, input order).
     pub points: Vec<f64>,
+    /// The points of the update: the row's points without those that started a track.
+    pub update_points: Vec<f64>,
     /// Identities of the tracks in rank order as the update saw them (after initiation).
     pub tracks: Vec<usize>,
     /// Status of each of those tracks during the update (before step 4).
     pub status: Vec<Status>,
     /// Tracks started in this row.
     pub initiated: Vec<usize>,
-    /// Predicted stacked state after initiation (new tracks carry their prior), rank order.
+    /// Predicted stacked state after initiation (new tracks carry their prior conditioned on
+    /// their point, and that point update has moved the others too), rank order.
     pub predicted: Estimate,
     /// Filtered stacked state after the update, rank order (same tracks as [`Self::tracks`]).
     pub filtered: Estimate,
@@ -311,10 +352,12 @@ pub struct RowDiag {
     pub over_budget: bool,
     /// `P(missed)` per track (`None` for an ended track).
     pub beta_miss: Vec<Option<f64>>,
-    /// Whether each track hit (`1 − β_miss ≥ 0.5`; `false` for ended tracks).
+    /// Whether each track hit (`1 − β_miss ≥ 0.5`; `false` for ended tracks and in a failed row).
     pub hit: Vec<bool>,
     /// The row update failed numerically.
     pub failed: bool,
+    /// Closest approach of the row's decisions to their thresholds.
+    pub margins: Margins,
 }
 
 /// The output of one confirmed track (§4).
@@ -342,8 +385,8 @@ pub struct TrackOutput {
     pub existence: f64,
     /// Observed extent `[u_first_row, u_last_row]`.
     pub extent: (f64, f64),
-    /// Smoothed lateral position `h·x_{iK|R}` at each index point, `None` outside the recorded
-    /// rows.
+    /// Smoothed lateral position `h·x_{iK|R}` at each index point, `None` outside the hit extent
+    /// `[first_row, last_row]`.
     pub pseudo: Vec<Option<f64>>,
     /// `Cov(h·x_a, h·x_b)` over the index points (N×N, zero at missing points).
     pub pseudo_cov: DMatrix<f64>,
@@ -543,6 +586,37 @@ pub fn insert_track(
     })
 }
 
+/// §3.2d: the Kalman update of the whole stacked state with the point `z` known to come from the
+/// track at rank `k` (`z = h·x_k + v`, `v ~ N(0, r)`); every track moves through its
+/// cross-covariance with `k`. `None` when `k` is out of range or `h P_kk hᵀ + r ≤ 0`.
+pub fn condition_on_point(
+    state: &Estimate,
+    h: &DMatrix<f64>,
+    k: usize,
+    z: f64,
+    r: f64,
+) -> Option<Estimate> {
+    let ns = h.ncols();
+    let n = state.x.len() / ns;
+    if k >= n {
+        return None;
+    }
+    let mut hk = DMatrix::zeros(1, n * ns);
+    hk.view_mut((0, k * ns), (1, ns)).copy_from(h);
+    let g = &state.p * hk.transpose(); // n·NS × 1
+    let s = (&hk * &g)[(0, 0)] + r;
+    let nu = z - (&hk * &state.x)[(0, 0)];
+    if !(s.is_finite() && s > 0.0 && nu.is_finite()) {
+        return None;
+    }
+    let x = &state.x + g.column(0) * (nu / s);
+    let p = &state.p - &g * g.transpose() / s;
+    Some(Estimate {
+        x,
+        p: (&p + p.transpose()) * 0.5,
+    })
+}
+
 /// The exact mixture update of the whole stacked state when only the tracks `active` (ascending
 /// stacked positions) can be detected: the events and their probabilities come from
 /// `jpda::row_step` on the active tracks' marginal; each event's mean is
@@ -638,11 +712,14 @@ pub fn run_frame(
         p: DMatrix::zeros(0, 0),
     };
     let mut buffer: Vec<(usize, f64)> = Vec::new();
-    let mut near: BTreeMap<(usize, usize), usize> = BTreeMap::new();
+    // Merge counters, one per rank (the pair with its right neighbour).
+    let mut near: Vec<usize> = Vec::new();
     let mut next_id = 0usize;
     let mut diags = Vec::with_capacity(model.rows);
+    let hx = |e: &Estimate, i: usize| e.x[i * ns] + e.x[i * ns + 1];
 
     for (r, zs) in rows.iter().enumerate() {
+        let mut margins = Margins::default();
         // 1. Predict.
         if r > 0 && !tracks.is_empty() {
             let n = tracks.len();
@@ -650,25 +727,33 @@ pub fn run_frame(
             state = jpda::predict(&state.x, &state.p, &model.f, &model.q, &bn);
         }
 
-        // 2. Initiation.
+        // 2. Initiation: freedom once, against the predicted active tracks.
         buffer.retain(|&(br, _)| br + cfg.init_rows >= r);
-        let active_idx: Vec<usize> = (0..tracks.len())
-            .filter(|&i| tracks[i].status != Status::Ended)
-            .collect();
         let gating = jpda::gate(&state.x, &state.p, &model.h, cfg.r, zs, cfg.gamma);
-        let mut free: Vec<f64> = zs
-            .iter()
-            .enumerate()
-            .filter(|(j, _)| !active_idx.iter().any(|&t| gating.valid[t][*j]))
-            .map(|(_, &x)| x)
-            .collect();
-        free.sort_by(f64::total_cmp);
+        let mut free: Vec<(f64, usize)> = Vec::new();
+        for (j, &x) in zs.iter().enumerate() {
+            let mut valid = false;
+            for (t, tr) in tracks.iter().enumerate() {
+                if tr.status != Status::Ended {
+                    margins.gate = margins.gate.min((gating.d2[t][j] - cfg.gamma).abs());
+                    valid |= gating.valid[t][j];
+                }
+            }
+            if !valid {
+                free.push((x, j));
+            }
+        }
+        free.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut used = vec![false; zs.len()];
         let mut initiated = Vec::new();
         let mut new_buffer = Vec::new();
-        for &x in &free {
-            let consistent = buffer
-                .iter()
-                .any(|&(_, bx)| (x - bx).abs() <= cfg.init_gate);
+        for &(x, j) in &free {
+            let mut consistent = false;
+            for &(_, bx) in &buffer {
+                let d = (x - bx).abs();
+                margins.init_gate = margins.init_gate.min((d - cfg.init_gate).abs());
+                consistent |= d <= cfg.init_gate;
+            }
             let mut started = false;
             if consistent {
                 let tentative = tracks
@@ -676,14 +761,12 @@ pub fn run_frame(
                     .filter(|t| t.status == Status::Tentative)
                     .count();
                 if tentative < cfg.max_tentative && tracks.len() < lanes {
-                    let k = (0..tracks.len())
-                        .filter(|&i| {
-                            let hx = state.x[i * ns] + state.x[i * ns + 1];
-                            hx < x
-                        })
-                        .count();
+                    for i in 0..tracks.len() {
+                        margins.rank = margins.rank.min((hx(&state, i) - x).abs());
+                    }
+                    let k = (0..tracks.len()).filter(|&i| hx(&state, i) < x).count();
                     if let Some(s) = insert_track(&state, model, k, x, cfg.offset_variance) {
-                        state = s;
+                        state = condition_on_point(&s, &model.h, k, x, cfg.r).unwrap_or(s);
                         tracks.insert(
                             k,
                             Track {
@@ -698,6 +781,8 @@ pub fn run_frame(
                                 recs: Vec::new(),
                             },
                         );
+                        near = vec![0; tracks.len()];
+                        used[j] = true;
                         initiated.push(next_id);
                         next_id += 1;
                         counters.initiated += 1;
@@ -713,8 +798,14 @@ pub fn run_frame(
         }
         buffer.extend(new_buffer);
         let predicted = state.clone();
+        let rest: Vec<f64> = zs
+            .iter()
+            .zip(&used)
+            .filter(|(_, u)| !**u)
+            .map(|(x, _)| *x)
+            .collect();
 
-        // 3. Update.
+        // 3. Update with the remaining points.
         let active: Vec<usize> = (0..tracks.len())
             .filter(|&i| tracks[i].status != Status::Ended)
             .collect();
@@ -724,18 +815,22 @@ pub fn run_frame(
             .collect();
         let mut events = 0;
         let mut failed = false;
-        if active.is_empty() {
-            counters.clutter_points += zs.len();
+        if tracks.is_empty() {
+            counters.clutter_points += rest.len();
+        } else if active.is_empty() {
+            // Only the "all missed" event: nothing moves.
+            events = 1;
+            counters.clutter_points += rest.len();
         } else {
             let idx = indices(&active, ns);
             let sub_x = predicted.x.select_rows(&idx);
             let sub_p = predicted.p.select_rows(&idx).select_columns(&idx);
-            let res = jpda::row_step(&sub_x, &sub_p, &model.h, zs, &params);
+            let res = jpda::row_step(&sub_x, &sub_p, &model.h, &rest, &params);
             let upd = res.as_ref().and_then(|rs| {
                 if active.len() == tracks.len() {
                     Some(rs.mixture.clone())
                 } else {
-                    mixture_update_full(&predicted, &model.h, cfg.r, zs, &active, rs)
+                    mixture_update_full(&predicted, &model.h, cfg.r, &rest, &active, rs)
                 }
             });
             match (res, upd) {
@@ -744,14 +839,18 @@ pub fn run_frame(
                     events = rs.events.len();
                     for (a, &t) in active.iter().enumerate() {
                         beta_miss[t] = Some(rs.beta[a][0]);
+                        margins.hit = margins.hit.min((0.5 - rs.beta[a][0]).abs());
                     }
-                    counters.clutter_points += (0..zs.len())
+                    for d2 in rs.gating.d2.iter().flatten() {
+                        margins.gate = margins.gate.min((d2 - cfg.gamma).abs());
+                    }
+                    counters.clutter_points += (0..rest.len())
                         .filter(|&j| !rs.gating.valid.iter().any(|v| v[j]))
                         .count();
                 }
                 _ => {
                     failed = true;
-                    counters.clutter_points += zs.len();
+                    counters.clutter_points += rest.len();
                 }
             }
         }
@@ -762,15 +861,15 @@ pub fn run_frame(
         let filtered = state.clone();
         let hit: Vec<bool> = beta_miss
             .iter()
-            .map(|b| b.is_some_and(|b| 1.0 - b >= 0.5))
+            .map(|b| !failed && b.is_some_and(|b| 1.0 - b >= 0.5))
             .collect();
         let diag_tracks: Vec<usize> = tracks.iter().map(|t| t.id).collect();
         let diag_status: Vec<Status> = tracks.iter().map(|t| t.status).collect();
 
-        // 4. Hits and misses.
+        // 4. Hits and misses (none counted when the update failed).
         let mut delete = vec![false; tracks.len()];
         for (i, t) in tracks.iter_mut().enumerate() {
-            if t.status == Status::Ended {
+            if t.status == Status::Ended || failed {
                 continue;
             }
             if hit[i] {
@@ -782,6 +881,7 @@ pub fn run_frame(
                 }
                 if t.status == Status::Tentative && t.hits >= cfg.confirm_hits {
                     t.status = Status::Confirmed;
+                    counters.confirmed += 1;
                 }
             } else {
                 t.misses += 1;
@@ -796,64 +896,44 @@ pub fn run_frame(
             }
         }
 
-        // 5. Merge (on the predicted positions of the row).
-        let pos: Vec<f64> = (0..tracks.len())
-            .map(|i| predicted.x[i * ns] + predicted.x[i * ns + 1])
-            .collect();
-        let mut new_near = BTreeMap::new();
-        let mut to_merge = Vec::new();
+        // 5. Merge, on the filtered positions, left to right.
         for i in 0..tracks.len().saturating_sub(1) {
-            let (a, b) = (&tracks[i], &tracks[i + 1]);
-            let live = |k: usize, t: &Track| !delete[k] && t.status != Status::Ended;
-            if !live(i, a) || !live(i + 1, b) {
+            let live = |k: usize| !delete[k] && tracks[k].status != Status::Ended;
+            if !live(i) || !live(i + 1) {
                 continue;
             }
-            if (pos[i] - pos[i + 1]).abs() <= cfg.merge_distance {
-                let c = near.get(&(a.id, b.id)).copied().unwrap_or(0) + 1;
-                new_near.insert((a.id, b.id), c);
-                if c >= cfg.merge_rows {
-                    to_merge.push(i);
-                }
-            }
-        }
-        near = new_near;
-        for i in to_merge {
-            if delete[i] || delete[i + 1] {
-                continue;
-            }
-            let (a, b) = (&tracks[i], &tracks[i + 1]);
-            let loser = if a.hits != b.hits {
-                if a.hits < b.hits {
-                    i
-                } else {
-                    i + 1
-                }
-            } else if a.start_row != b.start_row {
-                if a.start_row > b.start_row {
-                    i
-                } else {
-                    i + 1
-                }
-            } else if a.id > b.id {
-                i
+            let d = (hx(&filtered, i) - hx(&filtered, i + 1)).abs();
+            margins.merge = margins.merge.min((d - cfg.merge_distance).abs());
+            near[i] = if d <= cfg.merge_distance {
+                near[i] + 1
             } else {
-                i + 1
+                0
             };
-            delete[loser] = true;
-            counters.merged += 1;
-            let id = tracks[loser].id;
-            near.retain(|&(l, rr), _| l != id && rr != id);
+            if near[i] >= cfg.merge_rows {
+                let (a, b) = (&tracks[i], &tracks[i + 1]);
+                let loser = if a.hits < b.hits || (a.hits == b.hits && a.start_row > b.start_row) {
+                    i
+                } else {
+                    i + 1
+                };
+                delete[loser] = true;
+                counters.merged += 1;
+                if tracks[loser].status == Status::Tentative {
+                    counters.merged_tentative += 1;
+                }
+            }
         }
 
-        // Remove deleted tracks (highest rank first).
+        // Remove deleted tracks (highest rank first); any removal restarts every merge counter.
         for i in (0..tracks.len()).rev() {
             if delete[i] {
                 state = remove_track(&state, ns, i);
                 tracks.remove(i);
+                near = vec![0; tracks.len()];
             }
         }
 
-        // 6. Record the active tracks' marginal moments (found by identity in the row's ranks).
+        // 6. Record the moments of the tracks that are not ended (by identity in the row's ranks).
         for t in tracks.iter_mut() {
             if t.status == Status::Ended {
                 continue;
@@ -870,6 +950,7 @@ pub fn run_frame(
         diags.push(RowDiag {
             row: r,
             points: zs.clone(),
+            update_points: rest,
             tracks: diag_tracks,
             status: diag_status,
             initiated,
@@ -880,6 +961,7 @@ pub fn run_frame(
             beta_miss,
             hit,
             failed,
+            margins,
         });
     }
 
@@ -931,7 +1013,7 @@ fn backward(model: &Model, t: &Track, rank: usize) -> Option<TrackOutput> {
     let present: Vec<usize> = (0..n)
         .filter(|&i| {
             let row = i * model.k;
-            row >= t.start_row && row <= last_rec
+            row >= first_row && row <= last_row
         })
         .collect();
     let h = &model.h;
