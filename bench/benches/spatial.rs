@@ -10,6 +10,10 @@
 //! * **worst-case row** — the same 6 tracks with their broad prior (offset variance 25 m², GP part
 //!   `B ⊗ P∞`: gates of ±16–20 m), 16 points clustered in [−3, 3] m, so every point is inside every
 //!   gate (checked at setup): 9,636,817 joint events, `E = 512` bites;
+//! * **max-work row** — the typical row's 6 tracked lanes with 2 points inside each of 5 gates
+//!   and 1 inside the sixth, no point shared: 3⁵ · 2 = 486 events ≤ E and all 2⁶ = 64 patterns,
+//!   the most work one row can do under `E = 512` (the worst-case row above is pruned to fewer
+//!   patterns);
 //! * **dense row** — the reference is unbounded and cannot enumerate the worst case, so the
 //!   reference-vs-core comparison of a dense row uses 4 of those broad tracks and 8 clustered
 //!   points (all valid for all: 3,393 events), the core exact (`E = 4096`) and bounded (`E = 512`);
@@ -236,6 +240,33 @@ fn rows(c: &mut Criterion) {
         b.iter(|| {
             let mut s = broad;
             row::update(&mut s, &hv, black_box(&worst), &params, EVENTS)
+        })
+    });
+    g.finish();
+
+    // Most work the budget allows: 5 tracked lanes with 2 points in their gates, one with 1 (no
+    // point shared): 3⁵ · 2 = 486 ≤ 512 events, all 2⁶ = 64 patterns, nothing pruned.
+    let mut heavy: Vec<f32> = (0..LANES - 1)
+        .flat_map(|t| [lane_x(t, LANES) - 0.15, lane_x(t, LANES) + 0.15])
+        .collect();
+    heavy.push(lane_x(LANES - 1, LANES) + 0.05);
+    let mut s = typical;
+    let o = row::update(&mut s, &hv, &heavy, &params, EVENTS);
+    println!(
+        "max-work row: {} tracks, {} points, {} events, {} patterns, approximated {}, failed {}",
+        typical.len(),
+        heavy.len(),
+        o.events,
+        o.patterns,
+        o.approximated,
+        o.failed
+    );
+    assert!(o.events == 486 && o.patterns == 64 && !o.approximated);
+    let mut g = c.benchmark_group("row_maxwork_6tracks_11points");
+    g.bench_function("core_f32_E=512", |b| {
+        b.iter(|| {
+            let mut s = typical;
+            row::update(&mut s, &hv, black_box(&heavy), &params, EVENTS)
         })
     });
     g.finish();
