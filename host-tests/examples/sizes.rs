@@ -1,7 +1,26 @@
-//! Prints the memory cost of the core's types at the reference configuration (bytes).
+//! Prints the memory cost of the core's types at the reference configuration (bytes):
+//! `cargo run -p stjpdacf-host --example sizes`.
+use std::mem::size_of;
+
 fn main() {
     println!(
-        "ReferenceTables: {} bytes (flash, one static)",
-        std::mem::size_of::<stjpdacf::tables::ReferenceTables>()
+        "ReferenceTables (flash, one static): {} B",
+        size_of::<stjpdacf::tables::ReferenceTables>()
+    );
+    println!(
+        "spatial::Stacked<3, 6>: {} B",
+        size_of::<stjpdacf::spatial::Stacked<3, 6>>()
+    );
+    println!(
+        "spatial::filter::SpatialFilter<3, 6, 64, 16>: {} B",
+        size_of::<stjpdacf::spatial::filter::SpatialFilter<3, 6, 64, 16>>()
+    );
+    println!(
+        "spatial::filter::LaneObservation<16> (one per lane of output): {} B",
+        size_of::<stjpdacf::spatial::filter::LaneObservation<16>>()
+    );
+    println!(
+        "spatial::row::RowOutcome<6> (stack, per row): {} B",
+        size_of::<stjpdacf::spatial::row::RowOutcome<6>>()
     );
 }

@@ -181,6 +181,8 @@ pub struct SpatialReport {
     pub rejected_window: u32,
     /// Rejected: the row already held `PER_ROW` points.
     pub rejected_row_full: u32,
+    /// (track, point) pairs inside the gate, summed over rows (after any pruning).
+    pub gated: u32,
     /// Points valid for no track when their row was updated.
     pub clutter_points: u32,
     /// Consistent free points that could not start a track (no slot or tentative budget spent).
@@ -191,11 +193,11 @@ pub struct SpatialReport {
     pub rows_approximated: u32,
     /// Row updates that failed numerically (state kept).
     pub rows_failed: u32,
-    /// Tracks started, confirmed, deleted (tentative), ended, merged away.
+    /// Tentative tracks started.
     pub started: u16,
     /// Tracks confirmed.
     pub confirmed: u16,
-    /// Tentative tracks deleted.
+    /// Tentative tracks deleted (by misses, or as near-duplicates: those are in `merged` too).
     pub deleted: u16,
     /// Confirmed tracks ended.
     pub ended: u16,
@@ -203,7 +205,7 @@ pub struct SpatialReport {
     pub merged: u16,
     /// Confirmed lanes reported.
     pub lanes_out: u16,
-    /// Backward-pass steps that failed numerically (that lane is reported filtered, not smoothed).
+    /// Confirmed lanes whose backward pass failed numerically (not reported).
     pub smoother_failed: u16,
     /// The configuration or tables do not fit the capacities (nothing was done).
     pub bad_config: bool,
@@ -408,6 +410,9 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             );
             rep.events = rep.events.saturating_add(o.events);
             rep.clutter_points += o.clutter_points;
+            rep.gated = rep
+                .gated
+                .saturating_add(o.valid.iter().map(|v| v.count_ones()).sum::<u32>());
             rep.rows_approximated += u32::from(o.approximated);
             rep.rows_failed += u32::from(o.failed);
             self.manage(r, &o, cfg, &hv, &params, &mut rep);
