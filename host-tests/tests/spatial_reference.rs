@@ -207,7 +207,11 @@ fn bad_points_are_rejected_and_counted() {
         .filter(|p| model.row_of(p.0) == Some(5))
         .count();
     pts.extend((0..20).map(|j| (u5, 30.0 + j as f64)));
+    // Two duplicates of the first good point (exact, and 0.5 mm off): rejected before the budget.
+    let first = pts[0];
+    pts.extend([first, (first.0, first.1 + 5e-4)]);
     let (rows, rej) = bin_points(&model, &pts, PER_ROW);
+    assert_eq!(rej.duplicate, 2);
     assert_eq!(rej.non_finite, 3);
     assert_eq!(rej.out_of_window, 3);
     assert_eq!(rej.row_full, in_row5 + 20 - PER_ROW);
@@ -215,7 +219,7 @@ fn bad_points_are_rejected_and_counted() {
     assert_eq!(rows[5][in_row5], 30.0);
     let binned: usize = rows.iter().map(Vec::len).sum();
     assert_eq!(
-        binned + rej.non_finite + rej.out_of_window + rej.row_full,
+        binned + rej.non_finite + rej.out_of_window + rej.duplicate + rej.row_full,
         pts.len()
     );
     assert_eq!(binned, good + PER_ROW - in_row5);

@@ -25,6 +25,10 @@ use crate::tables::Tables;
 /// Largest `init_rows` (rows the initiation buffer remembers).
 pub const MAX_INIT_ROWS: usize = 4;
 
+/// A point within this lateral distance (metres) of a point already kept in its row is a
+/// duplicate and is rejected (DESIGN 7).
+pub const DUPLICATE_DISTANCE: f32 = 1e-3;
+
 /// Tuning of the spatial filter (`docs/spatial-filter.md` §6).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -179,6 +183,8 @@ pub struct SpatialReport {
     pub rejected_non_finite: u32,
     /// Rejected: outside the BEV window.
     pub rejected_window: u32,
+    /// Rejected: within [`DUPLICATE_DISTANCE`] of a point already kept in its row.
+    pub rejected_duplicate: u32,
     /// Rejected: the row already held `PER_ROW` points.
     pub rejected_row_full: u32,
     /// (track, point) pairs inside the gate, summed over rows (after any pruning).
@@ -347,6 +353,15 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             }
             let r = rf as usize;
             let c = usize::from(get(&self.bin_n, r));
+            let dup = self.bins.get(r).is_some_and(|b| {
+                b.iter()
+                    .take(c)
+                    .any(|y| (x - y).abs() <= DUPLICATE_DISTANCE)
+            });
+            if dup {
+                rep.rejected_duplicate += 1;
+                continue;
+            }
             if c >= PER_ROW {
                 rep.rejected_row_full += 1;
                 continue;

@@ -258,9 +258,15 @@ pub struct Rejected {
     pub non_finite: usize,
     /// A row outside `0..R`.
     pub out_of_window: usize,
+    /// Within [`DUPLICATE_DISTANCE`] of a point already kept in its row.
+    pub duplicate: usize,
     /// The row already held `PER_ROW` points.
     pub row_full: usize,
 }
+
+/// A point within this lateral distance (metres) of a point already kept in its row is a
+/// duplicate (docs/spatial-filter.md §1).
+pub const DUPLICATE_DISTANCE: f64 = 1e-3;
 
 /// Frame counters.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -444,7 +450,9 @@ pub fn bin_points(
             None => rej.out_of_window += 1,
             Some(r) => {
                 let row: &mut Vec<f64> = &mut rows[r];
-                if row.len() >= per_row {
+                if row.iter().any(|y| (x - y).abs() <= DUPLICATE_DISTANCE) {
+                    rej.duplicate += 1;
+                } else if row.len() >= per_row {
                     rej.row_full += 1;
                 } else {
                     row.push(x);
