@@ -37,3 +37,4 @@ pub mod kernel;
 pub mod math;
 pub mod spatial;
 pub mod tables;
+pub mod temporal;

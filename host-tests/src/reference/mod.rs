@@ -3,6 +3,7 @@
 //! against; it is itself checked against the golden values of independent implementations
 //! (GPy, scipy, filterpy, Stone Soup) in `host-tests/tests/`.
 
+pub mod identity;
 pub mod jpda;
 pub mod spatial;
 pub mod statespace;
