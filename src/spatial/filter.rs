@@ -19,7 +19,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use super::row::{self, MissModel, RowParams, MAX_ROW_POINTS};
-use super::Stacked;
+use super::{get, set, Stacked};
 use crate::tables::Tables;
 
 /// Largest `init_rows` (rows the initiation buffer remembers).
@@ -135,6 +135,13 @@ impl Meta {
     };
 }
 
+/// Which moments [`SpatialFilter::record`] stores.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Moment {
+    Predicted,
+    Filtered,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Rec<const NS: usize> {
     xp: SVector<f32, NS>,
@@ -239,18 +246,6 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
 {
     fn default() -> Self {
         Self::new()
-    }
-}
-
-#[inline]
-fn get<T: Copy + Default, const N: usize>(a: &[T; N], i: usize) -> T {
-    a.get(i).copied().unwrap_or_default()
-}
-
-#[inline]
-fn set<T, const N: usize>(a: &mut [T; N], i: usize, v: T) {
-    if let Some(s) = a.get_mut(i) {
-        *s = v;
     }
 }
 
@@ -391,18 +386,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 }
             }
             // Record the predicted moments (priors for tracks started at this row).
-            for (t, meta) in self.meta.iter().enumerate().take(self.state.len()) {
-                if let (Some(x), Some(p), Some(rec)) = (
-                    self.state.mean(t),
-                    self.state.cov(t, t),
-                    self.hist
-                        .get_mut(usize::from(meta.store))
-                        .and_then(|h| h.get_mut(r)),
-                ) {
-                    rec.xp = *x;
-                    rec.pp = *p;
-                }
-            }
+            self.record(r, Moment::Predicted);
             let skip =
                 self.meta
                     .iter()
@@ -431,26 +415,40 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             rep.rows_approximated += u32::from(o.approximated);
             rep.rows_failed += u32::from(o.failed);
             self.manage(r, &o, cfg, &hv, &params, &mut rep);
-            for (t, meta) in self.meta.iter_mut().enumerate().take(self.state.len()) {
-                if meta.status == Status::Ended {
-                    continue;
-                }
-                meta.last_rec = r as u16;
-                if let (Some(x), Some(p), Some(rec)) = (
-                    self.state.mean(t),
-                    self.state.cov(t, t),
-                    self.hist
-                        .get_mut(usize::from(meta.store))
-                        .and_then(|h| h.get_mut(r)),
-                ) {
-                    rec.xf = *x;
-                    rec.pf = *p;
-                }
-            }
+            self.record(r, Moment::Filtered);
         }
         let n_out = self.smooth(tables, &F, &hv, k_rows, du, out, &mut rep);
         rep.lanes_out = n_out as u16;
         (n_out, rep)
+    }
+
+    /// Stores each track's current marginal as its predicted or filtered moments for row `r`
+    /// (§3.6); filtered moments are not recorded for ended tracks, and mark the last recorded row.
+    fn record(&mut self, r: usize, which: Moment) {
+        for (t, meta) in self.meta.iter_mut().enumerate().take(self.state.len()) {
+            if which == Moment::Filtered {
+                if meta.status == Status::Ended {
+                    continue;
+                }
+                meta.last_rec = r as u16;
+            }
+            let rec = self
+                .hist
+                .get_mut(usize::from(meta.store))
+                .and_then(|h| h.get_mut(r));
+            if let (Some(x), Some(p), Some(rec)) = (self.state.mean(t), self.state.cov(t, t), rec) {
+                match which {
+                    Moment::Predicted => {
+                        rec.xp = *x;
+                        rec.pp = *p;
+                    }
+                    Moment::Filtered => {
+                        rec.xf = *x;
+                        rec.pf = *p;
+                    }
+                }
+            }
+        }
     }
 
     fn predicted_z(&self, t: usize, hv: &SVector<f32, NS>, r: f32) -> (f32, f32) {
@@ -631,10 +629,10 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         }
         // Shift metadata right of k.
         for i in (k + 1..=n).rev() {
-            let prev = get_meta(&self.meta, i - 1);
-            set_meta(&mut self.meta, i, prev);
+            let prev = get(&self.meta, i - 1);
+            set(&mut self.meta, i, prev);
         }
-        set_meta(
+        set(
             &mut self.meta,
             k,
             Meta {
@@ -697,7 +695,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         }
         // Merge adjacent near-duplicates.
         for t in 0..n.saturating_sub(1) {
-            let (ma, mb) = (get_meta(&self.meta, t), get_meta(&self.meta, t + 1));
+            let (ma, mb) = (get(&self.meta, t), get(&self.meta, t + 1));
             if ma.status == Status::Ended || mb.status == Status::Ended || delete & (3 << t) != 0 {
                 continue;
             }
@@ -724,7 +722,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         }
         for t in (0..n).rev() {
             if delete & (1 << t) != 0 {
-                if get_meta(&self.meta, t).status == Status::Tentative {
+                if get(&self.meta, t).status == Status::Tentative {
                     rep.deleted += 1;
                 }
                 self.remove_track(t);
@@ -736,8 +734,8 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         let n = self.state.len();
         self.state.remove(t);
         for i in t..n.saturating_sub(1) {
-            let next = get_meta(&self.meta, i + 1);
-            set_meta(&mut self.meta, i, next);
+            let next = get(&self.meta, i + 1);
+            set(&mut self.meta, i, next);
         }
         for mt in self.meta.iter_mut() {
             mt.near = 0;
@@ -844,12 +842,8 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
     }
 }
 
-fn get_meta<const L: usize>(a: &[Meta; L], i: usize) -> Meta {
-    a.get(i).copied().unwrap_or(Meta::EMPTY)
-}
-
-fn set_meta<const L: usize>(a: &mut [Meta; L], i: usize, m: Meta) {
-    if let Some(s) = a.get_mut(i) {
-        *s = m;
+impl Default for Meta {
+    fn default() -> Self {
+        Self::EMPTY
     }
 }

@@ -38,6 +38,20 @@ impl core::fmt::Display for Full {
 
 impl core::error::Error for Full {}
 
+/// Element `i` of a fixed array, or the default past its end (no panicking indexing in the core).
+#[inline]
+pub(crate) fn get<T: Copy + Default, const N: usize>(a: &[T; N], i: usize) -> T {
+    a.get(i).copied().unwrap_or_default()
+}
+
+/// Sets element `i` of a fixed array (no-op past its end).
+#[inline]
+pub(crate) fn set<T, const N: usize>(a: &mut [T; N], i: usize, v: T) {
+    if let Some(s) = a.get_mut(i) {
+        *s = v;
+    }
+}
+
 /// Per-track means.
 pub(crate) type Means<const NS: usize, const LANES: usize> = [SVector<f32, NS>; LANES];
 /// Covariance blocks `p[i][j] = Cov(x_i, x_j)`.

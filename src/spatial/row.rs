@@ -34,7 +34,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::Stacked;
+use super::{get, set, Stacked};
 use crate::math;
 
 /// Largest number of points one row can hold (the gate masks are `u32`).
@@ -127,18 +127,6 @@ impl<const LANES: usize> Default for RowOutcome<LANES> {
             ignored_points: 0,
             failed: false,
         }
-    }
-}
-
-#[inline]
-fn get<T: Copy + Default, const N: usize>(a: &[T; N], i: usize) -> T {
-    a.get(i).copied().unwrap_or_default()
-}
-
-#[inline]
-fn set<T, const N: usize>(a: &mut [T; N], i: usize, v: T) {
-    if let Some(s) = a.get_mut(i) {
-        *s = v;
     }
 }
 
