@@ -4,4 +4,5 @@
 //!   ([`crate::spatial::filter::LaneObservation`]) to the temporal lanes by gating in curve space
 //!   and an optimal, bounded assignment; starts, coasts and removes lanes; keeps stable ids.
 
+pub mod filter;
 pub mod identity;

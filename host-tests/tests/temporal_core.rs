@@ -1,0 +1,191 @@
+//! The core's temporal coupled filter (`stjpdacf::temporal::filter`, Gram eigenbasis truncated to
+//! the tables' rank) against the dense f64 reference (`reference::temporal`, all N index points,
+//! full `K_u`): the difference is the effect of the truncation plus f32.
+//!
+//! Tolerances: means within 2e-3 m, variances within 2e-3 relative + 1e-5 m² (measured figures
+//! are printed: `cargo test -p stjpdacf-host --test temporal_core -- --nocapture`).
+
+use nalgebra::{DMatrix, SMatrix, SVector};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use stjpdacf::spatial::filter::{LaneObservation, Status};
+use stjpdacf::tables::DEFAULT;
+use stjpdacf::temporal::filter::{TemporalError, TemporalFilter};
+use stjpdacf_host::hyper::HyperFile;
+use stjpdacf_host::reference::temporal::{CoupledTemporalModel, Gaussian, LaneMeasurement};
+use stjpdacf_host::repo_root;
+use stjpdacf_host::tablegen::{self, ModelTables};
+
+type Filter = TemporalFilter<6, 16, 7, 84>;
+const N: usize = 16;
+
+fn model() -> (ModelTables, CoupledTemporalModel) {
+    let h = HyperFile::load(&repo_root().join(tablegen::DEFAULT_HYPER)).unwrap();
+    let t = ModelTables::from_hyper(&h).unwrap();
+    let m = CoupledTemporalModel::from_tables(&t).unwrap();
+    (t, m)
+}
+
+/// A lane's pseudo-measurement: positions near `x0 + slope·u + curve·u²`, an exponentially
+/// correlated covariance, some index points missing.
+fn observation(
+    rng: &mut ChaCha8Rng,
+    index_u: &[f64],
+    x0: f64,
+    t: f64,
+) -> (LaneObservation<16>, LaneMeasurement) {
+    let cov = DMatrix::from_fn(N, N, |i, j| {
+        0.02 * (-(index_u[i] - index_u[j]).abs() / 10.0).exp()
+    });
+    let last = rng.random_range(8..N);
+    let present: Vec<bool> = (0..N)
+        .map(|i| i <= last && rng.random::<f64>() > 0.1)
+        .collect();
+    let z: Vec<f64> = index_u
+        .iter()
+        .map(|u| x0 + 0.3 * t + 0.01 * u + 2e-4 * u * u + rng.random_range(-0.1..0.1))
+        .collect();
+    let mut obs = LaneObservation {
+        status: Status::Confirmed,
+        present: [false; 16],
+        z: SVector::zeros(),
+        cov: SMatrix::zeros(),
+        u_first: 3.0,
+        u_last: 80.0,
+        existence: 1.0,
+        rank: 0,
+    };
+    for i in 0..N {
+        if present[i] {
+            obs.present[i] = true;
+            obs.z[i] = z[i] as f32;
+            for j in 0..N {
+                if present[j] {
+                    obs.cov[(i, j)] = cov[(i, j)] as f32;
+                }
+            }
+        }
+    }
+    let m = LaneMeasurement {
+        z: (0..N).map(|i| present[i].then_some(z[i])).collect(),
+        cov,
+    };
+    (obs, m)
+}
+
+#[test]
+fn core_matches_dense_reference_with_truncation() {
+    let (t, reference) = model();
+    let index_u: Vec<f64> = t.index_u.iter().copied().collect();
+    let lanes = 3;
+    let offsets = [-5.4, -1.8, 1.8];
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let mut core = Box::new(Filter::new());
+    let mut ranks = [0u8; 6];
+    for (s, r) in [(0usize, 0u8), (1, 1), (2, 2)] {
+        ranks[s] = r;
+        core.start_lane(&DEFAULT, s, r, &ranks).unwrap();
+    }
+    let mut state = reference
+        .prior(lanes, nalgebra::DVector::zeros(2 * lanes * N))
+        .unwrap();
+    // 20 fps, with dropped frames (2× and 5×) and a lane missing for a few frames.
+    let steps = [0.0, 0.05, 0.05, 0.1, 0.05, 0.25, 0.05, 0.05, 0.05, 0.1];
+    let (mut max_dm, mut max_dv) = (0.0f64, 0.0f64);
+    let mut time = 0.0;
+    for (k, &dt) in steps.iter().enumerate() {
+        time += dt;
+        if dt > 0.0 {
+            core.predict(&DEFAULT, dt as f32).unwrap();
+        }
+        let mut meas: Vec<Option<LaneMeasurement>> = Vec::new();
+        for d in 0..lanes {
+            let seen = !(d == 1 && (4..7).contains(&k));
+            let (obs, m) = observation(&mut rng, &index_u, offsets[d], time);
+            if seen {
+                core.update(&DEFAULT, d, &obs).unwrap();
+                meas.push(Some(m));
+            } else {
+                meas.push(None);
+            }
+        }
+        let step = reference
+            .step(&state, (dt > 0.0).then_some(dt), &meas)
+            .unwrap();
+        state = Gaussian::new(step.filtered.mean.clone(), step.filtered.cov.clone()).unwrap();
+        for d in 0..lanes {
+            let (mean, var) = core.lane(&DEFAULT, d).unwrap();
+            for i in 0..N {
+                let ix = reference.state_index(d, i, 0);
+                let (wm, wv) = (state.mean[ix], state.cov[(ix, ix)]);
+                let dm = (mean[i] as f64 - wm).abs();
+                let dv = (var[i] as f64 - wv).abs();
+                max_dm = max_dm.max(dm);
+                max_dv = max_dv.max(dv / wv.max(1e-12));
+                assert!(
+                    dm <= 2e-3,
+                    "frame {k} lane {d} point {i}: mean {} vs {wm}",
+                    mean[i]
+                );
+                assert!(
+                    dv <= 2e-3 * wv + 1e-5,
+                    "frame {k} lane {d} point {i}: var {} vs {wv}",
+                    var[i]
+                );
+            }
+        }
+    }
+    println!("temporal core (rank {} of 16) vs dense f64: max |Δmean| = {max_dm:.2e} m, max rel |Δvar| = {max_dv:.2e}", DEFAULT.gram_rank);
+    // The stacked covariance stays symmetric PSD.
+    let p = core.covariance();
+    let pd = DMatrix::from_fn(84, 84, |i, j| p[(i, j)] as f64);
+    assert!((&pd - pd.transpose()).abs().max() <= 1e-6 * pd.abs().max());
+    let scale = pd.abs().max();
+    assert!(pd.symmetric_eigen().eigenvalues.min() >= -1e-4 * scale);
+}
+
+#[test]
+fn bad_inputs_leave_the_state_untouched() {
+    let mut core = Box::new(Filter::new());
+    let ranks = [0u8; 6];
+    core.start_lane(&DEFAULT, 0, 0, &ranks).unwrap();
+    let before = *core;
+    for t in [0.0, -0.05, f32::NAN, f32::INFINITY] {
+        assert_eq!(core.predict(&DEFAULT, t), Err(TemporalError::BadStep));
+    }
+    assert_eq!(
+        core.start_lane(&DEFAULT, 0, 0, &ranks),
+        Err(TemporalError::BadSlot)
+    );
+    assert_eq!(
+        core.start_lane(&DEFAULT, 9, 0, &ranks),
+        Err(TemporalError::BadSlot)
+    );
+    // Rank 0 is taken by slot 0: a second lane with rank 0 is not a permutation.
+    assert_eq!(
+        core.start_lane(&DEFAULT, 1, 0, &ranks),
+        Err(TemporalError::BadRanks)
+    );
+    let mut obs = LaneObservation {
+        status: Status::Confirmed,
+        present: [false; 16],
+        z: SVector::zeros(),
+        cov: SMatrix::zeros(),
+        u_first: 3.0,
+        u_last: 80.0,
+        existence: 1.0,
+        rank: 0,
+    };
+    assert_eq!(core.update(&DEFAULT, 0, &obs), Err(TemporalError::NoData));
+    assert_eq!(core.update(&DEFAULT, 3, &obs), Err(TemporalError::BadSlot));
+    obs.present = [true; 16];
+    obs.z = SVector::from_element(f32::NAN);
+    assert_eq!(core.update(&DEFAULT, 0, &obs), Err(TemporalError::NoData));
+    obs.z = SVector::from_element(1.0);
+    obs.cov = SMatrix::from_element(f32::NAN);
+    assert_eq!(
+        core.update(&DEFAULT, 0, &obs),
+        Err(TemporalError::Numerical)
+    );
+    assert_eq!(*core, before);
+}
