@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use stjpdacf_host::camera::Camera;
-use stjpdacf_host::frontend::{self, FrontendParams};
+use stjpdacf_host::frontend::{self, score, FrontendParams, HELD_OUT_SET, TUNING_SET};
 use stjpdacf_host::tusimple::{read_frames, read_labels, write_jsonl_to, Frame, TuSimpleRecord};
 
 fn sample_dir() -> PathBuf {
@@ -35,83 +35,19 @@ fn run() -> Vec<Frame> {
     .unwrap()
 }
 
-/// Column of a labelled lane at image row `y` (linear between label rows), all scaled by `s`.
-fn lane_x(l: &TuSimpleRecord, lane: &[f64], y: f64, s: f64) -> Option<f64> {
-    let pts: Vec<(f64, f64)> = l
-        .h_samples
-        .iter()
-        .zip(lane)
-        .filter(|(_, &x)| x >= 0.0)
-        .map(|(&h, &x)| (h * s, x * s))
-        .collect();
-    pts.windows(2).find_map(|w| {
-        let ((ya, xa), (yb, xb)) = (w[0], w[1]);
-        (ya <= y && y <= yb).then(|| {
-            if yb > ya {
-                xa + (xb - xa) * (y - ya) / (yb - ya)
-            } else {
-                xa
-            }
-        })
-    })
-}
-
-/// (true points, points) on the labelled rows, and each lane's recall, for one frame whose
-/// pixels are the label's × `s`; tolerance `tol` px.
-fn score(f: &Frame, l: &TuSimpleRecord, s: f64, tol: f64) -> (usize, usize, Vec<f64>) {
-    let (ymin, ymax) = (l.h_samples[0] * s, l.h_samples[l.h_samples.len() - 1] * s);
-    let (mut tp, mut n) = (0, 0);
-    for p in f.points.iter().filter(|p| p[1] >= ymin && p[1] <= ymax) {
-        n += 1;
-        let hit = l
-            .lanes
-            .iter()
-            .filter_map(|lane| lane_x(l, lane, p[1], s))
-            .any(|x| (x - p[0]).abs() < tol);
-        tp += usize::from(hit);
-    }
-    let cam = Camera::tusimple().scaled(0.4 * s);
-    let row_far = cam.row_at(80.0).unwrap();
-    let mut rec = Vec::new();
-    for lane in &l.lanes {
-        let rows: Vec<(f64, f64)> = l
-            .h_samples
-            .iter()
-            .zip(lane)
-            .filter(|(&h, &x)| x >= 0.0 && h * s >= row_far)
-            .map(|(&h, &x)| (h * s, x * s))
-            .collect();
-        if rows.is_empty() {
-            continue;
-        }
-        let hit = rows
-            .iter()
-            .filter(|(y, x)| {
-                f.points
-                    .iter()
-                    .any(|p| (p[0] - x).abs() < tol && (p[1] - y).abs() <= 2.0 * s)
-            })
-            .count();
-        rec.push(hit as f64 / rows.len() as f64);
-    }
-    (tp, n, rec)
-}
-
-#[test]
-fn precision_and_recall_on_real_frames() {
-    let frames = run();
-    let labels = labels();
-    assert_eq!(frames.len(), 10);
+/// Precision, mean per-lane recall, lanes with recall ≥ 0.25 and lanes, over the frames of `set`
+/// (printing per-frame figures).
+fn measure(frames: &[Frame], labels: &[TuSimpleRecord], set: &[&str]) -> (f64, f64, usize, usize) {
     let (mut tp, mut n, mut recalls) = (0, 0, Vec::new());
-    for f in &frames {
-        let l = labels
+    for raw in set {
+        let f = frames
             .iter()
-            .find(|l| Some(&l.raw_file) == f.raw_file.as_ref())
+            .find(|f| f.raw_file.as_deref() == Some(*raw))
             .unwrap();
-        let (a, b, r) = score(f, l, 1.0, 15.0 * 0.4);
+        let l = labels.iter().find(|l| l.raw_file == *raw).unwrap();
+        let (a, b, r) = score(&f.points, l, 1.0, 15.0 * 0.4);
         eprintln!(
-            "{}: {b} points, precision {:.3}, lane recall {r:.2?}",
-            l.raw_file,
+            "  {raw}: {b} points, precision {:.3}, lane recall {r:.2?}",
             a as f64 / b as f64
         );
         tp += a;
@@ -125,18 +61,39 @@ fn precision_and_recall_on_real_frames() {
         "precision {precision:.3} ({tp}/{n}), mean lane recall {mean_recall:.3}, {covered} of {} lanes ≥ 0.25",
         recalls.len()
     );
-    // Bounds just below the measured figures (0.418, 0.333, 25 of 38): a regression guard, not
-    // the brief's targets (0.6 / 0.5), which this front end does not reach; see the module doc.
-    assert!(precision >= 0.38, "precision {precision}");
-    assert!(mean_recall >= 0.30, "mean recall {mean_recall}");
-    assert!(
-        covered * 10 >= recalls.len() * 6,
-        "{covered} of {}",
-        recalls.len()
-    );
+    (precision, mean_recall, covered, recalls.len())
+}
+
+#[test]
+fn precision_and_recall_on_held_out_frames() {
+    let frames = run();
+    let labels = labels();
+    assert_eq!(frames.len(), 10);
+    // The split is a partition of the 10 frames.
+    let mut all: Vec<&str> = TUNING_SET.iter().chain(&HELD_OUT_SET).copied().collect();
+    all.sort_unstable();
+    all.dedup();
+    assert_eq!(all.len(), 10);
+    assert!(all
+        .iter()
+        .all(|r| frames.iter().any(|f| f.raw_file.as_deref() == Some(*r))));
+    eprintln!("tuning set:");
+    let (pt, rt, ct, nt) = measure(&frames, &labels, &TUNING_SET);
+    eprintln!("held-out set:");
+    let (ph, rh, ch, nh) = measure(&frames, &labels, &HELD_OUT_SET);
+    // Held-out (never used to choose parameters), measured: precision 0.417, mean lane recall
+    // 0.462, 15 of 19 lanes ≥ 0.25. Bounds ≈ 10 % below (precision −0.04, recall −0.04, two
+    // lanes): a regression guard with room for harmless changes, not a claim of more.
+    assert!(ph >= 0.38, "held-out precision {ph}");
+    assert!(rh >= 0.42, "held-out mean recall {rh}");
+    assert!(ch + 6 >= nh, "held-out: {ch} of {nh} lanes ≥ 0.25");
+    // Tuning set (in-sample), measured: precision 0.530, mean recall 0.484, 16 of 19.
+    assert!(pt >= 0.49, "tuning precision {pt}");
+    assert!(rt >= 0.44, "tuning mean recall {rt}");
+    assert!(ct + 5 >= nt, "tuning: {ct} of {nt} lanes ≥ 0.25");
     // Far better than chance: points spread uniformly would hit a ±6 px band around ~4 lanes on
     // ~4·12/512 ≈ 9 % of the columns.
-    assert!(precision > 3.0 * 0.094);
+    assert!(ph > 3.0 * 0.094);
 }
 
 #[test]
@@ -181,13 +138,13 @@ fn works_at_1280x720() {
         raw_file: None,
         h_samples: None,
     };
-    let (tp, n, rec) = score(&f, &label, 2.5, 15.0);
+    let (tp, n, rec) = score(&f.points, &label, 2.5, 15.0);
     let precision = tp as f64 / n as f64;
     eprintln!("1280x720: {n} points, precision {precision:.3}, lane recall {rec:.2?}");
-    // Measured: precision 0.203, recall [0.38, 0.51, 0.27, 0.65]; the same frame at 512×288:
-    // precision 0.244, recall [0.38, 0.42, 0.27, 0.53].
-    assert!(precision >= 0.18, "{precision}");
-    assert!(rec.iter().all(|&r| r >= 0.2), "{rec:?}");
+    // Measured: precision 0.249, recall [0.38, 0.53, 0.53, 0.71]; the same frame at 512×288:
+    // precision 0.293, recall [0.40, 0.40, 0.47, 0.71].
+    assert!(precision >= 0.22, "{precision}");
+    assert!(rec.iter().all(|&r| r >= 0.3), "{rec:?}");
     // A camera of the wrong size is refused.
     let e = frontend::detect(&small, &cam, &FrontendParams::default()).unwrap_err();
     assert!(format!("{e}").contains("1280"), "{e}");
