@@ -99,9 +99,9 @@ fn core_matches_dense_reference_with_truncation() {
             core.predict(&DEFAULT, dt as f32).unwrap();
         }
         let mut meas: Vec<Option<LaneMeasurement>> = Vec::new();
-        for d in 0..lanes {
+        for (d, &x0) in offsets.iter().enumerate().take(lanes) {
             let seen = !(d == 1 && (4..7).contains(&k));
-            let (obs, m) = observation(&mut rng, &index_u, offsets[d], time);
+            let (obs, m) = observation(&mut rng, &index_u, x0, time);
             if seen {
                 core.update(&DEFAULT, d, &obs).unwrap();
                 meas.push(Some(m));
