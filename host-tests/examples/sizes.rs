@@ -23,4 +23,12 @@ fn main() {
         "spatial::row::RowOutcome<6> (stack, per row): {} B",
         size_of::<stjpdacf::spatial::row::RowOutcome<6>>()
     );
+    println!(
+        "temporal::filter::TemporalFilter<6, 16, 7, 84>: {} B",
+        size_of::<stjpdacf::temporal::filter::TemporalFilter<6, 16, 7, 84>>()
+    );
+    println!(
+        "temporal::identity::LaneTable<6>: {} B",
+        size_of::<stjpdacf::temporal::identity::LaneTable<6>>()
+    );
 }
