@@ -31,4 +31,8 @@ fn main() {
         "temporal::identity::LaneTable<6>: {} B",
         size_of::<stjpdacf::temporal::identity::LaneTable<6>>()
     );
+    println!(
+        "temporal::smoother::Temporal<6, 16, 7, 84, 42, 4> (filter + L = 4 window): {} B",
+        size_of::<stjpdacf::temporal::smoother::Temporal<6, 16, 7, 84, 42, 4>>()
+    );
 }

@@ -189,3 +189,103 @@ fn bad_inputs_leave_the_state_untouched() {
     );
     assert_eq!(*core, before);
 }
+
+/// The core's fixed-lag smoother (augmented lagged coefficients) against the reference's
+/// fixed-lag RTS on the dense model, L = 4, with dropped frames and a lane unseen for 3 frames.
+#[test]
+fn fixed_lag_smoother_matches_dense_rts() {
+    use stjpdacf::temporal::smoother::Temporal;
+    use stjpdacf_host::reference::temporal::FixedLagSmoother;
+    const LAG: usize = 4;
+    let (t, reference) = model();
+    let index_u: Vec<f64> = t.index_u.iter().copied().collect();
+    let lanes = 3;
+    let offsets = [-5.4, -1.8, 1.8];
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let mut core = Box::new(Temporal::<6, 16, 7, 84, 42, LAG>::new());
+    let mut ranks = [0u8; 6];
+    for (s, r) in [(0usize, 0u8), (1, 1), (2, 2)] {
+        ranks[s] = r;
+        core.start_lane(&DEFAULT, s, r, &ranks).unwrap();
+    }
+    let mut state = reference
+        .prior(lanes, nalgebra::DVector::zeros(2 * lanes * N))
+        .unwrap();
+    let mut lagger = FixedLagSmoother::new(LAG);
+    let steps = [
+        0.0, 0.05, 0.05, 0.1, 0.05, 0.25, 0.05, 0.05, 0.05, 0.1, 0.05, 0.05,
+    ];
+    let (mut max_dm, mut max_dv, mut compared) = (0.0f64, 0.0f64, 0);
+    let mut time = 0.0;
+    let mut filtered_var: Vec<Vec<SVector<f32, 16>>> = Vec::new();
+    for (k, &dt) in steps.iter().enumerate() {
+        time += dt;
+        if dt > 0.0 {
+            core.predict(&DEFAULT, dt as f32).unwrap();
+        }
+        let mut meas: Vec<Option<LaneMeasurement>> = Vec::new();
+        for (d, &x0) in offsets.iter().enumerate().take(lanes) {
+            let seen = !(d == 1 && (4..7).contains(&k));
+            let (obs, m) = observation(&mut rng, &index_u, x0, time);
+            if seen {
+                core.update(&DEFAULT, d, &obs).unwrap();
+                meas.push(Some(m));
+            } else {
+                meas.push(None);
+            }
+        }
+        filtered_var.push(
+            (0..lanes)
+                .map(|d| core.filter().lane(&DEFAULT, d).unwrap().1)
+                .collect(),
+        );
+        let step = reference
+            .step(&state, (dt > 0.0).then_some(dt), &meas)
+            .unwrap();
+        state = Gaussian::new(step.filtered.mean.clone(), step.filtered.cov.clone()).unwrap();
+        let Some(lagged) = lagger.push(step).unwrap() else {
+            assert!(
+                core.lagged(&DEFAULT, 0, LAG).is_none(),
+                "frame {k}: window not full yet"
+            );
+            continue;
+        };
+        assert_eq!(lagged.target_step + LAG, k);
+        for d in 0..lanes {
+            let (mean, var) = core.lagged(&DEFAULT, d, LAG).unwrap();
+            for i in 0..N {
+                let ix = reference.state_index(d, i, 0);
+                let (wm, wv) = (lagged.estimate.mean[ix], lagged.estimate.cov[(ix, ix)]);
+                let dm = (mean[i] as f64 - wm).abs();
+                let dv = (var[i] as f64 - wv).abs();
+                max_dm = max_dm.max(dm);
+                max_dv = max_dv.max(dv / wv.max(1e-12));
+                assert!(
+                    dm <= 2e-3,
+                    "frame {k} lane {d} point {i}: smoothed mean {} vs {wm}",
+                    mean[i]
+                );
+                assert!(
+                    dv <= 2e-3 * wv + 1e-5,
+                    "frame {k} lane {d} point {i}: smoothed var {} vs {wv}",
+                    var[i]
+                );
+            }
+        }
+        compared += 1;
+        // Smoothing uses later data: the lagged variance is at most the filtered variance of then.
+        for (d, then) in filtered_var[k - LAG].iter().enumerate() {
+            let (_, var) = core.lagged(&DEFAULT, d, LAG).unwrap();
+            for i in 0..N {
+                assert!(
+                    var[i] <= then[i] * (1.0 + 1e-3) + 1e-6,
+                    "frame {k} lane {d} point {i}: {} > {}",
+                    var[i],
+                    then[i]
+                );
+            }
+        }
+    }
+    assert_eq!(compared, steps.len() - LAG);
+    println!("fixed-lag L = {LAG} core vs dense RTS: max |Δmean| = {max_dm:.2e} m, max rel |Δvar| = {max_dv:.2e} over {compared} frames");
+}

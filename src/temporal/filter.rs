@@ -55,6 +55,25 @@ impl core::fmt::Display for TemporalError {
 
 impl core::error::Error for TemporalError {}
 
+/// The gain parts of one lane update (crate-internal: the fixed-lag smoother reuses them).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct UpdateParts<const POINTS: usize, const NX: usize> {
+    /// Updated slot.
+    pub slot: usize,
+    /// Gram components used.
+    pub rank_used: usize,
+    /// Index points used.
+    pub used: [bool; POINTS],
+    /// `P Hᵀ` (zero columns for unused points).
+    pub ph: SMatrix<f32, NX, POINTS>,
+    /// `S⁻¹ H P`.
+    pub kt: SMatrix<f32, POINTS, NX>,
+    /// `S⁻¹ ν`.
+    pub w: SVector<f32, POINTS>,
+    /// Cholesky factor of the (padded) innovation covariance `S`.
+    pub chol: nalgebra::Cholesky<f32, nalgebra::Const<POINTS>>,
+}
+
 /// The coupled temporal filter over `LANES` slots of `POINTS` index points, `RANK` retained Gram
 /// components, state size `NX = 2·LANES·RANK`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -155,6 +174,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// # Errors
     /// [`TemporalError::BadSlot`] for an active or out-of-range slot, [`TemporalError::BadRanks`]
     /// for ranks that are not a permutation after the start; the state is unchanged.
+    ///
+    /// Returns the conditioning coefficients `a_t` over the slots (`x_new = Σ_t a_t x_t + w`).
     #[allow(clippy::too_many_lines)]
     pub fn start_lane<const NT: usize>(
         &mut self,
@@ -162,7 +183,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         s: usize,
         rank: u8,
         ranks: &[u8; LANES],
-    ) -> Result<(), TemporalError> {
+    ) -> Result<[f32; LANES], TemporalError> {
         if s >= LANES || self.is_active(s) {
             return Err(TemporalError::BadSlot);
         }
@@ -273,7 +294,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         }
         self.x = newx;
         self.p = newp;
-        Ok(())
+        Ok(a)
     }
 
     /// Removes the lane in slot `s` (its rows and columns are zeroed); the caller re-ranks the
@@ -417,6 +438,18 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         s: usize,
         obs: &LaneObservation<POINTS>,
     ) -> Result<(), TemporalError> {
+        let g = self.prepare_update(tables, s, obs)?;
+        self.commit_update(&g)
+    }
+
+    /// The gain parts of [`TemporalFilter::update`] (shared with the fixed-lag smoother).
+    #[allow(non_snake_case)]
+    pub(crate) fn prepare_update<const NT: usize>(
+        &self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+        obs: &LaneObservation<POINTS>,
+    ) -> Result<UpdateParts<POINTS, NX>, TemporalError> {
         if !self.is_active(s) {
             return Err(TemporalError::BadSlot);
         }
@@ -469,9 +502,30 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             }
         });
         let w = chol.solve(&nu);
-        let kt = chol.solve(&PH.transpose()); // S⁻¹ PHᵀ (POINTS × NX)
-        let newx = self.x + PH * w;
-        let newp = self.p - PH * kt;
+        let kt = chol.solve(&PH.transpose()); // S⁻¹ PHᵀ = S⁻¹ H P (POINTS × NX)
+        let mut used = [false; POINTS];
+        for (i, u) in used.iter_mut().enumerate() {
+            *u = usable(i);
+        }
+        Ok(UpdateParts {
+            slot: s,
+            rank_used: r,
+            used,
+            ph: PH,
+            kt,
+            w,
+            chol,
+        })
+    }
+
+    /// Applies prepared gain parts: `x += PH w`, `P −= PH S⁻¹ PHᵀ`, symmetrised; the state is kept
+    /// when the result is not finite.
+    pub(crate) fn commit_update(
+        &mut self,
+        g: &UpdateParts<POINTS, NX>,
+    ) -> Result<(), TemporalError> {
+        let newx = self.x + g.ph * g.w;
+        let newp = self.p - g.ph * g.kt;
         let newp = (newp + newp.transpose()) * 0.5;
         if !(newx.iter().all(|v| v.is_finite()) && newp.iter().all(|v| v.is_finite())) {
             return Err(TemporalError::Numerical);
@@ -507,6 +561,16 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             acc
         });
         Some((mean, var))
+    }
+
+    /// The stacked mean (for the smoother and diagnostics).
+    pub fn mean(&self) -> &SVector<f32, NX> {
+        &self.x
+    }
+
+    /// State index of slot `s`, Gram component `j`, Matérn component `c` (0: position, 1: rate).
+    pub fn index(s: usize, j: usize, c: usize) -> usize {
+        Self::idx(s, j, c)
     }
 
     /// The stacked covariance (for tests and diagnostics).

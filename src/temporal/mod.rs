@@ -6,3 +6,4 @@
 
 pub mod filter;
 pub mod identity;
+pub mod smoother;
