@@ -38,3 +38,4 @@ pub mod math;
 pub mod spatial;
 pub mod tables;
 pub mod temporal;
+pub mod tracker;

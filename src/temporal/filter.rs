@@ -563,6 +563,20 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         Some((mean, var))
     }
 
+    /// `cᵀ Cov(a_s) c` over the first `r` position coefficients of slot `s` (0 for a free slot).
+    pub fn coefficient_var(&self, s: usize, c: &[f32; POINTS], r: usize) -> f32 {
+        if !self.is_active(s) {
+            return 0.0;
+        }
+        let mut acc = 0.0;
+        for j in 0..r.min(RANK) {
+            for j2 in 0..r.min(RANK) {
+                acc += get(c, j) * get(c, j2) * self.pg(Self::idx(s, j, 0), Self::idx(s, j2, 0));
+            }
+        }
+        acc
+    }
+
     /// The stacked mean (for the smoother and diagnostics).
     pub fn mean(&self) -> &SVector<f32, NX> {
         &self.x

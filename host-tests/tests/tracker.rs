@@ -1,0 +1,187 @@
+//! The `Tracker` facade end to end on seeded multi-frame BEV scenes: lanes found and kept with
+//! stable ids, dropped frames, blackouts, lanes appearing, bad input rejected with the state
+//! intact, and the size budget of the reference configuration.
+
+use stjpdacf::tables::DEFAULT;
+use stjpdacf::tracker::{Instant, ReferenceTracker, StepError};
+use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
+
+/// `size_of` the whole reference tracker must stay within 160 KiB (issue budget; pinned here).
+#[test]
+fn reference_tracker_fits_160_kib() {
+    let size = std::mem::size_of::<ReferenceTracker>();
+    println!("size_of::<ReferenceTracker>() = {size} B");
+    assert!(size <= 160 * 1024, "{size} B");
+}
+
+fn tracker() -> Box<ReferenceTracker> {
+    Box::new(ReferenceTracker::new(&DEFAULT))
+}
+
+fn frame(seed: u64, shift: f64, lanes: usize) -> Vec<[f32; 2]> {
+    let cfg = ScenarioConfig {
+        lanes,
+        left: -5.4 + shift,
+        clutter_density: 0.02,
+        ..ScenarioConfig::default()
+    };
+    Scenario::generate(&cfg, seed)
+        .points
+        .iter()
+        .map(|&(u, x)| [u as f32, x as f32])
+        .collect()
+}
+
+#[test]
+fn keeps_lanes_and_ids_over_frames() {
+    let mut t = tracker();
+    let mut ids = Vec::new();
+    let mut us = 0i64;
+    for k in 0..30u64 {
+        // Lateral drift of 2 cm a frame; frame 10 and 20 are dropped (2× and 5× steps).
+        let step = match k {
+            10 => 100_000,
+            20 => 250_000,
+            _ => 50_000,
+        };
+        us += step;
+        let out = t
+            .step(Instant::from_micros(us), &frame(k, 0.02 * k as f64, 3))
+            .unwrap();
+        assert_eq!(out.filtered.len(), 3, "frame {k}: {:?}", out.report);
+        let mut frame_ids: Vec<u32> = out.filtered.iter().map(|l| l.id.0).collect();
+        frame_ids.sort_unstable();
+        if k == 0 {
+            ids = frame_ids.clone();
+        }
+        assert_eq!(frame_ids, ids, "frame {k}: ids changed");
+        // Positions near the truth at the nearest index point (lanes at −5.4, −1.8, 1.8 + drift).
+        let mut z0: Vec<f32> = out.filtered.iter().map(|l| l.z[0]).collect();
+        z0.sort_by(f32::total_cmp);
+        let drift = 0.02 * k as f32;
+        for (z, want) in z0.iter().zip([-5.4f32, -1.8, 1.8]) {
+            assert!(
+                (z - want - drift).abs() < 0.5,
+                "frame {k}: {z} vs {}",
+                want + drift
+            );
+        }
+        if k >= 4 {
+            assert_eq!(out.smoothed.len(), 3, "frame {k}: smoothed lanes");
+        }
+    }
+}
+
+#[test]
+fn blackout_coasts_then_recovers_with_the_same_ids() {
+    let mut t = tracker();
+    let mut us = 0;
+    let mut first = Vec::new();
+    for k in 0..20u64 {
+        us += 50_000;
+        let pts = if (8..12).contains(&k) {
+            Vec::new()
+        } else {
+            frame(k, 0.0, 3)
+        };
+        let out = t.step(Instant::from_micros(us), &pts).unwrap();
+        let mut ids: Vec<u32> = out.filtered.iter().map(|l| l.id.0).collect();
+        ids.sort_unstable();
+        if k == 0 {
+            first = ids.clone();
+        }
+        // Four empty frames: the lanes coast (fewer than max_misses) and keep their ids.
+        assert_eq!(ids, first, "frame {k}");
+        if (8..12).contains(&k) {
+            assert!(out.filtered.iter().all(|l| l.misses > 0));
+        }
+    }
+}
+
+#[test]
+fn new_lane_gets_a_new_id() {
+    let mut t = tracker();
+    let mut us = 0;
+    let mut seen = std::collections::BTreeSet::new();
+    for k in 0..12u64 {
+        us += 50_000;
+        let lanes = if k < 6 { 2 } else { 3 };
+        // No clutter here: this test is about ids. With clutter the spatial filter can lose a lane
+        // inside a frame and restart it further out, which shows as an extra lane (seed 0 of this
+        // scene with 0.02 /m clutter: two clutter points at 57–58 m pull the track 0.4 m off;
+        // known issue, see the README's open problems).
+        let cfg = ScenarioConfig {
+            lanes,
+            clutter_density: 0.0,
+            ..ScenarioConfig::default()
+        };
+        let pts: Vec<[f32; 2]> = Scenario::generate(&cfg, k)
+            .points
+            .iter()
+            .map(|&(u, x)| [u as f32, x as f32])
+            .collect();
+        let out = t.step(Instant::from_micros(us), &pts).unwrap();
+        let z0: Vec<(f32, f32, f32)> = out
+            .filtered
+            .iter()
+            .map(|l| (l.z[0], l.u_first, l.u_last))
+            .collect();
+        assert_eq!(
+            out.filtered.len(),
+            lanes,
+            "frame {k}: {z0:?} {:?}",
+            out.report.spatial
+        );
+        seen.extend(out.filtered.iter().map(|l| l.id.0));
+    }
+    assert_eq!(seen.len(), 3);
+}
+
+#[test]
+fn bad_time_and_bad_points_leave_the_state_intact() {
+    let mut t = tracker();
+    t.step(Instant::from_millis(100), &frame(1, 0.0, 3))
+        .unwrap();
+    let before = format!("{t:?}");
+    assert_eq!(
+        t.step(Instant::from_millis(100), &frame(2, 0.0, 3)),
+        Err(StepError::NonIncreasingTime)
+    );
+    assert_eq!(
+        t.step(Instant::from_millis(50), &frame(2, 0.0, 3)),
+        Err(StepError::NonIncreasingTime)
+    );
+    assert_eq!(format!("{t:?}"), before);
+    // Junk and an over-budget frame are counted, not fatal.
+    let mut pts = frame(3, 0.0, 3);
+    pts.extend([[f32::NAN, 0.0], [10.0, f32::INFINITY], [500.0, 0.0]]);
+    pts.extend((0..400).map(|i| [30.0 + (i % 40) as f32 * 0.1, 20.0]));
+    let out = t.step(Instant::from_millis(150), &pts).unwrap();
+    assert!(out.report.over_budget_points > 0);
+    assert!(out
+        .filtered
+        .iter()
+        .all(|l| l.z.iter().all(|v| v.is_finite())));
+}
+
+#[test]
+fn lane_at_interpolates_between_index_points() {
+    let mut t = tracker();
+    let out = t.step(Instant::from_millis(0), &frame(5, 0.0, 3)).unwrap();
+    let lane = out.filtered[0];
+    let u_mid = (DEFAULT.index_u[2] + DEFAULT.index_u[3]) / 2.0;
+    let (x, var) = t.lane_at(usize::from(lane.slot), u_mid).unwrap();
+    let (a, b) = (lane.z[2], lane.z[3]);
+    assert!(
+        x >= a.min(b) - 0.2 && x <= a.max(b) + 0.2,
+        "{x} between {a} and {b}"
+    );
+    assert!(var > 0.0 && var.is_finite());
+    // At an index point it reproduces the lane.
+    let (x2, _) = t
+        .lane_at(usize::from(lane.slot), DEFAULT.index_u[4])
+        .unwrap();
+    assert!((x2 - lane.z[4]).abs() < 0.05, "{x2} vs {}", lane.z[4]);
+    assert!(t.lane_at(usize::from(lane.slot), f32::NAN).is_none());
+    assert!(t.lane_at(usize::from(lane.slot), 500.0).is_none());
+}

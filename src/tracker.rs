@@ -1,0 +1,577 @@
+//! The per-frame facade: feature points in, lanes out.
+//!
+//! `Tracker::step(now, points)` runs the whole pipeline of DESIGN 1 on one frame: the spatial
+//! JPDACF ([`crate::spatial::filter`]) turns the BEV points into confirmed lanes with
+//! pseudo-measurements at the index points; lane identity ([`crate::temporal::identity`]) matches
+//! them to the temporal lanes; the temporal coupled filter with its fixed-lag smoother
+//! ([`crate::temporal::smoother`]) predicts over the frame step and updates. It returns the
+//! filtered lanes at this frame, the smoothed lanes `LAG` frames back, and a report.
+//!
+//! # Contract
+//! * `now` must increase strictly: otherwise [`StepError::NonIncreasingTime`] and the state is
+//!   untouched. Any positive step works (dropped frames).
+//! * At most `MEAS` points are used; the excess is counted (`over_budget_points`). Non-finite,
+//!   out-of-window and duplicated points are rejected and counted by the spatial filter.
+//! * Numerical failures of the temporal filter are counted and leave its state as it was.
+//! * No allocation, no panics, no recursion; bounded work (the sum of the stages' bounds).
+//!
+//! ```
+//! use stjpdacf::tracker::{Instant, ReferenceTracker};
+//! let mut t: Box<ReferenceTracker> = Box::new(ReferenceTracker::new(&stjpdacf::tables::DEFAULT));
+//! // Two straight lanes, 3.6 m apart, one point per BEV row.
+//! let pts: Vec<[f32; 2]> = (0..60)
+//!     .flat_map(|r| { let u = 3.0 + r as f32 * 77.0 / 60.0; [[u, -1.8], [u, 1.8]] })
+//!     .collect();
+//! let out = t.step(Instant::from_micros(0), &pts)?;
+//! assert_eq!(out.filtered.len(), 2);
+//! assert!(t.step(Instant::from_micros(0), &pts).is_err()); // time must increase
+//! # Ok::<(), stjpdacf::tracker::StepError>(())
+//! ```
+
+use heapless::Vec;
+use nalgebra::SVector;
+
+use crate::spatial::filter::{
+    Config as SpatialConfig, LaneObservation, SpatialFilter, SpatialReport, Status,
+};
+use crate::spatial::{get, set};
+use crate::tables::Tables;
+use crate::temporal::identity::{
+    IdentityConfig, IdentityReport, LaneId, LanePrediction, LaneTable, SlotFate,
+};
+use crate::temporal::smoother::Temporal;
+
+/// A point in time, integer microseconds (the core never reads a clock).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Instant(i64);
+
+impl Instant {
+    /// From microseconds.
+    pub const fn from_micros(us: i64) -> Self {
+        Self(us)
+    }
+    /// From milliseconds.
+    pub const fn from_millis(ms: i64) -> Self {
+        Self(ms.saturating_mul(1000))
+    }
+    /// Microseconds.
+    pub const fn as_micros(self) -> i64 {
+        self.0
+    }
+}
+
+/// Error of [`Tracker::step`]; the tracker's state is untouched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum StepError {
+    /// `now` is not after the previous frame's time.
+    NonIncreasingTime,
+}
+
+impl core::fmt::Display for StepError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("frame time does not increase")
+    }
+}
+
+impl core::error::Error for StepError {}
+
+/// Tuning of the whole tracker.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackerConfig {
+    /// The spatial JPDACF.
+    pub spatial: SpatialConfig,
+    /// Lane identity.
+    pub identity: IdentityConfig,
+    /// Each frame a lane is not seen multiplies its existence by this factor.
+    pub existence_decay: f32,
+}
+
+impl TrackerConfig {
+    /// Defaults of the stages.
+    pub const DEFAULT: Self = Self {
+        spatial: SpatialConfig::DEFAULT,
+        identity: IdentityConfig::DEFAULT,
+        existence_decay: 0.8,
+    };
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// One lane as published.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaneEstimate<const POINTS: usize> {
+    /// Stable id.
+    pub id: LaneId,
+    /// Temporal slot (for [`Tracker::lane_at`]).
+    pub slot: u8,
+    /// Lateral position at each index point, metres.
+    pub z: SVector<f32, POINTS>,
+    /// Its variance, m².
+    pub var: SVector<f32, POINTS>,
+    /// Observed extent (union over the last `LAG + 1` frames), metres ahead.
+    pub u_first: f32,
+    /// Far end of the observed extent.
+    pub u_last: f32,
+    /// Existence figure in [0, 1] (spatial existence when seen, decaying while coasting).
+    pub existence: f32,
+    /// Frames since the lane was last seen (0 when seen this frame).
+    pub misses: u16,
+}
+
+/// What one frame did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    /// The spatial filter's counters.
+    pub spatial: SpatialReport,
+    /// Lane identity's counters.
+    pub identity: IdentityReport,
+    /// Points beyond `MEAS`, ignored.
+    pub over_budget_points: u32,
+    /// Temporal operations that failed numerically (state kept).
+    pub temporal_failures: u32,
+    /// Frame step used, seconds (0 for the first frame).
+    pub dt: f32,
+}
+
+/// The output of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepOutput<const LANES: usize, const POINTS: usize> {
+    /// Filtered lanes at this frame.
+    pub filtered: Vec<LaneEstimate<POINTS>, LANES>,
+    /// Smoothed lanes `LAG` frames back (empty until the window is full).
+    pub smoothed: Vec<LaneEstimate<POINTS>, LANES>,
+    /// Counters.
+    pub report: StepReport,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SlotInfo {
+    existence: f32,
+    extent: [f32; 2],
+    seen: bool,
+}
+
+const NO_INFO: SlotInfo = SlotInfo {
+    existence: 0.0,
+    extent: [f32::INFINITY, f32::NEG_INFINITY],
+    seen: false,
+};
+
+impl Default for SlotInfo {
+    fn default() -> Self {
+        NO_INFO
+    }
+}
+
+/// The tracker. Type parameters: `NT` spatial Taylor order, `NS = NT + 1`, `LANES`, `POINTS`
+/// index points, `ROWS`/`PER_ROW` the spatial filter's capacities, `MEAS` points per frame,
+/// `RANK` retained Gram components, `NX = 2·LANES·RANK`, `NA = LANES·RANK`, `LAG` frames. Use the
+/// [`ReferenceTracker`] alias for the reference configuration.
+#[derive(Debug, Clone)]
+pub struct Tracker<
+    const NT: usize,
+    const NS: usize,
+    const LANES: usize,
+    const POINTS: usize,
+    const ROWS: usize,
+    const PER_ROW: usize,
+    const MEAS: usize,
+    const RANK: usize,
+    const NX: usize,
+    const NA: usize,
+    const LAG: usize,
+> {
+    tables: &'static Tables<NT, LANES, POINTS>,
+    cfg: TrackerConfig,
+    spatial: SpatialFilter<NS, LANES, ROWS, PER_ROW>,
+    obs: [LaneObservation<POINTS>; LANES],
+    ids: LaneTable<LANES>,
+    temporal: Temporal<LANES, POINTS, RANK, NX, NA, LAG>,
+    info: [SlotInfo; LANES],
+    /// Extent history per slot: `[u_first, u_last]` of the last `LAG + 1` frames' observations.
+    extent: [[[f32; 2]; LANES]; 8],
+    /// Slot → id `j` frames back (for the smoothed output).
+    id_hist: [[Option<LaneId>; LANES]; 17],
+    last: Option<Instant>,
+    frames: u32,
+}
+
+/// The reference configuration (DESIGN 2): D = 6, N = 16, M = 256 (16 per row), R_max = 64,
+/// E = 512, L = 4, spatial order 2, Gram rank ≤ 7.
+pub type ReferenceTracker = Tracker<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>;
+
+impl<
+        const NT: usize,
+        const NS: usize,
+        const LANES: usize,
+        const POINTS: usize,
+        const ROWS: usize,
+        const PER_ROW: usize,
+        const MEAS: usize,
+        const RANK: usize,
+        const NX: usize,
+        const NA: usize,
+        const LAG: usize,
+    > Tracker<NT, NS, LANES, POINTS, ROWS, PER_ROW, MEAS, RANK, NX, NA, LAG>
+{
+    const EMPTY_OBS: LaneObservation<POINTS> = LaneObservation {
+        status: Status::Tentative,
+        present: [false; POINTS],
+        z: SVector::from_array_storage(nalgebra::ArrayStorage([[0.0; POINTS]; 1])),
+        cov: nalgebra::SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; POINTS]; POINTS])),
+        u_first: 0.0,
+        u_last: 0.0,
+        existence: 0.0,
+        rank: 0,
+    };
+
+    /// A tracker on `tables` with the default configuration (`const`: it can live in a `static`).
+    pub const fn new(tables: &'static Tables<NT, LANES, POINTS>) -> Self {
+        Self::with_config(tables, TrackerConfig::DEFAULT)
+    }
+
+    /// A tracker with a given configuration.
+    pub const fn with_config(
+        tables: &'static Tables<NT, LANES, POINTS>,
+        cfg: TrackerConfig,
+    ) -> Self {
+        const { assert!(LAG >= 1 && LAG < 8, "LAG must be 1..=7") };
+        const { assert!(MEAS >= 1, "MEAS must be at least 1") };
+        Self {
+            tables,
+            cfg,
+            spatial: SpatialFilter::new(),
+            obs: [Self::EMPTY_OBS; LANES],
+            ids: LaneTable::new(),
+            temporal: Temporal::new(),
+            info: [NO_INFO; LANES],
+            extent: [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; 8],
+            id_hist: [[None; LANES]; 17],
+            last: None,
+            frames: 0,
+        }
+    }
+
+    /// Frames processed.
+    pub fn frames(&self) -> u32 {
+        self.frames
+    }
+
+    /// One frame: BEV feature points `(u, x)` in metres at time `now`.
+    ///
+    /// # Errors
+    /// [`StepError::NonIncreasingTime`]; the state is untouched.
+    ///
+    /// # Complexity
+    /// The spatial filter's bound (see [`crate::spatial::filter`]) + identity (≤ 13,327 leaves at
+    /// D = 6) + the temporal filter and smoother (`O(NX²·POINTS·LAG)` per seen lane).
+    #[allow(clippy::too_many_lines)]
+    pub fn step(
+        &mut self,
+        now: Instant,
+        points: &[[f32; 2]],
+    ) -> Result<StepOutput<LANES, POINTS>, StepError> {
+        let dt_us = match self.last {
+            Some(last) if now <= last => return Err(StepError::NonIncreasingTime),
+            Some(last) => Some(now.as_micros().saturating_sub(last.as_micros())),
+            None => None,
+        };
+        let dt = dt_us.map_or(0.0, |us| us as f32 * 1e-6);
+        let used = points.len().min(MEAS);
+        let mut report = StepReport {
+            spatial: SpatialReport::default(),
+            identity: IdentityReport::default(),
+            over_budget_points: (points.len() - used) as u32,
+            temporal_failures: 0,
+            dt,
+        };
+        // 1. Spatial JPDACF.
+        self.obs = [Self::EMPTY_OBS; LANES];
+        let (n_obs, srep) = self.spatial.run(
+            self.tables,
+            &self.cfg.spatial,
+            points.get(..used).unwrap_or(&[]),
+            &mut self.obs,
+        );
+        report.spatial = srep;
+        // 2. Temporal prediction to now.
+        if dt > 0.0 && self.temporal.predict(self.tables, dt).is_err() {
+            report.temporal_failures += 1;
+        }
+        // 3. Identity against the predictions.
+        let mut preds = [LanePrediction::<POINTS>::EMPTY; LANES];
+        for (s, p) in preds.iter_mut().enumerate() {
+            if let Some((z, var)) = self.temporal.filter().lane(self.tables, s) {
+                *p = LanePrediction {
+                    present: [true; POINTS],
+                    z,
+                    var,
+                };
+            }
+        }
+        let outcome = self.ids.associate(
+            &preds,
+            self.obs.get(..n_obs).unwrap_or(&[]),
+            &self.cfg.identity,
+        );
+        report.identity = outcome.report;
+        // 4. Removed lanes leave the temporal filter.
+        for (s, fate) in outcome.slots.iter().enumerate() {
+            let removed = matches!(fate, SlotFate::Removed { .. })
+                || matches!(
+                    fate,
+                    SlotFate::New {
+                        replaced: Some(_),
+                        ..
+                    }
+                );
+            if removed {
+                self.temporal.remove_lane(s);
+                set(&mut self.info, s, NO_INFO);
+                for h in self.extent.iter_mut() {
+                    set(h, s, [f32::INFINITY, f32::NEG_INFINITY]);
+                }
+            }
+        }
+        // 5. New lanes start in rank order among the lanes present (B's slots), then the seen
+        //    lanes are updated.
+        for (s, fate) in outcome.slots.iter().enumerate() {
+            if let SlotFate::New { obs, .. } = fate {
+                let x = self.bottom_position(s, Some(usize::from(*obs)));
+                let (rank, ranks) = self.ranks_with(s, x);
+                if self
+                    .temporal
+                    .start_lane(self.tables, s, rank, &ranks)
+                    .is_err()
+                {
+                    report.temporal_failures += 1;
+                }
+            }
+        }
+        for (s, fate) in outcome.slots.iter().enumerate() {
+            let o = match fate {
+                SlotFate::Matched { obs } | SlotFate::New { obs, .. } => Some(usize::from(*obs)),
+                _ => None,
+            };
+            let info = self.info.get_mut(s);
+            match (o.and_then(|i| self.obs.get(i)), info) {
+                (Some(ob), Some(info)) => {
+                    if self.temporal.filter().is_active(s)
+                        && self.temporal.update(self.tables, s, ob).is_err()
+                    {
+                        report.temporal_failures += 1;
+                    }
+                    info.existence = ob.existence;
+                    info.seen = true;
+                    info.extent = [ob.u_first, ob.u_last];
+                }
+                (None, Some(info)) => {
+                    info.existence *= self.cfg.existence_decay;
+                    info.seen = false;
+                    info.extent = [f32::INFINITY, f32::NEG_INFINITY];
+                }
+                _ => {}
+            }
+        }
+        // Re-rank the lanes present (slots = rank from the left at the bottom of the window).
+        let ranks = self.current_ranks();
+        let _ = self.temporal.set_ranks(&ranks);
+        // 6. Extent and id histories.
+        for j in (1..self.extent.len()).rev() {
+            if let Some(prev) = self.extent.get(j - 1).copied() {
+                if let Some(h) = self.extent.get_mut(j) {
+                    *h = prev;
+                }
+            }
+        }
+        if let Some(h) = self.extent.get_mut(0) {
+            for (s, e) in h.iter_mut().enumerate() {
+                *e = get(&self.info, s).extent;
+            }
+        }
+        for j in (1..self.id_hist.len()).rev() {
+            if let Some(prev) = self.id_hist.get(j - 1).copied() {
+                if let Some(h) = self.id_hist.get_mut(j) {
+                    *h = prev;
+                }
+            }
+        }
+        if let Some(h) = self.id_hist.get_mut(0) {
+            for (s, e) in h.iter_mut().enumerate() {
+                *e = self.ids.lane(s).map(|l| l.id);
+            }
+        }
+        // 7. Output.
+        let mut filtered = Vec::new();
+        let mut smoothed = Vec::new();
+        for s in 0..LANES {
+            if let (Some(lane), Some((z, var))) = (
+                self.ids.lane(s),
+                self.temporal.filter().lane(self.tables, s),
+            ) {
+                let (u_first, u_last) = self.extent_of(s);
+                let info = get(&self.info, s);
+                let _ = filtered.push(LaneEstimate {
+                    id: lane.id,
+                    slot: s as u8,
+                    z,
+                    var,
+                    u_first,
+                    u_last,
+                    existence: info.existence,
+                    misses: lane.misses,
+                });
+            }
+            let id_then = self
+                .id_hist
+                .get(LAG)
+                .and_then(|h| h.get(s))
+                .copied()
+                .flatten();
+            if let (Some(id), Some((z, var))) = (id_then, self.temporal.lagged(self.tables, s, LAG))
+            {
+                let (u_first, u_last) = self.extent_of(s);
+                let _ = smoothed.push(LaneEstimate {
+                    id,
+                    slot: s as u8,
+                    z,
+                    var,
+                    u_first,
+                    u_last,
+                    existence: get(&self.info, s).existence,
+                    misses: 0,
+                });
+            }
+        }
+        self.last = Some(now);
+        self.frames = self.frames.saturating_add(1);
+        Ok(StepOutput {
+            filtered,
+            smoothed,
+            report,
+        })
+    }
+
+    fn extent_of(&self, s: usize) -> (f32, f32) {
+        let mut lo = f32::INFINITY;
+        let mut hi = f32::NEG_INFINITY;
+        for h in self.extent.iter().take(LAG + 1) {
+            let [a, b] = get(h, s);
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        if lo > hi {
+            (self.tables.hyper.u_min, self.tables.hyper.u_min)
+        } else {
+            (lo, hi)
+        }
+    }
+
+    /// Lateral position at the nearest index point: the observation's first present point, else
+    /// the temporal filter's prediction.
+    fn bottom_position(&self, s: usize, obs: Option<usize>) -> f32 {
+        if let Some(o) = obs.and_then(|i| self.obs.get(i)) {
+            if let Some(i) = (0..POINTS).find(|&i| get(&o.present, i)) {
+                return o.z.get(i).copied().unwrap_or(0.0);
+            }
+        }
+        self.temporal
+            .filter()
+            .lane(self.tables, s)
+            .and_then(|(z, _)| z.get(0).copied())
+            .unwrap_or(0.0)
+    }
+
+    /// Ranks of the active lanes plus a new lane in slot `s` at lateral `x` (a permutation of
+    /// `0..=active`), ties broken by slot.
+    fn ranks_with(&self, s: usize, x: f32) -> (u8, [u8; LANES]) {
+        let mut pos = [f32::NAN; LANES];
+        for t in 0..LANES {
+            if self.temporal.filter().is_active(t) {
+                set(&mut pos, t, self.bottom_position(t, None));
+            }
+        }
+        set(&mut pos, s, x);
+        let on = |t: usize| t == s || self.temporal.filter().is_active(t);
+        let mut ranks = [0u8; LANES];
+        for t in (0..LANES).filter(|&t| on(t)) {
+            let pt = get(&pos, t);
+            let r = (0..LANES).filter(|&o| on(o) && o != t).filter(|&o| {
+                let po = get(&pos, o);
+                po < pt || (po == pt && o < t) || (pt.is_nan() && !po.is_nan())
+            });
+            set(&mut ranks, t, r.count() as u8);
+        }
+        (get(&ranks, s), ranks)
+    }
+
+    fn current_ranks(&self) -> [u8; LANES] {
+        let mut ranks = [0u8; LANES];
+        for t in 0..LANES {
+            if !self.temporal.filter().is_active(t) {
+                continue;
+            }
+            let pt = self.bottom_position(t, None);
+            let r = (0..LANES)
+                .filter(|&o| o != t && self.temporal.filter().is_active(o))
+                .filter(|&o| {
+                    let po = self.bottom_position(o, None);
+                    po < pt || (po == pt && o < t) || (pt.is_nan() && !po.is_nan())
+                });
+            set(&mut ranks, t, r.count() as u8);
+        }
+        ranks
+    }
+
+    /// A lane's position and variance at any `u` inside the window: the GP conditional of the lane
+    /// (RBF along `u`, its slot's variance from B) given its coefficients on the Gram eigenbasis,
+    /// `f(u) = Σ_j (k(u, U)·v_j / λ_j) a_j`, plus the prior's residual variance at `u`.
+    /// `None` for a free slot, or `u` outside the window or not finite.
+    pub fn lane_at(&self, slot: usize, u: f32) -> Option<(f32, f32)> {
+        let h = &self.tables.hyper;
+        if !(u.is_finite() && u >= h.u_min && u <= h.u_max) {
+            return None;
+        }
+        let (z, _) = self.temporal.filter().lane(self.tables, slot)?;
+        let r = (self.tables.gram_rank as usize).min(RANK);
+        let l2 = 2.0 * h.spatial_lengthscale * h.spatial_lengthscale;
+        let k = SVector::<f32, POINTS>::from_fn(|i, _| {
+            let d = u - self.tables.index_u.get(i).copied().unwrap_or(0.0);
+            h.spatial_variance * crate::math::exp(-d * d / l2)
+        });
+        // c_j = k·v_j / λ_j; f(u) = Σ c_j a_j with a = V_rᵀ z (z = V_r a).
+        let v = &self.tables.gram_eigvec;
+        let mut mean = 0.0;
+        let mut explained = 0.0;
+        let mut cvec = [0.0f32; POINTS];
+        for j in 0..r {
+            let lam = self.tables.gram_eigval.get(j).copied().unwrap_or(0.0);
+            if lam <= 0.0 {
+                continue;
+            }
+            let kv: f32 = (0..POINTS)
+                .map(|i| k.get(i).copied().unwrap_or(0.0) * v.get((i, j)).copied().unwrap_or(0.0))
+                .sum();
+            let aj: f32 = (0..POINTS)
+                .map(|i| z.get(i).copied().unwrap_or(0.0) * v.get((i, j)).copied().unwrap_or(0.0))
+                .sum();
+            let cj = kv / lam;
+            mean += cj * aj;
+            explained += kv * kv / lam;
+            set(&mut cvec, j, cj);
+        }
+        // Variance: cᵀ Cov(a_slot) c from the filter's coefficient block.
+        let var_a = self.temporal.filter().coefficient_var(slot, &cvec, r);
+        let rank = usize::from(self.current_ranks().get(slot).copied().unwrap_or(0));
+        let bss = self.tables.coreg.get((rank, rank)).copied().unwrap_or(0.0);
+        let residual = (h.spatial_variance - explained).max(0.0) * bss;
+        Some((mean, var_a + residual))
+    }
+}
