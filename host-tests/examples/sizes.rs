@@ -35,4 +35,8 @@ fn main() {
         "temporal::smoother::Temporal<6, 16, 7, 84, 42, 4> (filter + L = 4 window): {} B",
         size_of::<stjpdacf::temporal::smoother::Temporal<6, 16, 7, 84, 42, 4>>()
     );
+    println!(
+        "tracker::ReferenceTracker (the whole tracker): {} B",
+        size_of::<stjpdacf::tracker::ReferenceTracker>()
+    );
 }
