@@ -11,6 +11,7 @@ pub mod reference;
 pub mod scenario;
 pub mod synth;
 pub mod tablegen;
+pub mod track;
 pub mod train;
 pub mod trainrun;
 pub mod tusimple;

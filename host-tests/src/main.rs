@@ -21,6 +21,15 @@ struct Cli {
     command: Command,
 }
 
+/// Coordinates of the frames' points.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum SpaceArg {
+    /// Image pixels `[column, row]`.
+    Image,
+    /// BEV metres `[x, u]`.
+    Bev,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Generate the static model tables (a Rust source file) from a hyperparameter file.
@@ -38,6 +47,24 @@ enum Command {
     /// Print how well the RBF state-space approximation of each Taylor order matches the true
     /// kernel (a Markdown table, as in the README).
     Kernels,
+    /// Run the tracker over frames of feature points and write TuSimple predictions.
+    Track {
+        /// Frames (JSON lines: clip, t, points, raw_file?, h_samples?).
+        #[arg(long)]
+        frames: PathBuf,
+        /// Output predictions (TuSimple JSON lines).
+        #[arg(long)]
+        out: PathBuf,
+        /// Hyperparameter file (default: the built-in tables of data/hyper/default.json).
+        #[arg(long)]
+        hyper: Option<PathBuf>,
+        /// Camera: `tusimple` or a camera JSON file.
+        #[arg(long, default_value = "tusimple")]
+        camera: String,
+        /// Coordinates of the points: image pixels or BEV metres.
+        #[arg(long, value_enum, default_value_t = SpaceArg::Image)]
+        space: SpaceArg,
+    },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
         /// Predictions (TuSimple JSON lines with `raw_file`, `lanes`, `run_time`).
@@ -183,6 +210,34 @@ fn main() -> Result<()> {
                     h.index_points
                 );
             }
+        }
+        Command::Track {
+            frames,
+            out,
+            hyper,
+            camera,
+            space,
+        } => {
+            let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
+                Some(p) => stjpdacf_host::track::tables_from_hyper(&HyperFile::load(&p)?)?,
+                None => &stjpdacf::tables::DEFAULT,
+            };
+            let cam = Camera::from_spec(&camera)?;
+            let frames = tusimple::read_frames(&frames)?;
+            let bar = indicatif::ProgressBar::new(frames.len() as u64);
+            let space = match space {
+                SpaceArg::Image => stjpdacf_host::track::Space::Image,
+                SpaceArg::Bev => stjpdacf_host::track::Space::Bev,
+            };
+            let (preds, stats) = stjpdacf_host::track::track(&frames, tables, &cam, space, |k| {
+                bar.set_position(k as u64 + 1)
+            })?;
+            bar.finish_and_clear();
+            tusimple::write_records(&out, &preds)?;
+            eprintln!(
+                "{} frames in {} clips, {} predictions to {}; step {:.3} ms mean, {:.3} ms max; {} points above the horizon or non-finite; {} steps rejected",
+                stats.frames, stats.clips, stats.predictions, out.display(), stats.mean_ms, stats.max_ms, stats.unmapped_points, stats.rejected_steps
+            );
         }
         Command::Kernels => {
             print!(

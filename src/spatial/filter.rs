@@ -77,10 +77,10 @@ impl Config {
         rows_per_interval: 4,
         init_rows: 3,
         init_gate: 0.5,
-        max_tentative: 2,
+        max_tentative: 3,
         confirm_hits: 6,
-        tentative_misses: 3,
-        max_misses: 8,
+        tentative_misses: 8,
+        max_misses: 12,
         merge_distance: 0.3,
         merge_rows: 3,
     };
