@@ -5,6 +5,7 @@
 
 pub mod identity;
 pub mod jpda;
+pub mod pipeline;
 pub mod spatial;
 pub mod statespace;
 pub mod temporal;
