@@ -340,53 +340,11 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             .transition(t)
             .ok_or(TemporalError::BadStep)?;
         let r = Self::r_used(tables);
-        let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
-        let xs = self.x.as_mut_slice();
-        for b in 0..NX / 2 {
-            let (i0, i1) = (2 * b, 2 * b + 1);
-            let (a, bv) = (
-                xs.get(i0).copied().unwrap_or(0.0),
-                xs.get(i1).copied().unwrap_or(0.0),
-            );
-            if let Some(e) = xs.get_mut(i0) {
-                *e = f00 * a + f01 * bv;
-            }
-            if let Some(e) = xs.get_mut(i1) {
-                *e = f10 * a + f11 * bv;
-            }
-        }
+        blockdiag_times(&mut self.x, &f);
+        // P ← F̄ P F̄ᵀ: column pairs, then row pairs.
+        times_blockdiag_t(&mut self.p, &f);
+        blockdiag_times(&mut self.p, &f);
         let ps = self.p.as_mut_slice();
-        // P ← P F̄ᵀ (column pairs), then F̄ P (row pairs); column-major storage: (i, j) at i + NX j.
-        for i in 0..NX {
-            for b in 0..NX / 2 {
-                let (c0, c1) = (i + NX * (2 * b), i + NX * (2 * b + 1));
-                let (a, bv) = (
-                    ps.get(c0).copied().unwrap_or(0.0),
-                    ps.get(c1).copied().unwrap_or(0.0),
-                );
-                if let Some(e) = ps.get_mut(c0) {
-                    *e = f00 * a + f01 * bv;
-                }
-                if let Some(e) = ps.get_mut(c1) {
-                    *e = f10 * a + f11 * bv;
-                }
-            }
-        }
-        for j in 0..NX {
-            for b in 0..NX / 2 {
-                let (r0, r1) = (2 * b + NX * j, 2 * b + 1 + NX * j);
-                let (a, bv) = (
-                    ps.get(r0).copied().unwrap_or(0.0),
-                    ps.get(r1).copied().unwrap_or(0.0),
-                );
-                if let Some(e) = ps.get_mut(r0) {
-                    *e = f00 * a + f01 * bv;
-                }
-                if let Some(e) = ps.get_mut(r1) {
-                    *e = f10 * a + f11 * bv;
-                }
-            }
-        }
         for s in 0..LANES {
             if !get(&self.active, s) {
                 continue;
@@ -590,5 +548,54 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// The stacked covariance (for tests and diagnostics).
     pub fn covariance(&self) -> &SMatrix<f32, NX, NX> {
         &self.p
+    }
+}
+
+/// `M ← M (I ⊗ f)ᵀ`: each pair of columns `(2b, 2b + 1)` mixed by `f` (the transition of every
+/// `[position, rate]` block acting from the right).
+pub(crate) fn times_blockdiag_t<const R: usize, const C: usize>(
+    m: &mut SMatrix<f32, R, C>,
+    f: &Matrix2<f32>,
+) {
+    let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
+    let ms = m.as_mut_slice(); // column-major: (i, j) at i + R j
+    for i in 0..R {
+        for b in 0..C / 2 {
+            let (c0, c1) = (i + R * (2 * b), i + R * (2 * b + 1));
+            let (a, bv) = (
+                ms.get(c0).copied().unwrap_or(0.0),
+                ms.get(c1).copied().unwrap_or(0.0),
+            );
+            if let Some(e) = ms.get_mut(c0) {
+                *e = f00 * a + f01 * bv;
+            }
+            if let Some(e) = ms.get_mut(c1) {
+                *e = f10 * a + f11 * bv;
+            }
+        }
+    }
+}
+
+/// `M ← (I ⊗ f) M`: each pair of rows `(2b, 2b + 1)` mixed by `f`.
+pub(crate) fn blockdiag_times<const R: usize, const C: usize>(
+    m: &mut SMatrix<f32, R, C>,
+    f: &Matrix2<f32>,
+) {
+    let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
+    let ms = m.as_mut_slice();
+    for j in 0..C {
+        for b in 0..R / 2 {
+            let (r0, r1) = (2 * b + R * j, 2 * b + 1 + R * j);
+            let (a, bv) = (
+                ms.get(r0).copied().unwrap_or(0.0),
+                ms.get(r1).copied().unwrap_or(0.0),
+            );
+            if let Some(e) = ms.get_mut(r0) {
+                *e = f00 * a + f01 * bv;
+            }
+            if let Some(e) = ms.get_mut(r1) {
+                *e = f10 * a + f11 * bv;
+            }
+        }
     }
 }

@@ -23,7 +23,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::filter::{TemporalError, TemporalFilter, UpdateParts};
+use super::filter::{times_blockdiag_t, TemporalError, TemporalFilter, UpdateParts};
 use crate::spatial::filter::LaneObservation;
 use crate::spatial::{get, set};
 use crate::tables::Tables;
@@ -218,22 +218,8 @@ impl<
         if let Some(w) = self.window.get_mut(0) {
             *w = fresh;
         }
-        let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
         for lag in self.window.iter_mut() {
-            for row in 0..NA {
-                for b in 0..NX / 2 {
-                    let (a0, a1) = (
-                        lag.cross.get((row, 2 * b)).copied().unwrap_or(0.0),
-                        lag.cross.get((row, 2 * b + 1)).copied().unwrap_or(0.0),
-                    );
-                    if let Some(e) = lag.cross.get_mut((row, 2 * b)) {
-                        *e = f00 * a0 + f01 * a1;
-                    }
-                    if let Some(e) = lag.cross.get_mut((row, 2 * b + 1)) {
-                        *e = f10 * a0 + f11 * a1;
-                    }
-                }
-            }
+            times_blockdiag_t(&mut lag.cross, &f);
         }
         self.frames = self.frames.saturating_add(1);
         Ok(())
