@@ -35,6 +35,7 @@
 
 pub mod kernel;
 pub mod math;
+pub mod probe;
 pub mod spatial;
 pub mod tables;
 pub mod temporal;

@@ -31,6 +31,7 @@
 use heapless::Vec;
 use nalgebra::SVector;
 
+use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::{
     Config as SpatialConfig, LaneObservation, SpatialFilter, SpatialReport, Status,
 };
@@ -272,12 +273,42 @@ impl<
     /// # Complexity
     /// The spatial filter's bound (see [`crate::spatial::filter`]) + identity (≤ 13,327 leaves at
     /// D = 6) + the temporal filter and smoother (`O(NX²·POINTS·LAG)` per seen lane).
-    #[allow(clippy::too_many_lines)]
     pub fn step(
         &mut self,
         now: Instant,
         points: &[[f32; 2]],
     ) -> Result<StepOutput<LANES, POINTS>, StepError> {
+        self.step_probed(now, points, &mut NoProbe)
+    }
+
+    /// [`Tracker::step`] reporting every stage transition to `probe` (see [`crate::probe`]); the
+    /// last call is `probe.enter(Stage::Done)`, also when the frame is refused.
+    ///
+    /// # Errors
+    /// As [`Tracker::step`].
+    ///
+    /// # Complexity
+    /// As [`Tracker::step`], plus one `probe.enter` per stage transition (a few per BEV row).
+    #[allow(clippy::too_many_lines)]
+    pub fn step_probed<P: Probe>(
+        &mut self,
+        now: Instant,
+        points: &[[f32; 2]],
+        probe: &mut P,
+    ) -> Result<StepOutput<LANES, POINTS>, StepError> {
+        let out = self.step_inner(now, points, probe);
+        probe.enter(Stage::Done);
+        out
+    }
+
+    #[allow(clippy::too_many_lines)]
+    fn step_inner<P: Probe>(
+        &mut self,
+        now: Instant,
+        points: &[[f32; 2]],
+        probe: &mut P,
+    ) -> Result<StepOutput<LANES, POINTS>, StepError> {
+        probe.enter(Stage::Binning);
         let dt_us = match self.last {
             Some(last) if now <= last => return Err(StepError::NonIncreasingTime),
             Some(last) => Some(now.as_micros().saturating_sub(last.as_micros())),
@@ -294,17 +325,24 @@ impl<
         };
         // 1. Spatial JPDACF.
         self.obs = [Self::EMPTY_OBS; LANES];
-        let (n_obs, srep) = self.spatial.run(
+        let (n_obs, srep) = self.spatial.run_probed(
             self.tables,
             &self.cfg.spatial,
             points.get(..used).unwrap_or(&[]),
             &mut self.obs,
+            probe,
         );
         report.spatial = srep;
         // 2. Temporal prediction to now.
-        if dt > 0.0 && self.temporal.predict(self.tables, dt).is_err() {
+        if dt > 0.0
+            && self
+                .temporal
+                .predict_probed(self.tables, dt, probe)
+                .is_err()
+        {
             report.temporal_failures += 1;
         }
+        probe.enter(Stage::Identity);
         // 3. Identity against the predictions.
         let mut preds = [LanePrediction::<POINTS>::EMPTY; LANES];
         for (s, p) in preds.iter_mut().enumerate() {
@@ -322,6 +360,7 @@ impl<
             &self.cfg.identity,
         );
         report.identity = outcome.report;
+        probe.enter(Stage::Temporal);
         // 4. Removed lanes leave the temporal filter.
         for (s, fate) in outcome.slots.iter().enumerate() {
             let removed = matches!(fate, SlotFate::Removed { .. })
@@ -364,7 +403,10 @@ impl<
             match (o.and_then(|i| self.obs.get(i)), info) {
                 (Some(ob), Some(info)) => {
                     if self.temporal.filter().is_active(s)
-                        && self.temporal.update(self.tables, s, ob).is_err()
+                        && self
+                            .temporal
+                            .update_probed(self.tables, s, ob, probe)
+                            .is_err()
                     {
                         report.temporal_failures += 1;
                     }
@@ -380,6 +422,7 @@ impl<
                 _ => {}
             }
         }
+        probe.enter(Stage::Temporal);
         // Re-rank the lanes present (slots = rank from the left at the bottom of the window).
         let ranks = self.current_ranks();
         let _ = self.temporal.set_ranks(&ranks);
@@ -409,6 +452,7 @@ impl<
             }
         }
         // 7. Output.
+        probe.enter(Stage::Output);
         let mut filtered = Vec::new();
         let mut smoothed = Vec::new();
         for s in 0..LANES {

@@ -185,3 +185,66 @@ fn lane_at_interpolates_between_index_points() {
     assert!(t.lane_at(usize::from(lane.slot), f32::NAN).is_none());
     assert!(t.lane_at(usize::from(lane.slot), 500.0).is_none());
 }
+
+/// Records the order of stage transitions.
+struct Trace(Vec<stjpdacf::probe::Stage>);
+
+impl stjpdacf::probe::Probe for Trace {
+    fn enter(&mut self, stage: stjpdacf::probe::Stage) {
+        self.0.push(stage);
+    }
+}
+
+#[test]
+fn probed_step_reports_every_stage_and_changes_nothing() {
+    use stjpdacf::probe::Stage;
+    let mut plain = tracker();
+    let mut probed = tracker();
+    let mut us = 0i64;
+    for k in 0..8u64 {
+        us += 50_000;
+        let pts = frame(k, 0.0, 3);
+        let a = plain.step(Instant::from_micros(us), &pts).unwrap();
+        let mut trace = Trace(Vec::new());
+        let b = probed
+            .step_probed(Instant::from_micros(us), &pts, &mut trace)
+            .unwrap();
+        assert_eq!(a, b, "frame {k}: the probe changed the result");
+        let t = &trace.0;
+        assert_eq!(t.first(), Some(&Stage::Binning));
+        assert_eq!(t.last(), Some(&Stage::Done));
+        assert_eq!(t.iter().filter(|s| **s == Stage::Done).count(), 1);
+        // Every row of the 61 is gated; from the second frame on, the temporal filter predicts
+        // and the smoother's window moves.
+        assert_eq!(t.iter().filter(|s| **s == Stage::Gating).count(), 61);
+        assert_eq!(t.iter().filter(|s| **s == Stage::RowPredict).count(), 60);
+        for s in [
+            Stage::Events,
+            Stage::Update,
+            Stage::Management,
+            Stage::Backward,
+            Stage::Identity,
+            Stage::Temporal,
+            Stage::Output,
+        ] {
+            assert!(t.contains(&s), "frame {k}: {s:?} never entered");
+        }
+        if k > 0 {
+            assert!(
+                t.contains(&Stage::Smoother),
+                "frame {k}: smoother never entered"
+            );
+        }
+        // The spatial stages come before identity, identity before the output.
+        let pos = |s: Stage| t.iter().position(|x| *x == s).unwrap();
+        let last = |s: Stage| t.iter().rposition(|x| *x == s).unwrap();
+        assert!(last(Stage::Backward) < pos(Stage::Identity));
+        assert!(last(Stage::Identity) < pos(Stage::Output));
+    }
+    // A refused frame still ends with Done.
+    let mut trace = Trace(Vec::new());
+    assert!(probed
+        .step_probed(Instant::from_micros(us), &frame(0, 0.0, 3), &mut trace)
+        .is_err());
+    assert_eq!(trace.0.last(), Some(&Stage::Done));
+}

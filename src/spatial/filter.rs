@@ -20,6 +20,7 @@ use nalgebra::{SMatrix, SVector};
 
 use super::row::{self, MissModel, RowParams, MAX_ROW_POINTS};
 use super::{get, set, Stacked};
+use crate::probe::{NoProbe, Probe, Stage};
 use crate::tables::Tables;
 
 /// Largest `init_rows` (rows the initiation buffer remembers).
@@ -277,7 +278,6 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
     ///
     /// # Complexity
     /// See the module docs. Bounded by `ROWS`, `PER_ROW`, `LANES` and `cfg.max_events`.
-    #[allow(non_snake_case, clippy::too_many_lines)]
     pub fn run<const NT: usize, const POINTS: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -285,6 +285,24 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         points: &[[f32; 2]],
         out: &mut [LaneObservation<POINTS>; LANES],
     ) -> (usize, SpatialReport) {
+        self.run_probed(tables, cfg, points, out, &mut NoProbe)
+    }
+
+    /// [`SpatialFilter::run`] reporting its stages to `probe` (from [`Stage::Binning`] to
+    /// [`Stage::Backward`]).
+    ///
+    /// # Complexity
+    /// As [`SpatialFilter::run`].
+    #[allow(non_snake_case, clippy::too_many_lines)]
+    pub fn run_probed<const NT: usize, const POINTS: usize, P: Probe>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        cfg: &Config,
+        points: &[[f32; 2]],
+        out: &mut [LaneObservation<POINTS>; LANES],
+        probe: &mut P,
+    ) -> (usize, SpatialReport) {
+        probe.enter(Stage::Binning);
         const { assert!(NS == NT + 1, "NS must be NT + 1 (offset + RBF state)") };
         let mut rep = SpatialReport {
             points_in: points.len().min(u32::MAX as usize) as u32,
@@ -369,8 +387,10 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
 
         for r in 0..rows {
             if r > 0 {
+                probe.enter(Stage::RowPredict);
                 self.state.predict(&F, &Q, &tables.coreg);
             }
+            probe.enter(Stage::Management);
             let row_pts = self.bins.get(r).copied().unwrap_or([0.0; PER_ROW]);
             let m = usize::from(get(&self.bin_n, r)).min(PER_ROW);
             let used = self.initiate(
@@ -399,14 +419,16 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                             acc
                         }
                     });
-            let o = row::update_masked(
+            let o = row::update_probed(
                 &mut self.state,
                 &hv,
                 rest.get(..nr).unwrap_or(&[]),
                 &params,
                 cfg.max_events,
                 skip,
+                probe,
             );
+            probe.enter(Stage::Management);
             rep.events = rep.events.saturating_add(o.events);
             rep.clutter_points += o.clutter_points;
             rep.gated = rep
@@ -417,6 +439,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             self.manage(r, &o, cfg, &hv, &params, &mut rep);
             self.record(r, Moment::Filtered);
         }
+        probe.enter(Stage::Backward);
         let n_out = self.smooth(tables, &F, &hv, k_rows, du, out, &mut rep);
         rep.lanes_out = n_out as u16;
         (n_out, rep)

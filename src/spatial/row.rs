@@ -36,6 +36,7 @@ use nalgebra::{SMatrix, SVector};
 
 use super::{get, set, Stacked};
 use crate::math;
+use crate::probe::{NoProbe, Probe, Stage};
 
 /// Largest number of points one row can hold (the gate masks are `u32`).
 pub const MAX_ROW_POINTS: usize = 32;
@@ -267,7 +268,6 @@ pub fn update<const NS: usize, const LANES: usize>(
 ///
 /// # Complexity
 /// As [`update`].
-#[allow(non_snake_case, clippy::too_many_lines)]
 pub fn update_masked<const NS: usize, const LANES: usize>(
     state: &mut Stacked<NS, LANES>,
     h: &SVector<f32, NS>,
@@ -276,6 +276,25 @@ pub fn update_masked<const NS: usize, const LANES: usize>(
     max_events: usize,
     skip: u32,
 ) -> RowOutcome<LANES> {
+    update_probed(state, h, points, params, max_events, skip, &mut NoProbe)
+}
+
+/// [`update_masked`] reporting its stages ([`Stage::Gating`], [`Stage::Events`],
+/// [`Stage::Update`]) to `probe`.
+///
+/// # Complexity
+/// As [`update`].
+#[allow(non_snake_case, clippy::too_many_lines)]
+pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
+    state: &mut Stacked<NS, LANES>,
+    h: &SVector<f32, NS>,
+    points: &[f32],
+    params: &RowParams,
+    max_events: usize,
+    skip: u32,
+    probe: &mut P,
+) -> RowOutcome<LANES> {
+    probe.enter(Stage::Gating);
     let mut out = RowOutcome::<LANES>::default();
     let (xs, ps, n) = state.parts_mut();
     let m = points.len().min(MAX_ROW_POINTS);
@@ -343,6 +362,7 @@ pub fn update_masked<const NS: usize, const LANES: usize>(
         }
     }
 
+    probe.enter(Stage::Events);
     let ln_pd = math::ln(params.pd);
     let missf = match params.miss {
         MissModel::Textbook => 1.0 - params.pd,
@@ -528,6 +548,7 @@ pub fn update_masked<const NS: usize, const LANES: usize>(
             }
         }
     }
+    probe.enter(Stage::Update);
     if !(wtot.is_finite() && wtot > 0.0) {
         out.failed = true;
         return out;

@@ -24,6 +24,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use super::filter::{times_blockdiag_t, TemporalError, TemporalFilter, UpdateParts};
+use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::LaneObservation;
 use crate::spatial::{get, set};
 use crate::tables::Tables;
@@ -177,6 +178,20 @@ impl<
         tables: &Tables<NT, LANES, POINTS>,
         t: f32,
     ) -> Result<(), TemporalError> {
+        self.predict_probed(tables, t, &mut NoProbe)
+    }
+
+    /// [`Temporal::predict`] reporting [`Stage::Temporal`] and [`Stage::Smoother`] to `probe`.
+    ///
+    /// # Errors
+    /// As [`Temporal::predict`].
+    pub fn predict_probed<const NT: usize, P: Probe>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        t: f32,
+        probe: &mut P,
+    ) -> Result<(), TemporalError> {
+        probe.enter(Stage::Temporal);
         let (f, _) = tables
             .temporal
             .kernel
@@ -186,6 +201,7 @@ impl<
         let x = *self.filter.mean();
         let p = *self.filter.covariance();
         self.filter.predict(tables, t)?;
+        probe.enter(Stage::Smoother);
         for j in (1..LAG).rev() {
             if let Some(prev) = self.window.get(j - 1).copied() {
                 if let Some(w) = self.window.get_mut(j) {
@@ -235,7 +251,23 @@ impl<
         s: usize,
         obs: &LaneObservation<POINTS>,
     ) -> Result<(), TemporalError> {
+        self.update_probed(tables, s, obs, &mut NoProbe)
+    }
+
+    /// [`Temporal::update`] reporting [`Stage::Temporal`] and [`Stage::Smoother`] to `probe`.
+    ///
+    /// # Errors
+    /// As [`Temporal::update`].
+    pub fn update_probed<const NT: usize, P: Probe>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+        obs: &LaneObservation<POINTS>,
+        probe: &mut P,
+    ) -> Result<(), TemporalError> {
+        probe.enter(Stage::Temporal);
         let g = self.filter.prepare_update(tables, s, obs)?;
+        probe.enter(Stage::Smoother);
         let mut window = self.window;
         for lag in window.iter_mut() {
             lag_update(lag, &g, tables);
@@ -247,6 +279,7 @@ impl<
         if !finite {
             return Err(TemporalError::Numerical);
         }
+        probe.enter(Stage::Temporal);
         self.filter.commit_update(&g)?;
         self.window = window;
         Ok(())
