@@ -324,7 +324,9 @@ impl<
             dt,
         };
         // 1. Spatial JPDACF.
-        self.obs = [Self::EMPTY_OBS; LANES];
+        for o in &mut self.obs {
+            *o = Self::EMPTY_OBS;
+        }
         let (n_obs, srep) = self.spatial.run_probed(
             self.tables,
             &self.cfg.spatial,
@@ -528,8 +530,7 @@ impl<
         }
         self.temporal
             .filter()
-            .lane(self.tables, s)
-            .and_then(|(z, _)| z.get(0).copied())
+            .position(self.tables, s, 0)
             .unwrap_or(0.0)
     }
 
@@ -557,16 +558,22 @@ impl<
     }
 
     fn current_ranks(&self) -> [u8; LANES] {
+        let mut pos = [f32::NAN; LANES];
+        for (t, p) in pos.iter_mut().enumerate() {
+            if self.temporal.filter().is_active(t) {
+                *p = self.bottom_position(t, None);
+            }
+        }
         let mut ranks = [0u8; LANES];
         for t in 0..LANES {
             if !self.temporal.filter().is_active(t) {
                 continue;
             }
-            let pt = self.bottom_position(t, None);
+            let pt = get(&pos, t);
             let r = (0..LANES)
                 .filter(|&o| o != t && self.temporal.filter().is_active(o))
                 .filter(|&o| {
-                    let po = self.bottom_position(o, None);
+                    let po = get(&pos, o);
                     po < pt || (po == pt && o < t) || (pt.is_nan() && !po.is_nan())
                 });
             set(&mut ranks, t, r.count() as u8);

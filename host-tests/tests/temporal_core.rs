@@ -289,3 +289,45 @@ fn fixed_lag_smoother_matches_dense_rts() {
     assert_eq!(compared, steps.len() - LAG);
     println!("fixed-lag L = {LAG} core vs dense RTS: max |Δmean| = {max_dm:.2e} m, max rel |Δvar| = {max_dv:.2e} over {compared} frames");
 }
+
+/// The filter with its smoother window: an update whose products would overflow f32 (a
+/// pseudo-measurement 1e36 m away) is refused before anything is written, so the filter and every
+/// lag of the window are bit-for-bit what they were; a sane update afterwards works.
+#[test]
+fn overflowing_update_leaves_filter_and_window_untouched() {
+    use stjpdacf::temporal::smoother::Temporal;
+    let mut core = Box::new(Temporal::<6, 16, 7, 84, 42, 4>::new());
+    let mut ranks = [0u8; 6];
+    for (s, r) in [(0usize, 0u8), (1, 1)] {
+        ranks[s] = r;
+        core.start_lane(&DEFAULT, s, r, &ranks).unwrap();
+    }
+    let mut obs = LaneObservation {
+        status: Status::Confirmed,
+        present: [true; 16],
+        z: SVector::from_element(-1.8),
+        cov: SMatrix::identity() * 0.01,
+        u_first: 3.0,
+        u_last: 80.0,
+        existence: 1.0,
+        rank: 0,
+    };
+    for _ in 0..5 {
+        core.predict(&DEFAULT, 0.05).unwrap();
+        core.update(&DEFAULT, 0, &obs).unwrap();
+    }
+    let before = core.clone();
+    obs.z = SVector::from_element(1e36);
+    assert_eq!(
+        core.update(&DEFAULT, 0, &obs),
+        Err(TemporalError::Numerical)
+    );
+    assert!(*core == *before, "a refused update changed the state");
+    obs.z = SVector::from_element(-1.7);
+    core.update(&DEFAULT, 0, &obs).unwrap();
+    let (z, _) = core.filter().lane(&DEFAULT, 0).unwrap();
+    assert!(
+        z.iter().all(|v| v.is_finite() && (*v + 1.75).abs() < 0.2),
+        "{z:?}"
+    );
+}

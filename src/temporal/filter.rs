@@ -14,12 +14,19 @@
 //! `[a, ȧ]` at `(s·RANK + j)·2 + c`. RAM `4·(NX + NX²)` bytes (28.6 KiB at 6 lanes, rank 7).
 //!
 //! # Cost per frame
-//! Prediction `O(NX²)` (block-diagonal `F̄`, Kronecker `Q̄`), each lane update `O(NX²·m)` with
-//! `m ≤ POINTS` present points, one `m×m` Cholesky (padded to `POINTS`). No allocation, no
-//! recursion, no panicking indexing.
+//! Only the active slots are touched (`n` lanes, `n_act = 2·r·n` state entries; free slots' rows
+//! and columns stay zero): prediction about `8·n_act²/2` multiply-adds (`F̄ P F̄ᵀ` on one triangle
+//! of 2×2 blocks, Kronecker noise), each lane update a rank-`r` correction `P −= G M Gᵀ` in
+//! `n_act²·r/2` (one triangle, mirrored) plus `m³/6 + m²·r` for its gain (`m ≤ POINTS` present
+//! points, one `m×m` Cholesky). At 3 lanes, rank 7: ≈ 3.5 k + 3 × 6.2 k multiply-adds. Updates
+//! are checked (bounds on every product) before anything is written, then applied in place: no
+//! copy of the 28 KiB covariance on the stack. No allocation, no recursion, no panicking indexing.
+
+use core::ops::Range;
 
 use nalgebra::{Matrix2, SMatrix, SVector};
 
+use crate::math;
 use crate::spatial::filter::LaneObservation;
 use crate::spatial::{get, set};
 use crate::tables::Tables;
@@ -56,22 +63,71 @@ impl core::fmt::Display for TemporalError {
 impl core::error::Error for TemporalError {}
 
 /// The gain parts of one lane update (crate-internal: the fixed-lag smoother reuses them).
+///
+/// With `G = P[:, a_s]` (the covariance of the whole state with the slot's position
+/// coefficients), `V_m` the rows of the Gram eigenvectors at the `m` used index points and
+/// `S = V_m Cov(a_s) V_mᵀ + R`, the update is `x += G w`, `P −= G M Gᵀ` with `M = V_mᵀ S⁻¹ V_m`
+/// (`r×r`) and `w = V_mᵀ S⁻¹ ν`: a rank-`r` correction whatever the number of points.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct UpdateParts<const POINTS: usize, const NX: usize> {
+pub(crate) struct UpdateParts<const RANK: usize, const NX: usize> {
     /// Updated slot.
     pub slot: usize,
     /// Gram components used.
-    pub rank_used: usize,
-    /// Index points used.
-    pub used: [bool; POINTS],
-    /// `P Hᵀ` (zero columns for unused points).
-    pub ph: SMatrix<f32, NX, POINTS>,
-    /// `S⁻¹ H P`.
-    pub kt: SMatrix<f32, POINTS, NX>,
-    /// `S⁻¹ ν`.
-    pub w: SVector<f32, POINTS>,
-    /// Cholesky factor of the (padded) innovation covariance `S`.
-    pub chol: nalgebra::Cholesky<f32, nalgebra::Const<POINTS>>,
+    pub r: usize,
+    /// `G = P[:, a_s]` before the update (`NX × RANK`, the first `r` columns used).
+    pub g: SMatrix<f32, NX, RANK>,
+    /// `M = V_mᵀ S⁻¹ V_m`.
+    pub m: SMatrix<f32, RANK, RANK>,
+    /// `w = V_mᵀ S⁻¹ ν`.
+    pub w: SVector<f32, RANK>,
+}
+
+/// Disjoint, increasing index ranges, adjacent ones merged (at most `L`): the active parts of the
+/// state (or of a lag's rows), so that inner loops run over long contiguous slices.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Spans<const L: usize> {
+    lo: [usize; L],
+    hi: [usize; L],
+    n: usize,
+}
+
+impl<const L: usize> Spans<L> {
+    /// No ranges.
+    pub const fn new() -> Self {
+        Self {
+            lo: [0; L],
+            hi: [0; L],
+            n: 0,
+        }
+    }
+
+    /// Appends `lo..hi` (after every range so far; merged with the last one when adjacent).
+    pub fn push(&mut self, lo: usize, hi: usize) {
+        if hi <= lo {
+            return;
+        }
+        if self.n > 0 && self.hi.get(self.n - 1) == Some(&lo) {
+            set(&mut self.hi, self.n - 1, hi);
+        } else if self.n < L {
+            set(&mut self.lo, self.n, lo);
+            set(&mut self.hi, self.n, hi);
+            self.n += 1;
+        }
+    }
+
+    /// The ranges, in order.
+    pub fn iter(&self) -> impl Iterator<Item = Range<usize>> + '_ {
+        self.lo
+            .iter()
+            .zip(self.hi.iter())
+            .take(self.n)
+            .map(|(&lo, &hi)| lo..hi)
+    }
+
+    /// Every index, in order.
+    pub fn indices(&self) -> impl Iterator<Item = usize> + '_ {
+        self.iter().flatten()
+    }
 }
 
 /// The coupled temporal filter over `LANES` slots of `POINTS` index points, `RANK` retained Gram
@@ -97,6 +153,14 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     }
 }
 
+/// A product of finite factors stays far from overflow below this bound (f32 max is 3.4e38).
+const SAFE: f32 = 1e30;
+
+/// `sqrt(Σ v²)`, a bound on every `|v|` (infinite or NaN when some value is not finite).
+fn norm_bound(v: &[f32]) -> f32 {
+    math::sqrt(v.iter().map(|x| x * x).sum::<f32>())
+}
+
 impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize>
     TemporalFilter<LANES, POINTS, RANK, NX>
 {
@@ -105,6 +169,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         const { assert!(NX == 2 * LANES * RANK, "NX must be 2·LANES·RANK") };
         const { assert!(RANK >= 1 && RANK <= POINTS, "RANK must be 1..=POINTS") };
         const { assert!(LANES >= 1 && LANES <= 16, "LANES must be 1..=16") };
+        const { assert!(POINTS <= 64, "POINTS must be at most 64") };
         Self {
             x: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; NX]; 1])),
             p: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; NX]; NX])),
@@ -138,6 +203,40 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         self.active.iter().filter(|a| **a).count()
     }
 
+    /// The active slots' state ranges for `r` components: slot `s` holds
+    /// `[s·2·RANK, s·2·RANK + 2r)` (the components `j ≥ r` are always zero and skipped).
+    pub(crate) fn spans(&self, r: usize) -> Spans<LANES> {
+        let mut sp = Spans::new();
+        for s in 0..LANES {
+            if self.is_active(s) {
+                let lo = Self::idx(s, 0, 0);
+                sp.push(lo, lo + 2 * r.min(RANK));
+            }
+        }
+        sp
+    }
+
+    /// Lane `s`'s position at index point `i`, `Σ_j V[i, j] a_sj`; `None` for a free slot.
+    pub fn position<const NT: usize>(
+        &self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+        i: usize,
+    ) -> Option<f32> {
+        if !self.is_active(s) {
+            return None;
+        }
+        let r = Self::r_used(tables);
+        Some(
+            (0..r)
+                .map(|j| {
+                    tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0)
+                        * self.xg(Self::idx(s, j, 0))
+                })
+                .sum(),
+        )
+    }
+
     /// Sets the B slot (rank from the left, `0..lanes()`) of every active lane.
     ///
     /// # Errors
@@ -162,7 +261,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         Ok(())
     }
 
-    fn r_used<const NT: usize>(tables: &Tables<NT, LANES, POINTS>) -> usize {
+    pub(crate) fn r_used<const NT: usize>(tables: &Tables<NT, LANES, POINTS>) -> usize {
         (tables.gram_rank as usize).min(RANK)
     }
 
@@ -173,10 +272,13 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     ///
     /// # Errors
     /// [`TemporalError::BadSlot`] for an active or out-of-range slot, [`TemporalError::BadRanks`]
-    /// for ranks that are not a permutation after the start; the state is unchanged.
+    /// for ranks that are not a permutation after the start, [`TemporalError::Numerical`]; the
+    /// state is unchanged.
     ///
     /// Returns the conditioning coefficients `a_t` over the slots (`x_new = Σ_t a_t x_t + w`).
-    #[allow(clippy::too_many_lines)]
+    ///
+    /// # Complexity
+    /// `O(n_act · 2r · lanes)` with `n_act = 2r·lanes` the active state size; in place.
     pub fn start_lane<const NT: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -229,72 +331,82 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             }
         }
         let r = Self::r_used(tables);
-        let others = |t: usize| t != s && self.is_active(t);
-        // New rows: x_new[j,c] = Σ_t a_t x[t,j,c]; Cov(new[j,c], y) = Σ_t a_t Cov(x[t,j,c], y).
-        let mut newx = self.x;
-        let mut newp = self.p;
-        for j in 0..RANK {
-            for c in 0..2 {
-                let row = Self::idx(s, j, c);
-                let mut m = 0.0;
-                for t in (0..LANES).filter(|&t| others(t)) {
-                    m += get(&a, t) * self.xg(Self::idx(t, j, c));
+        let sp = self.spans(r);
+        let own = Self::idx(s, 0, 0)..Self::idx(s, 0, 0) + 2 * r;
+        // Slot s's rows and columns are zero (free slot). New rows:
+        // x_new[j,c] = Σ_t a_t x[t,j,c]; Cov(new[j,c], y) = Σ_t a_t Cov(x[t,j,c], y) for the other
+        // lanes' y, written into row and column (s, j, c).
+        for e in own.clone() {
+            let off = e - Self::idx(s, 0, 0);
+            let mut m = 0.0;
+            for t in (0..LANES).filter(|&t| t != s && self.is_active(t)) {
+                m += get(&a, t) * self.xg(Self::idx(t, 0, 0) + off);
+            }
+            if let Some(v) = self.x.as_mut_slice().get_mut(e) {
+                *v = m;
+            }
+            for col in sp.indices().filter(|c| !own.contains(c)) {
+                let mut cv = 0.0;
+                for t in (0..LANES).filter(|&t| t != s && self.is_active(t)) {
+                    cv += get(&a, t) * self.pg(Self::idx(t, 0, 0) + off, col);
                 }
-                if let Some(e) = newx.as_mut_slice().get_mut(row) {
-                    *e = if j < r { m } else { 0.0 };
+                let ps = self.p.as_mut_slice();
+                if let Some(v) = ps.get_mut(e + NX * col) {
+                    *v = cv;
                 }
-                for col in 0..NX {
-                    let cs = col / (2 * RANK);
-                    let mut cv = 0.0;
-                    if j < r && others(cs) {
-                        for t in (0..LANES).filter(|&t| others(t)) {
-                            cv += get(&a, t) * self.pg(Self::idx(t, j, c), col);
-                        }
-                    }
-                    if let Some(e) = newp.as_mut_slice().get_mut(row + NX * col) {
-                        *e = cv;
-                    }
-                    if let Some(e) = newp.as_mut_slice().get_mut(col + NX * row) {
-                        *e = cv;
-                    }
+                if let Some(v) = ps.get_mut(col + NX * e) {
+                    *v = cv;
                 }
             }
         }
-        // The new lane's own block: Σ_tt' a_t a_t' Cov(x_t, x_t') + (Λ_r ⊗ P∞_t) / Λ_kk.
+        // The new lane's own block: Σ_t' a_t' Cov(new, x_t') + (Λ_r ⊗ P∞_t) / Λ_kk.
         let pinf = &tables.temporal.p_inf;
-        for j in 0..r {
-            for c in 0..2 {
-                for j2 in 0..r {
-                    for c2 in 0..2 {
-                        let mut cv = 0.0;
-                        for t in (0..LANES).filter(|&t| others(t)) {
-                            for t2 in (0..LANES).filter(|&t| others(t)) {
-                                cv += get(&a, t)
-                                    * get(&a, t2)
-                                    * self.pg(Self::idx(t, j, c), Self::idx(t2, j2, c2));
-                            }
-                        }
-                        if j == j2 {
-                            let lam = tables.gram_eigval.get(j).copied().unwrap_or(0.0);
-                            cv += lam * pinf.get((c, c2)).copied().unwrap_or(0.0) / lkk;
-                        }
-                        if let Some(e) = newp
-                            .as_mut_slice()
-                            .get_mut(Self::idx(s, j, c) + NX * Self::idx(s, j2, c2))
-                        {
-                            *e = cv;
-                        }
-                    }
+        for e in own.clone() {
+            let off = e - Self::idx(s, 0, 0);
+            let (j, c) = (off / 2, off % 2);
+            for e2 in own.clone() {
+                let off2 = e2 - Self::idx(s, 0, 0);
+                let (j2, c2) = (off2 / 2, off2 % 2);
+                let mut cv = 0.0;
+                for t in (0..LANES).filter(|&t| t != s && self.is_active(t)) {
+                    cv += get(&a, t) * self.pg(e, Self::idx(t, 0, 0) + off2);
+                }
+                if j == j2 {
+                    let lam = tables.gram_eigval.get(j).copied().unwrap_or(0.0);
+                    cv += lam * pinf.get((c, c2)).copied().unwrap_or(0.0) / lkk;
+                }
+                if let Some(v) = self.p.as_mut_slice().get_mut(e + NX * e2) {
+                    *v = cv;
                 }
             }
         }
-        if !(newx.iter().all(|v| v.is_finite()) && newp.iter().all(|v| v.is_finite())) {
+        let finite = own
+            .clone()
+            .all(|e| self.xg(e).is_finite() && sp.indices().all(|c| self.pg(e, c).is_finite()));
+        if !finite {
+            self.zero_slot(s);
             (self.active, self.rank) = before;
             return Err(TemporalError::Numerical);
         }
-        self.x = newx;
-        self.p = newp;
         Ok(a)
+    }
+
+    /// Zeroes slot `s`'s mean, rows and columns.
+    fn zero_slot(&mut self, s: usize) {
+        let lo = Self::idx(s, 0, 0);
+        let hi = lo + 2 * RANK;
+        if let Some(seg) = self.x.as_mut_slice().get_mut(lo..hi) {
+            seg.fill(0.0);
+        }
+        let ps = self.p.as_mut_slice();
+        for j in 0..NX {
+            if let Some(seg) = ps.get_mut(j * NX + lo..j * NX + hi) {
+                seg.fill(0.0);
+            }
+        }
+        if let Some(seg) = ps.get_mut(lo * NX..hi * NX) {
+            seg.fill(0.0);
+        }
     }
 
     /// Removes the lane in slot `s` (its rows and columns are zeroed); the caller re-ranks the
@@ -304,21 +416,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             return;
         }
         set(&mut self.active, s, false);
-        let lo = Self::idx(s, 0, 0);
-        let hi = lo + 2 * RANK;
-        for i in lo..hi {
-            if let Some(e) = self.x.as_mut_slice().get_mut(i) {
-                *e = 0.0;
-            }
-            for j in 0..NX {
-                if let Some(e) = self.p.as_mut_slice().get_mut(i + NX * j) {
-                    *e = 0.0;
-                }
-                if let Some(e) = self.p.as_mut_slice().get_mut(j + NX * i) {
-                    *e = 0.0;
-                }
-            }
-        }
+        self.zero_slot(s);
     }
 
     /// Prediction over a frame step `t` seconds (any `t > 0`: dropped frames are exact):
@@ -328,7 +426,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// [`TemporalError::BadStep`]; the state is unchanged.
     ///
     /// # Complexity
-    /// `8·NX²` multiply-adds plus `(2·lanes·r)²` for the noise.
+    /// About `8·n_act²` multiply-adds for `F̄ P F̄ᵀ` on one triangle of 2×2 blocks, plus
+    /// `(lanes·r)·lanes` noise blocks; `n_act = 2r·lanes`.
     pub fn predict<const NT: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -339,12 +438,65 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             .kernel
             .transition(t)
             .ok_or(TemporalError::BadStep)?;
+        self.predict_with(tables, &f, &q);
+        Ok(())
+    }
+
+    /// [`TemporalFilter::predict`] with a transition `f` and noise `q` already computed.
+    pub(crate) fn predict_with<const NT: usize>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        f: &Matrix2<f32>,
+        q: &Matrix2<f32>,
+    ) {
         let r = Self::r_used(tables);
-        blockdiag_times(&mut self.x, &f);
-        // P ← F̄ P F̄ᵀ: column pairs, then row pairs.
-        times_blockdiag_t(&mut self.p, &f);
-        blockdiag_times(&mut self.p, &f);
+        let sp = self.spans(r);
+        let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
+        let xs = self.x.as_mut_slice();
+        for rg in sp.iter() {
+            if let Some(seg) = xs.get_mut(rg) {
+                for pair in seg.chunks_exact_mut(2) {
+                    if let [a, b] = pair {
+                        let (x0, x1) = (*a, *b);
+                        *a = f00 * x0 + f01 * x1;
+                        *b = f10 * x0 + f11 * x1;
+                    }
+                }
+            }
+        }
+        // F B Fᵀ on every 2×2 block of the upper triangle (block rows ≤ block columns), mirrored.
         let ps = self.p.as_mut_slice();
+        for c in sp.indices().step_by(2) {
+            for a in sp.indices().step_by(2).take_while(|&a| a <= c) {
+                let g = |ps: &[f32], i: usize, j: usize| ps.get(i + NX * j).copied().unwrap_or(0.0);
+                let (b00, b01, b10, b11) = (
+                    g(ps, a, c),
+                    g(ps, a, c + 1),
+                    g(ps, a + 1, c),
+                    g(ps, a + 1, c + 1),
+                );
+                // F B
+                let (m00, m01) = (f00 * b00 + f01 * b10, f00 * b01 + f01 * b11);
+                let (m10, m11) = (f10 * b00 + f11 * b10, f10 * b01 + f11 * b11);
+                // (F B) Fᵀ
+                let n = [
+                    (a, c, m00 * f00 + m01 * f01),
+                    (a, c + 1, m00 * f10 + m01 * f11),
+                    (a + 1, c, m10 * f00 + m11 * f01),
+                    (a + 1, c + 1, m10 * f10 + m11 * f11),
+                ];
+                for (i, j, v) in n {
+                    if let Some(e) = ps.get_mut(i + NX * j) {
+                        *e = v;
+                    }
+                    if a != c {
+                        if let Some(e) = ps.get_mut(j + NX * i) {
+                            *e = v;
+                        }
+                    }
+                }
+            }
+        }
         for s in 0..LANES {
             if !get(&self.active, s) {
                 continue;
@@ -376,20 +528,19 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        Ok(())
     }
 
     /// Update with lane `s`'s pseudo-measurements: `y = V_r a_s + e`, `e ~ N(0, R + r₀² I)` over the
-    /// present index points (`R` the observation's covariance block). Symmetric form, then
-    /// symmetrised.
+    /// present index points (`R` the observation's covariance block), as the rank-`r` correction
+    /// of [`UpdateParts`]; the covariance keeps one computed triangle, mirrored (symmetric).
     ///
     /// # Errors
     /// [`TemporalError::BadSlot`], [`TemporalError::NoData`], [`TemporalError::Numerical`]; the
     /// state is unchanged.
     ///
     /// # Complexity
-    /// `O(NX·POINTS·(RANK + POINTS) + NX²·POINTS)`.
-    #[allow(non_snake_case)]
+    /// `m³/6 + m²·r + m·r²` for the gain (`m ≤ POINTS` present points, one `m×m` Cholesky) and
+    /// `n_act²·r/2` for the covariance, `n_act = 2r·lanes`.
     pub fn update<const NT: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -397,100 +548,247 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         obs: &LaneObservation<POINTS>,
     ) -> Result<(), TemporalError> {
         let g = self.prepare_update(tables, s, obs)?;
-        self.commit_update(&g)
+        self.check_update(&g)?;
+        self.apply_update(&g);
+        Ok(())
     }
 
     /// The gain parts of [`TemporalFilter::update`] (shared with the fixed-lag smoother).
-    #[allow(non_snake_case)]
+    #[allow(non_snake_case, clippy::too_many_lines)]
     pub(crate) fn prepare_update<const NT: usize>(
         &self,
         tables: &Tables<NT, LANES, POINTS>,
         s: usize,
         obs: &LaneObservation<POINTS>,
-    ) -> Result<UpdateParts<POINTS, NX>, TemporalError> {
+    ) -> Result<UpdateParts<RANK, NX>, TemporalError> {
         if !self.is_active(s) {
             return Err(TemporalError::BadSlot);
         }
         let r = Self::r_used(tables);
         let v = &tables.gram_eigvec;
         let vg = |i: usize, j: usize| v.get((i, j)).copied().unwrap_or(0.0);
-        let usable = |i: usize| get(&obs.present, i) && obs.z.get(i).is_some_and(|z| z.is_finite());
-        if !(0..POINTS).any(usable) {
+        // The used index points, in order.
+        let mut us = [0u8; POINTS];
+        let mut m = 0usize;
+        for i in 0..POINTS {
+            if get(&obs.present, i) && obs.z.get(i).is_some_and(|z| z.is_finite()) {
+                set(&mut us, m, i as u8);
+                m += 1;
+            }
+        }
+        if m == 0 {
             return Err(TemporalError::NoData);
         }
-        // PH[:, i] = P Hᵀ e_i = Σ_j P[:, a_sj] V[i, j] for present i (zero columns otherwise).
-        let mut PH = SMatrix::<f32, NX, POINTS>::zeros();
-        for i in (0..POINTS).filter(|&i| usable(i)) {
-            for row in 0..NX {
+        let u = |a: usize| usize::from(get(&us, a));
+        let a0 = Self::idx(s, 0, 0);
+        // Cov(a_s) (r×r) and T = V_m Cov(a_s) (m×r).
+        let pss = SMatrix::<f32, RANK, RANK>::from_fn(|j, k| {
+            if j < r && k < r {
+                self.pg(a0 + 2 * j, a0 + 2 * k)
+            } else {
+                0.0
+            }
+        });
+        let mut t = SMatrix::<f32, POINTS, RANK>::zeros();
+        for a in 0..m {
+            for k in 0..r {
                 let mut acc = 0.0;
                 for j in 0..r {
-                    acc += self.pg(row, Self::idx(s, j, 0)) * vg(i, j);
+                    acc += vg(u(a), j) * pss.get((j, k)).copied().unwrap_or(0.0);
                 }
-                if let Some(e) = PH.get_mut((row, i)) {
+                if let Some(e) = t.get_mut((a, k)) {
                     *e = acc;
                 }
             }
         }
+        // S = T V_mᵀ + R + r₀² I on the leading m×m block (lower triangle, then factored).
         let r0 = tables.hyper.pseudo_noise;
-        let S = SMatrix::<f32, POINTS, POINTS>::from_fn(|i, k| {
-            if usable(i) && usable(k) {
-                let mut acc =
-                    obs.cov.get((i, k)).copied().unwrap_or(0.0) + if i == k { r0 } else { 0.0 };
-                for j in 0..r {
-                    acc += vg(i, j) * PH.get((Self::idx(s, j, 0), k)).copied().unwrap_or(0.0);
+        let mut l = SMatrix::<f32, POINTS, POINTS>::zeros();
+        for b in 0..m {
+            for a in b..m {
+                let mut acc = obs.cov.get((u(a), u(b))).copied().unwrap_or(0.0);
+                let acc2 = obs.cov.get((u(b), u(a))).copied().unwrap_or(0.0);
+                acc = 0.5 * (acc + acc2) + if a == b { r0 } else { 0.0 };
+                for k in 0..r {
+                    acc += t.get((a, k)).copied().unwrap_or(0.0) * vg(u(b), k);
                 }
-                acc
-            } else if i == k {
-                1.0
-            } else {
-                0.0
-            }
-        });
-        let S = (S + S.transpose()) * 0.5;
-        let chol = S.cholesky().ok_or(TemporalError::Numerical)?;
-        let nu = SVector::<f32, POINTS>::from_fn(|i, _| {
-            if usable(i) {
-                let mut pred = 0.0;
-                for j in 0..r {
-                    pred += vg(i, j) * self.xg(Self::idx(s, j, 0));
+                if let Some(e) = l.get_mut((a, b)) {
+                    *e = acc;
                 }
-                obs.z.get(i).copied().unwrap_or(0.0) - pred
-            } else {
-                0.0
             }
-        });
-        let w = chol.solve(&nu);
-        let kt = chol.solve(&PH.transpose()); // S⁻¹ PHᵀ = S⁻¹ H P (POINTS × NX)
-        let mut used = [false; POINTS];
-        for (i, u) in used.iter_mut().enumerate() {
-            *u = usable(i);
+        }
+        if !cholesky_lower(&mut l, m) {
+            return Err(TemporalError::Numerical);
+        }
+        // A = L⁻¹ V_m (m×r), b = L⁻¹ ν.
+        let mut A =
+            SMatrix::<f32, POINTS, RANK>::from_fn(
+                |a, k| {
+                    if a < m && k < r {
+                        vg(u(a), k)
+                    } else {
+                        0.0
+                    }
+                },
+            );
+        for k in 0..r {
+            if let Some(col) = A.as_mut_slice().get_mut(k * POINTS..k * POINTS + m) {
+                forward_subst(&l, col);
+            }
+        }
+        let mut b = [0.0f32; POINTS];
+        for (a, bv) in b.iter_mut().enumerate().take(m) {
+            let mut pred = 0.0;
+            for j in 0..r {
+                pred += vg(u(a), j) * self.xg(a0 + 2 * j);
+            }
+            *bv = obs.z.get(u(a)).copied().unwrap_or(0.0) - pred;
+        }
+        if let Some(bs) = b.get_mut(..m) {
+            forward_subst(&l, bs);
+        }
+        // M = AᵀA, w = Aᵀb.
+        let mut M = SMatrix::<f32, RANK, RANK>::zeros();
+        let mut w = SVector::<f32, RANK>::zeros();
+        let As = A.as_slice();
+        let col = |k: usize| As.get(k * POINTS..k * POINTS + m).unwrap_or(&[]);
+        for k in 0..r {
+            let ck = col(k);
+            if let Some(e) = w.get_mut(k) {
+                *e = ck.iter().zip(b.iter()).map(|(x, y)| x * y).sum();
+            }
+            for k2 in k..r {
+                let d: f32 = ck.iter().zip(col(k2)).map(|(x, y)| x * y).sum();
+                if let Some(e) = M.get_mut((k, k2)) {
+                    *e = d;
+                }
+                if let Some(e) = M.get_mut((k2, k)) {
+                    *e = d;
+                }
+            }
+        }
+        // G = P[:, a_s] (only the active rows are non-zero).
+        let mut g = SMatrix::<f32, NX, RANK>::zeros();
+        for k in 0..r {
+            let src = self
+                .p
+                .as_slice()
+                .get((a0 + 2 * k) * NX..(a0 + 2 * k + 1) * NX);
+            let dst = g.as_mut_slice().get_mut(k * NX..(k + 1) * NX);
+            if let (Some(d), Some(sv)) = (dst, src) {
+                d.copy_from_slice(sv);
+            }
+        }
+        if !(M.iter().chain(w.iter()).all(|v| v.is_finite())) {
+            return Err(TemporalError::Numerical);
         }
         Ok(UpdateParts {
             slot: s,
-            rank_used: r,
-            used,
-            ph: PH,
-            kt,
+            r,
+            g,
+            m: M,
             w,
-            chol,
         })
     }
 
-    /// Applies prepared gain parts: `x += PH w`, `P −= PH S⁻¹ PHᵀ`, symmetrised; the state is kept
-    /// when the result is not finite.
-    pub(crate) fn commit_update(
-        &mut self,
-        g: &UpdateParts<POINTS, NX>,
-    ) -> Result<(), TemporalError> {
-        let newx = self.x + g.ph * g.w;
-        let newp = self.p - g.ph * g.kt;
-        let newp = (newp + newp.transpose()) * 0.5;
-        if !(newx.iter().all(|v| v.is_finite()) && newp.iter().all(|v| v.is_finite())) {
-            return Err(TemporalError::Numerical);
+    /// Checks that applying `g` keeps the state finite (bounds on the products, before anything
+    /// is written).
+    ///
+    /// # Errors
+    /// [`TemporalError::Numerical`].
+    pub(crate) fn check_update(&self, g: &UpdateParts<RANK, NX>) -> Result<(), TemporalError> {
+        let r = g.r as f32;
+        let gmax = self.g_max(g);
+        let mmax = norm_bound(g.m.as_slice());
+        let wmax = norm_bound(g.w.as_slice());
+        let ok = r * gmax * wmax < SAFE && r * r * gmax * mmax * gmax < SAFE;
+        // NaN compares false: a non-finite bound fails the check.
+        if ok {
+            Ok(())
+        } else {
+            Err(TemporalError::Numerical)
         }
-        self.x = newx;
-        self.p = newp;
-        Ok(())
+    }
+
+    /// Largest `|G|` over the active rows.
+    pub(crate) fn g_max(&self, g: &UpdateParts<RANK, NX>) -> f32 {
+        let sp = self.spans(g.r);
+        let gs = g.g.as_slice();
+        (0..g.r)
+            .flat_map(|k| sp.iter().map(move |rg| (k, rg)))
+            .filter_map(|(k, rg)| gs.get(k * NX + rg.start..k * NX + rg.end))
+            .map(norm_bound)
+            .sum::<f32>()
+    }
+
+    /// Applies checked gain parts in place: `x += G w`, `P −= G M Gᵀ` over the active block
+    /// (one triangle computed, mirrored).
+    pub(crate) fn apply_update(&mut self, g: &UpdateParts<RANK, NX>) {
+        let sp = self.spans(g.r);
+        let r = g.r;
+        let gs = g.g.as_slice();
+        let gcol = |k: usize| gs.get(k * NX..(k + 1) * NX).unwrap_or(&[]);
+        // x += G w.
+        for k in 0..r {
+            let wk = g.w.get(k).copied().unwrap_or(0.0);
+            for rg in sp.iter() {
+                if let (Some(xs), Some(gk)) =
+                    (self.x.as_mut_slice().get_mut(rg.clone()), gcol(k).get(rg))
+                {
+                    for (xv, gv) in xs.iter_mut().zip(gk) {
+                        *xv += gv * wk;
+                    }
+                }
+            }
+        }
+        // U = G M (NX × RANK), active rows.
+        let mut uu = SMatrix::<f32, NX, RANK>::zeros();
+        for k2 in 0..r {
+            for k in 0..r {
+                let mk = g.m.get((k, k2)).copied().unwrap_or(0.0);
+                if let Some(ucol) = uu.as_mut_slice().get_mut(k2 * NX..(k2 + 1) * NX) {
+                    for rg in sp.iter() {
+                        if let (Some(ud), Some(gk)) = (ucol.get_mut(rg.clone()), gcol(k).get(rg)) {
+                            for (uv, gv) in ud.iter_mut().zip(gk) {
+                                *uv += gv * mk;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let us = uu.as_slice();
+        let ucol = |k: usize| us.get(k * NX..(k + 1) * NX).unwrap_or(&[]);
+        // P[i, j] −= Σ_k U[i, k] G[j, k] for active i ≤ j.
+        let ps = self.p.as_mut_slice();
+        for j in sp.indices() {
+            let Some(pcol) = ps.get_mut(j * NX..(j + 1) * NX) else {
+                continue;
+            };
+            for k in 0..r {
+                let gjk = gcol(k).get(j).copied().unwrap_or(0.0);
+                for rg in sp.iter() {
+                    if rg.start > j {
+                        break;
+                    }
+                    let rg = rg.start..rg.end.min(j + 1);
+                    if let (Some(pd), Some(uk)) = (pcol.get_mut(rg.clone()), ucol(k).get(rg)) {
+                        for (pv, uv) in pd.iter_mut().zip(uk) {
+                            *pv -= uv * gjk;
+                        }
+                    }
+                }
+            }
+        }
+        // Mirror the upper triangle into the lower one.
+        for j in sp.indices() {
+            for i in sp.indices().take_while(|&i| i < j) {
+                let v = ps.get(i + NX * j).copied().unwrap_or(0.0);
+                if let Some(e) = ps.get_mut(j + NX * i) {
+                    *e = v;
+                }
+            }
+        }
     }
 
     /// Lane `s`'s positions at the index points, `f = V_r a_s`, and their variances
@@ -551,51 +849,46 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     }
 }
 
-/// `M ← M (I ⊗ f)ᵀ`: each pair of columns `(2b, 2b + 1)` mixed by `f` (the transition of every
-/// `[position, rate]` block acting from the right).
-pub(crate) fn times_blockdiag_t<const R: usize, const C: usize>(
-    m: &mut SMatrix<f32, R, C>,
-    f: &Matrix2<f32>,
-) {
-    let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
-    let ms = m.as_mut_slice(); // column-major: (i, j) at i + R j
-    for i in 0..R {
-        for b in 0..C / 2 {
-            let (c0, c1) = (i + R * (2 * b), i + R * (2 * b + 1));
-            let (a, bv) = (
-                ms.get(c0).copied().unwrap_or(0.0),
-                ms.get(c1).copied().unwrap_or(0.0),
-            );
-            if let Some(e) = ms.get_mut(c0) {
-                *e = f00 * a + f01 * bv;
+/// In-place Cholesky factorisation of the leading `n×n` block of `a` (the lower triangle is read
+/// and replaced by `L`; the upper triangle is not used). `false` when the block is not positive
+/// definite or not finite.
+fn cholesky_lower<const N: usize>(a: &mut SMatrix<f32, N, N>, n: usize) -> bool {
+    for j in 0..n.min(N) {
+        let mut d = a.get((j, j)).copied().unwrap_or(0.0);
+        for k in 0..j {
+            let v = a.get((j, k)).copied().unwrap_or(0.0);
+            d -= v * v;
+        }
+        if !(d.is_finite() && d > 0.0) {
+            return false;
+        }
+        let d = math::sqrt(d);
+        if let Some(e) = a.get_mut((j, j)) {
+            *e = d;
+        }
+        for i in j + 1..n.min(N) {
+            let mut acc = a.get((i, j)).copied().unwrap_or(0.0);
+            for k in 0..j {
+                acc -=
+                    a.get((i, k)).copied().unwrap_or(0.0) * a.get((j, k)).copied().unwrap_or(0.0);
             }
-            if let Some(e) = ms.get_mut(c1) {
-                *e = f10 * a + f11 * bv;
+            if let Some(e) = a.get_mut((i, j)) {
+                *e = acc / d;
             }
         }
     }
+    true
 }
 
-/// `M ← (I ⊗ f) M`: each pair of rows `(2b, 2b + 1)` mixed by `f`.
-pub(crate) fn blockdiag_times<const R: usize, const C: usize>(
-    m: &mut SMatrix<f32, R, C>,
-    f: &Matrix2<f32>,
-) {
-    let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
-    let ms = m.as_mut_slice();
-    for j in 0..C {
-        for b in 0..R / 2 {
-            let (r0, r1) = (2 * b + R * j, 2 * b + 1 + R * j);
-            let (a, bv) = (
-                ms.get(r0).copied().unwrap_or(0.0),
-                ms.get(r1).copied().unwrap_or(0.0),
-            );
-            if let Some(e) = ms.get_mut(r0) {
-                *e = f00 * a + f01 * bv;
-            }
-            if let Some(e) = ms.get_mut(r1) {
-                *e = f10 * a + f11 * bv;
-            }
+/// Solves `L y = b` in place, `L` the lower factor of [`cholesky_lower`], `b.len()` its order.
+fn forward_subst<const N: usize>(l: &SMatrix<f32, N, N>, b: &mut [f32]) {
+    for i in 0..b.len() {
+        let mut acc = b.get(i).copied().unwrap_or(0.0);
+        for k in 0..i {
+            acc -= l.get((i, k)).copied().unwrap_or(0.0) * b.get(k).copied().unwrap_or(0.0);
+        }
+        if let Some(e) = b.get_mut(i) {
+            *e = acc / l.get((i, i)).copied().unwrap_or(1.0);
         }
     }
 }

@@ -5,25 +5,32 @@
 //! lane (`NA = LANES·RANK` numbers), their per-lane `RANK×RANK` covariance blocks (what is
 //! published: a lane's smoothed positions and variances at the index points), and the
 //! cross-covariance `C_j = Cov(a_{k−j}, x_k)` with the current state (`NA × NX`). A prediction
-//! shifts the window and maps `C_j ← C_j F̄ᵀ`; a lane update with gain parts
-//! `(P Hᵀ, S⁻¹, S⁻¹ν, S⁻¹ H P)` moves every lag by the same innovation:
-//! `a_{k−j} += C_j Hᵀ S⁻¹ ν`, `Σ_j −= C_j Hᵀ S⁻¹ H C_jᵀ`, `C_j −= C_j Hᵀ S⁻¹ H P`. This is the
+//! moves the window by one frame (a ring buffer: the oldest lag is overwritten by the current
+//! lanes) and maps `C_j ← C_j F̄ᵀ`; a lane update with the filter's gain parts
+//! `(G = P Hᵀ-columns, M = V_mᵀ S⁻¹ V_m, w = V_mᵀ S⁻¹ ν)` moves every lag by the same innovation:
+//! with `K_j = C_j[:, a_s]`, `a_{k−j} += K_j w`, `Σ_j −= K_j M K_jᵀ`, `C_j −= K_j M Gᵀ`. This is the
 //! Kalman filter of the augmented state `[x_k, a_{k−1}, …, a_{k−L}]` restricted to the blocks the
 //! output needs, so `a_{k−L|k}` equals the RTS fixed-lag estimate `x_{k−L|k}` exactly, with no
 //! inverse of the predicted covariance (the RTS gain `P_{k|k} Fᵀ P_{k+1|k}⁻¹` would need an
 //! 84×84 factorisation of a numerically singular matrix).
+//!
+//! # Invariant
+//! In every lag, `C_j` is zero outside (rows of the lanes present at `k − j`) × (columns of the
+//! lanes active now): lane starts and removals keep it so. Every loop runs over those blocks only.
 //!
 //! # RAM
 //! `LAG · 4 · (NA + LANES·RANK² + NA·NX)` bytes: 62 KiB at 6 lanes, rank 7, L = 4 — the largest
 //! item of the tracker, as DESIGN 5 expects.
 //!
 //! # Cost
-//! Per prediction `LAG · 4·NA·NX`; per lane update `LAG · (NA·RANK·m + NA·m·NX + m²·NA)` with
-//! `m ≤ POINTS` present points.
+//! With `p` lanes present in a lag, `n` active now, `r` Gram components: per prediction
+//! `LAG · 4·(p r)·(2 n r)` multiply-adds (plus copying the current lanes into the newest lag);
+//! per lane update `LAG · (p r)·(2 n r)·r`. No stack copy of the window: updates are checked
+//! (bounds on every product) before anything is written, then applied in place.
 
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{Matrix2, SMatrix, SVector};
 
-use super::filter::{times_blockdiag_t, TemporalError, TemporalFilter, UpdateParts};
+use super::filter::{Spans, TemporalError, TemporalFilter, UpdateParts};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::LaneObservation;
 use crate::spatial::{get, set};
@@ -36,6 +43,15 @@ struct Lagged<const LANES: usize, const RANK: usize, const NA: usize, const NX: 
     blocks: [SMatrix<f32, RANK, RANK>; LANES],
     cross: SMatrix<f32, NA, NX>,
     present: [bool; LANES],
+}
+
+impl<const LANES: usize, const RANK: usize, const NA: usize, const NX: usize>
+    Lagged<LANES, RANK, NA, NX>
+{
+    /// Column `j` of `C`.
+    fn col_mut(&mut self, j: usize) -> Option<&mut [f32]> {
+        self.cross.as_mut_slice().get_mut(j * NA..(j + 1) * NA)
+    }
 }
 
 /// The temporal filter with its fixed-lag smoother: the per-frame temporal stage of the tracker.
@@ -51,7 +67,9 @@ pub struct Temporal<
     const LAG: usize,
 > {
     filter: TemporalFilter<LANES, POINTS, RANK, NX>,
+    /// Ring buffer: lag `j` (1..=LAG) is `window[(head + j − 1) % LAG]`.
     window: [Lagged<LANES, RANK, NA, NX>; LAG],
+    head: usize,
     frames: u32,
 }
 
@@ -67,6 +85,14 @@ impl<
     fn default() -> Self {
         Self::new()
     }
+}
+
+/// A product of finite factors stays far from overflow below this bound.
+const SAFE: f32 = 1e30;
+
+/// `sqrt(Σ v²)`, a bound on every `|v|` (infinite or NaN when some value is not finite).
+fn norm_bound(v: &[f32]) -> f32 {
+    crate::math::sqrt(v.iter().map(|x| x * x).sum::<f32>())
 }
 
 impl<
@@ -92,6 +118,7 @@ impl<
         Self {
             filter: TemporalFilter::new(),
             window: [Self::EMPTY; LAG],
+            head: 0,
             frames: 0,
         }
     }
@@ -104,6 +131,11 @@ impl<
     /// Frames predicted so far (the window is full once this reaches `LAG`).
     pub fn frames(&self) -> u32 {
         self.frames
+    }
+
+    /// Index in `window` of lag `j` (1..=LAG).
+    fn slot_of(&self, j: usize) -> usize {
+        (self.head + j.saturating_sub(1)) % LAG
     }
 
     /// See [`TemporalFilter::set_ranks`].
@@ -128,42 +160,46 @@ impl<
     ) -> Result<(), TemporalError> {
         let active_before = core::array::from_fn::<bool, LANES, _>(|t| self.filter.is_active(t));
         let a = self.filter.start_lane(tables, s, rank, ranks)?;
-        let r = (tables.gram_rank as usize).min(RANK);
-        for lag in self.window.iter_mut() {
-            for j in 0..RANK {
-                for c in 0..2 {
-                    let col = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, c);
-                    for row in 0..NA {
-                        let mut v = 0.0;
-                        if j < r {
-                            for t in (0..LANES).filter(|&t| get(&active_before, t)) {
-                                let ct = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, j, c);
-                                v += get(&a, t) * lag.cross.get((row, ct)).copied().unwrap_or(0.0);
-                            }
-                        }
-                        if let Some(e) = lag.cross.get_mut((row, col)) {
-                            *e = v;
+        let r = TemporalFilter::<LANES, POINTS, RANK, NX>::r_used(tables);
+        let base = |t: usize| TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, 0, 0);
+        for lag in &mut self.window {
+            for off in 0..2 * r {
+                let mut col = [0.0f32; NA];
+                for t in (0..LANES).filter(|&t| get(&active_before, t)) {
+                    let at = get(&a, t);
+                    let src = lag
+                        .cross
+                        .as_slice()
+                        .get((base(t) + off) * NA..(base(t) + off + 1) * NA);
+                    if let Some(src) = src {
+                        for (d, v) in col.iter_mut().zip(src) {
+                            *d += at * v;
                         }
                     }
+                }
+                if let Some(dst) = lag.col_mut(base(s) + off) {
+                    dst.copy_from_slice(&col);
                 }
             }
         }
         Ok(())
     }
 
-    /// Removes a lane from the filter (its lagged history stays in the window until it ages out).
+    /// Removes a lane from the filter (its lagged history stays in the window until it ages out;
+    /// its columns of the cross-covariances are zeroed).
     pub fn remove_lane(&mut self, s: usize) {
+        if !self.filter.is_active(s) {
+            return;
+        }
         self.filter.remove_lane(s);
-        for lag in self.window.iter_mut() {
-            for j in 0..RANK {
-                for c in 0..2 {
-                    let col = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, c);
-                    for row in 0..NA {
-                        if let Some(e) = lag.cross.get_mut((row, col)) {
-                            *e = 0.0;
-                        }
-                    }
-                }
+        let lo = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, 0, 0);
+        for lag in &mut self.window {
+            if let Some(cols) = lag
+                .cross
+                .as_mut_slice()
+                .get_mut(lo * NA..(lo + 2 * RANK) * NA)
+            {
+                cols.fill(0.0);
             }
         }
     }
@@ -192,51 +228,75 @@ impl<
         probe: &mut P,
     ) -> Result<(), TemporalError> {
         probe.enter(Stage::Temporal);
-        let (f, _) = tables
+        let (f, q) = tables
             .temporal
             .kernel
             .transition(t)
             .ok_or(TemporalError::BadStep)?;
-        // Snapshot of x_k, P_k for the new lag 1.
-        let x = *self.filter.mean();
-        let p = *self.filter.covariance();
-        self.filter.predict(tables, t)?;
         probe.enter(Stage::Smoother);
-        for j in (1..LAG).rev() {
-            if let Some(prev) = self.window.get(j - 1).copied() {
-                if let Some(w) = self.window.get_mut(j) {
-                    *w = prev;
+        let r = TemporalFilter::<LANES, POINTS, RANK, NX>::r_used(tables);
+        let sp = self.filter.spans(r);
+        // The oldest lag becomes lag 1 and takes the current lanes (x_k, P_k before predicting).
+        self.head = (self.head + LAG - 1) % LAG;
+        let filter = &self.filter;
+        if let Some(fresh) = self.window.get_mut(self.head) {
+            let old = fresh.present;
+            for s in 0..LANES {
+                let on = filter.is_active(s);
+                set(&mut fresh.present, s, on);
+                let rows = s * RANK..s * RANK + RANK;
+                if !on {
+                    if get(&old, s) {
+                        // Rows of a lane gone since: zero them on every column.
+                        for j in sp.indices() {
+                            if let Some(c) = fresh.col_mut(j).and_then(|c| c.get_mut(rows.clone()))
+                            {
+                                c.fill(0.0);
+                            }
+                        }
+                    }
+                    continue;
                 }
-            }
-        }
-        let mut fresh = Self::EMPTY;
-        let ia = |s: usize, j: usize| TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
-        for s in 0..LANES {
-            let on = self.filter.is_active(s);
-            set(&mut fresh.present, s, on);
-            if !on {
-                continue;
-            }
-            for j in 0..RANK {
-                if let Some(m) = fresh.mean.get_mut(s * RANK + j) {
-                    *m = x.get(ia(s, j)).copied().unwrap_or(0.0);
-                }
-                for col in 0..NX {
-                    if let Some(e) = fresh.cross.get_mut((s * RANK + j, col)) {
-                        *e = p.get((ia(s, j), col)).copied().unwrap_or(0.0);
+                let ia = |j: usize| TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
+                let x = filter.mean().as_slice();
+                let p = filter.covariance().as_slice();
+                for j in 0..RANK {
+                    if let Some(m) = fresh.mean.get_mut(s * RANK + j) {
+                        *m = if j < r {
+                            x.get(ia(j)).copied().unwrap_or(0.0)
+                        } else {
+                            0.0
+                        };
                     }
                 }
+                for col in sp.indices() {
+                    if let Some(c) = fresh.col_mut(col).and_then(|c| c.get_mut(rows.clone())) {
+                        for (j, e) in c.iter_mut().enumerate() {
+                            // P is symmetric: row ia(j) of column col = entry (col, ia(j)).
+                            *e = if j < r {
+                                p.get(col + NX * ia(j)).copied().unwrap_or(0.0)
+                            } else {
+                                0.0
+                            };
+                        }
+                    }
+                }
+                if let Some(b) = fresh.blocks.get_mut(s) {
+                    *b = SMatrix::from_fn(|j, j2| {
+                        if j < r && j2 < r {
+                            p.get(ia(j) + NX * ia(j2)).copied().unwrap_or(0.0)
+                        } else {
+                            0.0
+                        }
+                    });
+                }
             }
-            if let Some(b) = fresh.blocks.get_mut(s) {
-                *b = SMatrix::from_fn(|j, j2| p.get((ia(s, j), ia(s, j2))).copied().unwrap_or(0.0));
-            }
         }
-        if let Some(w) = self.window.get_mut(0) {
-            *w = fresh;
+        for lag in &mut self.window {
+            times_transition(lag, &sp, &f, r);
         }
-        for lag in self.window.iter_mut() {
-            times_blockdiag_t(&mut lag.cross, &f);
-        }
+        probe.enter(Stage::Temporal);
+        self.filter.predict_with(tables, &f, &q);
         self.frames = self.frames.saturating_add(1);
         Ok(())
     }
@@ -267,21 +327,37 @@ impl<
     ) -> Result<(), TemporalError> {
         probe.enter(Stage::Temporal);
         let g = self.filter.prepare_update(tables, s, obs)?;
+        self.filter.check_update(&g)?;
         probe.enter(Stage::Smoother);
-        let mut window = self.window;
-        for lag in window.iter_mut() {
-            lag_update(lag, &g, tables);
+        // Check every lag before writing anything.
+        let r = g.r as f32;
+        let gmax = self.filter.g_max(&g);
+        let mmax = norm_bound(g.m.as_slice());
+        let wmax = norm_bound(g.w.as_slice());
+        let a0 = TemporalFilter::<LANES, POINTS, RANK, NX>::index(g.slot, 0, 0);
+        for lag in &self.window {
+            let runs = rows_of::<LANES, RANK>(lag.present, g.r);
+            let kmax = (0..g.r)
+                .flat_map(|k| runs.iter().map(move |rg| (k, rg)))
+                .filter_map(|(k, rg)| {
+                    let c0 = (a0 + 2 * k) * NA;
+                    lag.cross.as_slice().get(c0 + rg.start..c0 + rg.end)
+                })
+                .map(norm_bound)
+                .sum::<f32>();
+            let ok = r * kmax * wmax < SAFE && r * r * kmax * mmax * kmax.max(gmax) < SAFE;
+            let finite =
+                kmax.is_finite() && mmax.is_finite() && wmax.is_finite() && gmax.is_finite();
+            if !(ok && finite) {
+                return Err(TemporalError::Numerical);
+            }
         }
-        let finite = window.iter().all(|l| {
-            l.mean.iter().chain(l.cross.iter()).all(|v| v.is_finite())
-                && l.blocks.iter().all(|b| b.iter().all(|v| v.is_finite()))
-        });
-        if !finite {
-            return Err(TemporalError::Numerical);
+        let sp = self.filter.spans(g.r);
+        for lag in &mut self.window {
+            lag_update(lag, &g, &sp, a0);
         }
         probe.enter(Stage::Temporal);
-        self.filter.commit_update(&g)?;
-        self.window = window;
+        self.filter.apply_update(&g);
         Ok(())
     }
 
@@ -296,7 +372,7 @@ impl<
         if lag == 0 || lag > LAG || (self.frames as usize) < lag {
             return None;
         }
-        let l = self.window.get(lag - 1)?;
+        let l = self.window.get(self.slot_of(lag))?;
         if !get(&l.present, s) {
             return None;
         }
@@ -322,54 +398,151 @@ impl<
     }
 }
 
-/// `a += C Hᵀ S⁻¹ν`, `Σ −= C Hᵀ S⁻¹ H Cᵀ` (per-lane blocks), `C −= C Hᵀ S⁻¹ H P`.
-fn lag_update<
-    const LANES: usize,
-    const POINTS: usize,
-    const RANK: usize,
-    const NA: usize,
-    const NX: usize,
-    const NT: usize,
->(
+/// Row ranges of the lanes present in a lag, `[t·RANK, t·RANK + r)`, adjacent ones merged.
+fn rows_of<const LANES: usize, const RANK: usize>(
+    present: [bool; LANES],
+    r: usize,
+) -> Spans<LANES> {
+    let mut sp = Spans::new();
+    for t in (0..LANES).filter(|&t| get(&present, t)) {
+        sp.push(t * RANK, t * RANK + r);
+    }
+    sp
+}
+
+/// `C ← C F̄ᵀ` on the present rows and the active column pairs.
+fn times_transition<const LANES: usize, const RANK: usize, const NA: usize, const NX: usize>(
     lag: &mut Lagged<LANES, RANK, NA, NX>,
-    g: &UpdateParts<POINTS, NX>,
-    tables: &Tables<NT, LANES, POINTS>,
+    sp: &Spans<LANES>,
+    f: &Matrix2<f32>,
+    r: usize,
 ) {
-    let v = &tables.gram_eigvec;
-    let vg = |i: usize, j: usize| v.get((i, j)).copied().unwrap_or(0.0);
-    // CH = C Hᵀ (NA × POINTS), columns of the updated slot's position coefficients.
-    let mut ch = SMatrix::<f32, NA, POINTS>::zeros();
-    for i in (0..POINTS).filter(|&i| get(&g.used, i)) {
-        for row in 0..NA {
-            let mut acc = 0.0;
-            for j in 0..g.rank_used {
-                let col = (g.slot * RANK + j) * 2;
-                acc += lag.cross.get((row, col)).copied().unwrap_or(0.0) * vg(i, j);
-            }
-            if let Some(e) = ch.get_mut((row, i)) {
-                *e = acc;
+    let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
+    let present = lag.present;
+    let cs = lag.cross.as_mut_slice();
+    for c0 in sp.indices().step_by(2) {
+        let Some(pair) = cs.get_mut(c0 * NA..(c0 + 2) * NA) else {
+            continue;
+        };
+        let (a, b) = pair.split_at_mut(NA);
+        for rows in rows_of::<LANES, RANK>(present, r).iter() {
+            if let (Some(ca), Some(cb)) = (a.get_mut(rows.clone()), b.get_mut(rows)) {
+                for (va, vb) in ca.iter_mut().zip(cb.iter_mut()) {
+                    let (x0, x1) = (*va, *vb);
+                    *va = f00 * x0 + f01 * x1;
+                    *vb = f10 * x0 + f11 * x1;
+                }
             }
         }
     }
-    lag.mean += ch * g.w;
-    let y = g.chol.solve(&ch.transpose()); // S⁻¹ H Cᵀ (POINTS × NA)
-    for (s, blk) in lag.blocks.iter_mut().enumerate() {
-        if !get(&lag.present, s) {
+}
+
+/// With `K = C[:, a_s]` (before the update): `a += K w`, `Σ_t −= K_t M K_tᵀ` (per present lane),
+/// `C −= K M Gᵀ` on the active columns.
+fn lag_update<const LANES: usize, const RANK: usize, const NA: usize, const NX: usize>(
+    lag: &mut Lagged<LANES, RANK, NA, NX>,
+    g: &UpdateParts<RANK, NX>,
+    sp: &Spans<LANES>,
+    a0: usize,
+) {
+    let r = g.r;
+    // K = C[:, a_s] (NA × RANK) and KM = K M, on the present rows.
+    let mut k = SMatrix::<f32, NA, RANK>::zeros();
+    for j in 0..r {
+        let src = lag
+            .cross
+            .as_slice()
+            .get((a0 + 2 * j) * NA..(a0 + 2 * j + 1) * NA);
+        if let (Some(d), Some(sv)) = (k.as_mut_slice().get_mut(j * NA..(j + 1) * NA), src) {
+            d.copy_from_slice(sv);
+        }
+    }
+    let mut km = SMatrix::<f32, NA, RANK>::zeros();
+    for j2 in 0..r {
+        for j in 0..r {
+            let m = g.m.get((j, j2)).copied().unwrap_or(0.0);
+            let (Some(kc), Some(dc)) = (
+                k.as_slice().get(j * NA..(j + 1) * NA),
+                km.as_mut_slice().get_mut(j2 * NA..(j2 + 1) * NA),
+            ) else {
+                continue;
+            };
+            for rows in rows_of::<LANES, RANK>(lag.present, r).iter() {
+                if let (Some(d), Some(sv)) = (dc.get_mut(rows.clone()), kc.get(rows)) {
+                    for (dv, kv) in d.iter_mut().zip(sv) {
+                        *dv += kv * m;
+                    }
+                }
+            }
+        }
+    }
+    // a += K w.
+    for j in 0..r {
+        let w = g.w.get(j).copied().unwrap_or(0.0);
+        if let Some(kc) = k.as_slice().get(j * NA..(j + 1) * NA) {
+            for rows in rows_of::<LANES, RANK>(lag.present, r).iter() {
+                if let (Some(d), Some(sv)) =
+                    (lag.mean.as_mut_slice().get_mut(rows.clone()), kc.get(rows))
+                {
+                    for (dv, kv) in d.iter_mut().zip(sv) {
+                        *dv += kv * w;
+                    }
+                }
+            }
+        }
+    }
+    // Σ_t −= KM_t K_tᵀ (symmetric: one triangle computed, mirrored).
+    let (kms, ks) = (km.as_slice(), k.as_slice());
+    for t in 0..LANES {
+        if !get(&lag.present, t) {
             continue;
         }
-        for j in 0..RANK {
-            for j2 in 0..RANK {
-                let mut acc = 0.0;
-                for i in 0..POINTS {
-                    acc += ch.get((s * RANK + j, i)).copied().unwrap_or(0.0)
-                        * y.get((i, s * RANK + j2)).copied().unwrap_or(0.0);
+        // Rows of lane t, row-major copies: kmt[j][c] = KM[tR + j, c], kt[j][c] = K[tR + j, c].
+        let mut kmt = [[0.0f32; RANK]; RANK];
+        let mut kt = [[0.0f32; RANK]; RANK];
+        for c in 0..r {
+            for j in 0..r {
+                let at = t * RANK + j + NA * c;
+                if let Some(row) = kmt.get_mut(j) {
+                    set(row, c, kms.get(at).copied().unwrap_or(0.0));
                 }
-                if let Some(e) = blk.get_mut((j, j2)) {
-                    *e -= acc;
+                if let Some(row) = kt.get_mut(j) {
+                    set(row, c, ks.get(at).copied().unwrap_or(0.0));
                 }
             }
         }
-        *blk = (*blk + blk.transpose()) * 0.5;
+        if let Some(blk) = lag.blocks.get_mut(t) {
+            for (j, kmj) in kmt.iter().enumerate().take(r) {
+                for (j2, kj2) in kt.iter().enumerate().take(r).skip(j) {
+                    let acc: f32 = kmj.iter().zip(kj2).take(r).map(|(a, b)| a * b).sum();
+                    let v = blk.get((j, j2)).copied().unwrap_or(0.0) - acc;
+                    if let Some(e) = blk.get_mut((j, j2)) {
+                        *e = v;
+                    }
+                    if let Some(e) = blk.get_mut((j2, j)) {
+                        *e = v;
+                    }
+                }
+            }
+        }
     }
-    lag.cross -= ch * g.kt;
+    // C[:, col] −= Σ_j KM[:, j] G[col, j] on the active columns.
+    let gs = g.g.as_slice();
+    let runs = rows_of::<LANES, RANK>(lag.present, r);
+    for col in sp.indices() {
+        let Some(cc) = lag.col_mut(col) else { continue };
+        for j in 0..r {
+            let gv = gs.get(col + NX * j).copied().unwrap_or(0.0);
+            let Some(kmc) = km.as_slice().get(j * NA..(j + 1) * NA) else {
+                continue;
+            };
+            for rows in runs.iter() {
+                if let (Some(d), Some(sv)) = (cc.get_mut(rows.clone()), kmc.get(rows)) {
+                    for (dv, kv) in d.iter_mut().zip(sv) {
+                        *dv -= kv * gv;
+                    }
+                }
+            }
+        }
+    }
 }
