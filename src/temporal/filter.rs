@@ -74,8 +74,8 @@ pub(crate) struct UpdateParts<const RANK: usize, const NX: usize> {
     pub slot: usize,
     /// Gram components used.
     pub r: usize,
-    /// `G = P[:, a_s]` before the update (`NX × RANK`, the first `r` columns used).
-    pub g: SMatrix<f32, NX, RANK>,
+    /// `G = P[:, a_s]` before the update, row-major: `g[i][k] = P[i, a_sk]` (`k ≥ r` zero).
+    pub g: [[f32; RANK]; NX],
     /// `M = V_mᵀ S⁻¹ V_m`.
     pub m: SMatrix<f32, RANK, RANK>,
     /// `w = V_mᵀ S⁻¹ ν`.
@@ -667,16 +667,15 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        // G = P[:, a_s] (only the active rows are non-zero).
-        let mut g = SMatrix::<f32, NX, RANK>::zeros();
+        // G = P[:, a_s] (only the active rows are non-zero), row-major.
+        let mut g = [[0.0f32; RANK]; NX];
         for k in 0..r {
             let src = self
                 .p
                 .as_slice()
                 .get((a0 + 2 * k) * NX..(a0 + 2 * k + 1) * NX);
-            let dst = g.as_mut_slice().get_mut(k * NX..(k + 1) * NX);
-            if let (Some(d), Some(sv)) = (dst, src) {
-                d.copy_from_slice(sv);
+            for (row, v) in g.iter_mut().zip(src.unwrap_or(&[])) {
+                set(row, k, *v);
             }
         }
         if !(M.iter().chain(w.iter()).all(|v| v.is_finite())) {
@@ -710,72 +709,50 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         }
     }
 
-    /// Largest `|G|` over the active rows.
+    /// A bound on `|G|` over the active rows (`sqrt` of the sum of squares; not finite when some
+    /// entry is not).
     pub(crate) fn g_max(&self, g: &UpdateParts<RANK, NX>) -> f32 {
         let sp = self.spans(g.r);
-        let gs = g.g.as_slice();
-        (0..g.r)
-            .flat_map(|k| sp.iter().map(move |rg| (k, rg)))
-            .filter_map(|(k, rg)| gs.get(k * NX + rg.start..k * NX + rg.end))
-            .map(norm_bound)
-            .sum::<f32>()
+        let ss: f32 = sp
+            .indices()
+            .filter_map(|i| g.g.get(i))
+            .map(|row| dot(row, row))
+            .sum();
+        math::sqrt(ss)
     }
 
     /// Applies checked gain parts in place: `x += G w`, `P −= G M Gᵀ` over the active block
     /// (one triangle computed, mirrored).
     pub(crate) fn apply_update(&mut self, g: &UpdateParts<RANK, NX>) {
         let sp = self.spans(g.r);
-        let r = g.r;
-        let gs = g.g.as_slice();
-        let gcol = |k: usize| gs.get(k * NX..(k + 1) * NX).unwrap_or(&[]);
+        let w: [f32; RANK] = core::array::from_fn(|k| g.w.get(k).copied().unwrap_or(0.0));
         // x += G w.
-        for k in 0..r {
-            let wk = g.w.get(k).copied().unwrap_or(0.0);
-            for rg in sp.iter() {
-                if let (Some(xs), Some(gk)) =
-                    (self.x.as_mut_slice().get_mut(rg.clone()), gcol(k).get(rg))
-                {
-                    for (xv, gv) in xs.iter_mut().zip(gk) {
-                        *xv += gv * wk;
-                    }
-                }
+        for i in sp.indices() {
+            if let (Some(xv), Some(gi)) = (self.x.as_mut_slice().get_mut(i), g.g.get(i)) {
+                *xv += dot(gi, &w);
             }
         }
-        // U = G M (NX × RANK), active rows.
-        let mut uu = SMatrix::<f32, NX, RANK>::zeros();
-        for k2 in 0..r {
-            for k in 0..r {
-                let mk = g.m.get((k, k2)).copied().unwrap_or(0.0);
-                if let Some(ucol) = uu.as_mut_slice().get_mut(k2 * NX..(k2 + 1) * NX) {
-                    for rg in sp.iter() {
-                        if let (Some(ud), Some(gk)) = (ucol.get_mut(rg.clone()), gcol(k).get(rg)) {
-                            for (uv, gv) in ud.iter_mut().zip(gk) {
-                                *uv += gv * mk;
-                            }
-                        }
-                    }
-                }
+        // U = G M, row-major, active rows.
+        let mut u = [[0.0f32; RANK]; NX];
+        for i in sp.indices() {
+            if let (Some(ui), Some(gi)) = (u.get_mut(i), g.g.get(i)) {
+                *ui = times_sym(gi, &g.m);
             }
         }
-        let us = uu.as_slice();
-        let ucol = |k: usize| us.get(k * NX..(k + 1) * NX).unwrap_or(&[]);
-        // P[i, j] −= Σ_k U[i, k] G[j, k] for active i ≤ j.
+        // P[i, j] −= U_i · G_j for active i ≤ j (column j of P is contiguous).
         let ps = self.p.as_mut_slice();
         for j in sp.indices() {
-            let Some(pcol) = ps.get_mut(j * NX..(j + 1) * NX) else {
+            let (Some(pcol), Some(gj)) = (ps.get_mut(j * NX..(j + 1) * NX), g.g.get(j)) else {
                 continue;
             };
-            for k in 0..r {
-                let gjk = gcol(k).get(j).copied().unwrap_or(0.0);
-                for rg in sp.iter() {
-                    if rg.start > j {
-                        break;
-                    }
-                    let rg = rg.start..rg.end.min(j + 1);
-                    if let (Some(pd), Some(uk)) = (pcol.get_mut(rg.clone()), ucol(k).get(rg)) {
-                        for (pv, uv) in pd.iter_mut().zip(uk) {
-                            *pv -= uv * gjk;
-                        }
+            for rg in sp.iter() {
+                if rg.start > j {
+                    break;
+                }
+                let rg = rg.start..rg.end.min(j + 1);
+                if let (Some(pd), Some(ur)) = (pcol.get_mut(rg.clone()), u.get(rg)) {
+                    for (pv, ui) in pd.iter_mut().zip(ur) {
+                        *pv -= dot(ui, gj);
                     }
                 }
             }
@@ -847,6 +824,26 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     pub fn covariance(&self) -> &SMatrix<f32, NX, NX> {
         &self.p
     }
+}
+
+/// `a · b` over a fixed length (unrolled by the compiler).
+#[inline(always)]
+pub(crate) fn dot<const R: usize>(a: &[f32; R], b: &[f32; R]) -> f32 {
+    let mut acc = 0.0;
+    for (x, y) in a.iter().zip(b) {
+        acc += x * y;
+    }
+    acc
+}
+
+/// `a M` for a row `a` and a square `M` (`(a M)_k = Σ_j a_j M[j, k]`).
+#[inline(always)]
+pub(crate) fn times_sym<const R: usize>(a: &[f32; R], m: &SMatrix<f32, R, R>) -> [f32; R] {
+    let ms = m.as_slice();
+    core::array::from_fn(|k| {
+        let col = ms.get(k * R..(k + 1) * R).unwrap_or(&[]);
+        a.iter().zip(col).map(|(x, y)| x * y).sum()
+    })
 }
 
 /// In-place Cholesky factorisation of the leading `n×n` block of `a` (the lower triangle is read

@@ -30,7 +30,7 @@
 
 use nalgebra::{Matrix2, SMatrix, SVector};
 
-use super::filter::{Spans, TemporalError, TemporalFilter, UpdateParts};
+use super::filter::{dot, times_sym, Spans, TemporalError, TemporalFilter, UpdateParts};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::LaneObservation;
 use crate::spatial::{get, set};
@@ -446,101 +446,63 @@ fn lag_update<const LANES: usize, const RANK: usize, const NA: usize, const NX: 
     a0: usize,
 ) {
     let r = g.r;
-    // K = C[:, a_s] (NA × RANK) and KM = K M, on the present rows.
-    let mut k = SMatrix::<f32, NA, RANK>::zeros();
+    let runs = rows_of::<LANES, RANK>(lag.present, r);
+    // K = C[:, a_s] and KM = K M, row-major, on the present rows.
+    let mut k = [[0.0f32; RANK]; NA];
     for j in 0..r {
         let src = lag
             .cross
             .as_slice()
-            .get((a0 + 2 * j) * NA..(a0 + 2 * j + 1) * NA);
-        if let (Some(d), Some(sv)) = (k.as_mut_slice().get_mut(j * NA..(j + 1) * NA), src) {
-            d.copy_from_slice(sv);
-        }
-    }
-    let mut km = SMatrix::<f32, NA, RANK>::zeros();
-    for j2 in 0..r {
-        for j in 0..r {
-            let m = g.m.get((j, j2)).copied().unwrap_or(0.0);
-            let (Some(kc), Some(dc)) = (
-                k.as_slice().get(j * NA..(j + 1) * NA),
-                km.as_mut_slice().get_mut(j2 * NA..(j2 + 1) * NA),
-            ) else {
-                continue;
-            };
-            for rows in rows_of::<LANES, RANK>(lag.present, r).iter() {
-                if let (Some(d), Some(sv)) = (dc.get_mut(rows.clone()), kc.get(rows)) {
-                    for (dv, kv) in d.iter_mut().zip(sv) {
-                        *dv += kv * m;
-                    }
-                }
+            .get((a0 + 2 * j) * NA..(a0 + 2 * j + 1) * NA)
+            .unwrap_or(&[]);
+        for i in runs.indices() {
+            if let (Some(row), Some(v)) = (k.get_mut(i), src.get(i)) {
+                set(row, j, *v);
             }
         }
     }
-    // a += K w.
-    for j in 0..r {
-        let w = g.w.get(j).copied().unwrap_or(0.0);
-        if let Some(kc) = k.as_slice().get(j * NA..(j + 1) * NA) {
-            for rows in rows_of::<LANES, RANK>(lag.present, r).iter() {
-                if let (Some(d), Some(sv)) =
-                    (lag.mean.as_mut_slice().get_mut(rows.clone()), kc.get(rows))
-                {
-                    for (dv, kv) in d.iter_mut().zip(sv) {
-                        *dv += kv * w;
-                    }
-                }
+    let mut km = [[0.0f32; RANK]; NA];
+    let w: [f32; RANK] = core::array::from_fn(|j| g.w.get(j).copied().unwrap_or(0.0));
+    for i in runs.indices() {
+        if let (Some(kmi), Some(ki)) = (km.get_mut(i), k.get(i)) {
+            *kmi = times_sym(ki, &g.m);
+            if let Some(m) = lag.mean.get_mut(i) {
+                *m += dot(ki, &w);
             }
         }
     }
     // Σ_t −= KM_t K_tᵀ (symmetric: one triangle computed, mirrored).
-    let (kms, ks) = (km.as_slice(), k.as_slice());
     for t in 0..LANES {
         if !get(&lag.present, t) {
             continue;
         }
-        // Rows of lane t, row-major copies: kmt[j][c] = KM[tR + j, c], kt[j][c] = K[tR + j, c].
-        let mut kmt = [[0.0f32; RANK]; RANK];
-        let mut kt = [[0.0f32; RANK]; RANK];
-        for c in 0..r {
-            for j in 0..r {
-                let at = t * RANK + j + NA * c;
-                if let Some(row) = kmt.get_mut(j) {
-                    set(row, c, kms.get(at).copied().unwrap_or(0.0));
+        let (Some(kmt), Some(kt), Some(blk)) = (
+            km.get(t * RANK..t * RANK + r),
+            k.get(t * RANK..t * RANK + r),
+            lag.blocks.get_mut(t),
+        ) else {
+            continue;
+        };
+        for (j, kmj) in kmt.iter().enumerate() {
+            for (j2, kj2) in kt.iter().enumerate().skip(j) {
+                let v = blk.get((j, j2)).copied().unwrap_or(0.0) - dot(kmj, kj2);
+                if let Some(e) = blk.get_mut((j, j2)) {
+                    *e = v;
                 }
-                if let Some(row) = kt.get_mut(j) {
-                    set(row, c, ks.get(at).copied().unwrap_or(0.0));
-                }
-            }
-        }
-        if let Some(blk) = lag.blocks.get_mut(t) {
-            for (j, kmj) in kmt.iter().enumerate().take(r) {
-                for (j2, kj2) in kt.iter().enumerate().take(r).skip(j) {
-                    let acc: f32 = kmj.iter().zip(kj2).take(r).map(|(a, b)| a * b).sum();
-                    let v = blk.get((j, j2)).copied().unwrap_or(0.0) - acc;
-                    if let Some(e) = blk.get_mut((j, j2)) {
-                        *e = v;
-                    }
-                    if let Some(e) = blk.get_mut((j2, j)) {
-                        *e = v;
-                    }
+                if let Some(e) = blk.get_mut((j2, j)) {
+                    *e = v;
                 }
             }
         }
     }
-    // C[:, col] −= Σ_j KM[:, j] G[col, j] on the active columns.
-    let gs = g.g.as_slice();
-    let runs = rows_of::<LANES, RANK>(lag.present, r);
+    // C[i, col] −= KM_i · G_col on the present rows and the active columns.
     for col in sp.indices() {
+        let Some(gc) = g.g.get(col) else { continue };
         let Some(cc) = lag.col_mut(col) else { continue };
-        for j in 0..r {
-            let gv = gs.get(col + NX * j).copied().unwrap_or(0.0);
-            let Some(kmc) = km.as_slice().get(j * NA..(j + 1) * NA) else {
-                continue;
-            };
-            for rows in runs.iter() {
-                if let (Some(d), Some(sv)) = (cc.get_mut(rows.clone()), kmc.get(rows)) {
-                    for (dv, kv) in d.iter_mut().zip(sv) {
-                        *dv -= kv * gv;
-                    }
+        for rows in runs.iter() {
+            if let (Some(d), Some(kr)) = (cc.get_mut(rows.clone()), km.get(rows)) {
+                for (dv, kmi) in d.iter_mut().zip(kr) {
+                    *dv -= dot(kmi, gc);
                 }
             }
         }

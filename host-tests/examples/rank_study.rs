@@ -1,0 +1,117 @@
+//! How much the Gram truncation rank costs in accuracy: trackers with RANK = 4…7 (the tables keep
+//! 7 components) against the full dense f64 pipeline on the seeded sequences of
+//! `tests/tracker_equivalence.rs` (filtered lanes, every frame).
+//!
+//! `cargo run --release -p stjpdacf-host --example rank_study`
+
+use stjpdacf::tables::DEFAULT;
+use stjpdacf::tracker::{Instant, StepOutput, Tracker};
+use stjpdacf_host::hyper::HyperFile;
+use stjpdacf_host::reference::pipeline::{PipelineConfig, ReferencePipeline};
+use stjpdacf_host::repo_root;
+use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
+use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
+
+type Frames = Vec<(i64, Vec<[f32; 2]>)>;
+
+fn sequence(seed: u64, clutter: f64, appear: usize) -> Frames {
+    let mut us = 0i64;
+    let mut frames = Vec::new();
+    for k in 0..25usize {
+        us += match k {
+            0 => 0,
+            7 => 100_000,
+            16 => 250_000,
+            _ => 50_000,
+        };
+        let pts = if (10..13).contains(&k) {
+            Vec::new()
+        } else {
+            let cfg = ScenarioConfig {
+                lanes: if k < appear { 2 } else { 3 },
+                left: -5.4 + 0.02 * k as f64,
+                clutter_density: clutter,
+                ..ScenarioConfig::default()
+            };
+            Scenario::generate(&cfg, seed * 1000 + k as u64)
+                .points
+                .iter()
+                .map(|&(u, x)| [u as f32, x as f32])
+                .collect()
+        };
+        frames.push((us, pts));
+    }
+    frames
+}
+
+trait Step {
+    fn step(&mut self, us: i64, pts: &[[f32; 2]]) -> StepOutput<6, 16>;
+}
+
+impl<const R: usize, const NX: usize, const NA: usize> Step
+    for Tracker<2, 3, 6, 16, 64, 16, 256, R, NX, NA, 4>
+{
+    fn step(&mut self, us: i64, pts: &[[f32; 2]]) -> StepOutput<6, 16> {
+        Tracker::step(self, Instant::from_micros(us), pts).expect("time increases")
+    }
+}
+
+fn tracker(rank: usize) -> Box<dyn Step> {
+    match rank {
+        4 => Box::new(Tracker::<2, 3, 6, 16, 64, 16, 256, 4, 48, 24, 4>::new(
+            &DEFAULT,
+        )),
+        5 => Box::new(Tracker::<2, 3, 6, 16, 64, 16, 256, 5, 60, 30, 4>::new(
+            &DEFAULT,
+        )),
+        6 => Box::new(Tracker::<2, 3, 6, 16, 64, 16, 256, 6, 72, 36, 4>::new(
+            &DEFAULT,
+        )),
+        _ => Box::new(Tracker::<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>::new(
+            &DEFAULT,
+        )),
+    }
+}
+
+fn main() {
+    let h = HyperFile::load(&repo_root().join(DEFAULT_HYPER)).expect("hyper");
+    let tables = ModelTables::from_hyper(&h).expect("tables");
+    let seqs = [sequence(1, 0.0, 8), sequence(2, 0.005, 5)];
+    println!("| rank | lanes compared | max |Δmean| (m) | max |Δmean| points 1–15 (m) | max rel |Δvar| | slot mismatches |");
+    println!("|---|---|---|---|---|---|");
+    for rank in [4usize, 5, 6, 7] {
+        let (mut n, mut dm, mut dm15, mut dv, mut mism) = (0usize, 0f64, 0f64, 0f64, 0usize);
+        for seq in &seqs {
+            let mut core = tracker(rank);
+            let mut reference =
+                ReferencePipeline::new(&tables, 4, PipelineConfig::from_tables(&tables))
+                    .expect("reference");
+            for (us, pts) in seq {
+                let co = core.step(*us, pts);
+                let p64: Vec<(f64, f64)> = pts
+                    .iter()
+                    .map(|p| (f64::from(p[0]), f64::from(p[1])))
+                    .collect();
+                let ro = reference.step(*us as f64 * 1e-6, &p64).expect("reference");
+                let cs: Vec<usize> = co.filtered.iter().map(|l| usize::from(l.slot)).collect();
+                let rs: Vec<usize> = ro.filtered.iter().map(|l| l.slot).collect();
+                if cs != rs {
+                    mism += 1;
+                    continue;
+                }
+                for (c, r) in co.filtered.iter().zip(&ro.filtered) {
+                    n += 1;
+                    for i in 0..16 {
+                        let d = (f64::from(c.z[i]) - r.z[i]).abs();
+                        dm = dm.max(d);
+                        if i > 0 {
+                            dm15 = dm15.max(d);
+                        }
+                        dv = dv.max((f64::from(c.var[i]) - r.var[i]).abs() / r.var[i].max(1e-12));
+                    }
+                }
+            }
+        }
+        println!("| {rank} | {n} | {dm:.2e} | {dm15:.2e} | {dv:.2e} | {mism} |");
+    }
+}
