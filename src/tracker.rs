@@ -124,6 +124,12 @@ pub struct LaneEstimate<const POINTS: usize> {
     pub existence: f32,
     /// Frames since the lane was last seen (0 when seen this frame).
     pub misses: u16,
+    /// Frames since the lane started (0 in its first frame); for a smoothed lane, its age at the
+    /// current frame (0 once it is gone).
+    pub age: u32,
+    /// Frames in which the lane was observed, its first frame included (same convention as
+    /// `age` for smoothed lanes).
+    pub hits: u32,
 }
 
 /// What one frame did.
@@ -473,6 +479,8 @@ impl<
                     u_last,
                     existence: info.existence,
                     misses: lane.misses,
+                    age: lane.age,
+                    hits: lane.hits,
                 });
             }
             let id_then = self
@@ -483,6 +491,8 @@ impl<
                 .flatten();
             if let (Some(id), Some((z, var))) = (id_then, self.temporal.lagged(self.tables, s, LAG))
             {
+                // The same lane's counters at the current frame (0 once it is gone).
+                let now = self.ids.lane(s).filter(|l| l.id == id);
                 let (u_first, u_last) = self.extent_of(s);
                 let _ = smoothed.push(LaneEstimate {
                     id,
@@ -493,6 +503,8 @@ impl<
                     u_last,
                     existence: get(&self.info, s).existence,
                     misses: 0,
+                    age: now.map_or(0, |l| l.age),
+                    hits: now.map_or(0, |l| l.hits),
                 });
             }
         }

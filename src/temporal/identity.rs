@@ -157,6 +157,8 @@ pub struct LaneInfo {
     pub id: LaneId,
     /// Frames since the lane started (0 in the frame it starts).
     pub age: u32,
+    /// Frames with an observation, the first one included (saturating).
+    pub hits: u32,
     /// Consecutive frames without an observation (0 when matched this frame).
     pub misses: u16,
 }
@@ -637,6 +639,7 @@ impl<const LANES: usize> LaneTable<LANES> {
             ) {
                 info.misses = 0;
                 info.age = info.age.saturating_add(1);
+                info.hits = info.hits.saturating_add(1);
                 *sf = SlotFate::Matched { obs: i };
                 *t = true;
                 *fate = ObsFate::Matched { slot: lane };
@@ -693,6 +696,7 @@ impl<const LANES: usize> LaneTable<LANES> {
                 *slot = Some(LaneInfo {
                     id,
                     age: 0,
+                    hits: 1,
                     misses: 0,
                 });
                 let replaced = match *sf {
