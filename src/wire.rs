@@ -577,7 +577,13 @@ mod tests {
     #[test]
     fn layout_is_as_documented() {
         let mut buf = [0u8; frame_len(1)];
-        let len = encode(0x0102_0304, Instant::from_micros(-2), &[[1.0, -0.5]], &mut buf).unwrap();
+        let len = encode(
+            0x0102_0304,
+            Instant::from_micros(-2),
+            &[[1.0, -0.5]],
+            &mut buf,
+        )
+        .unwrap();
         assert_eq!(len, 28);
         assert_eq!(&buf[..4], b"STJF");
         assert_eq!(&buf[4..8], &[1, 0, 1, 0]);

@@ -12,8 +12,8 @@ use rand_chacha::ChaCha8Rng;
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, ReferenceTracker};
 use stjpdacf::wire::{
-    self, crc32, decode, encode, frame_len, EncodeError, LinkStats, ReadError, Receiver,
-    WireError, CRC_LEN, HEADER_LEN, LSB_M,
+    self, crc32, decode, encode, frame_len, EncodeError, LinkStats, ReadError, Receiver, WireError,
+    CRC_LEN, HEADER_LEN, LSB_M,
 };
 use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
 
@@ -55,7 +55,10 @@ fn round_trip_quantises_to_the_lsb_and_matches_crc32fast() {
     );
     let mut out = [SENTINEL; CAP];
     let info = decode(&f, &mut out).unwrap();
-    assert_eq!((info.seq, info.time, info.count), (42, Instant::from_micros(1_234_567), CAP));
+    assert_eq!(
+        (info.seq, info.time, info.count),
+        (42, Instant::from_micros(1_234_567), CAP)
+    );
     for (a, b) in pts.iter().zip(&out) {
         for k in 0..2 {
             assert!((a[k] - b[k]).abs() <= LSB_M / 2.0 + 1e-6, "{a:?} vs {b:?}");
@@ -83,7 +86,14 @@ fn encoder_rejects_what_the_format_cannot_carry() {
             needed: frame_len(3)
         })
     );
-    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 128.0, -128.01, 1e9] {
+    for bad in [
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        128.0,
+        -128.01,
+        1e9,
+    ] {
         assert_eq!(
             encode(0, t, &[[1.0, 1.0], [1.0, bad]], &mut buf),
             Err(EncodeError::PointOutOfRange { index: 1 })
@@ -95,7 +105,10 @@ fn encoder_rejects_what_the_format_cannot_carry() {
     }
     let many = vec![[0.0f32; 2]; 65_536];
     let mut big = vec![0u8; frame_len(many.len())];
-    assert_eq!(encode(0, t, &many, &mut big), Err(EncodeError::TooManyPoints));
+    assert_eq!(
+        encode(0, t, &many, &mut big),
+        Err(EncodeError::TooManyPoints)
+    );
     assert_eq!(frame_len(usize::MAX), usize::MAX);
 }
 
@@ -132,7 +145,11 @@ fn every_rejection_is_typed_counted_and_harmless() {
     cases.push((payload, 16, WireError::BadCrc));
     // 10 points into a buffer of 8 (checked before the length and the CRC).
     cases.push((good.clone(), 8, WireError::Oversized { count: 10 }));
-    cases.push((good[..HEADER_LEN].to_vec(), 8, WireError::Oversized { count: 10 }));
+    cases.push((
+        good[..HEADER_LEN].to_vec(),
+        8,
+        WireError::Oversized { count: 10 },
+    ));
     for (bytes, cap, want) in &cases {
         assert_eq!(rx.accept(bytes, &mut out[..*cap]), Err(*want), "{want:?}");
         assert_eq!(decode(bytes, &mut out[..*cap]), Err(*want));
@@ -165,7 +182,12 @@ fn every_rejection_is_typed_counted_and_harmless() {
         assert!(small.iter().all(|p| *p == SENTINEL));
     }
     // The next good frame after the refusals; the sequence gap 10 → 14 counts 3 skipped.
-    assert_eq!(rx.accept(&frame(14, 1_100_000, &pts), &mut small).unwrap().seq, 14);
+    assert_eq!(
+        rx.accept(&frame(14, 1_100_000, &pts), &mut small)
+            .unwrap()
+            .seq,
+        14
+    );
     let s = *rx.stats();
     assert_eq!((s.frames, s.skipped), (2, 3));
     assert_eq!((s.non_increasing_seq, s.non_increasing_time), (2, 2));
@@ -367,7 +389,11 @@ fn bad_frames_never_reach_the_tracker() {
     let good: Vec<Vec<u8>> = (0..12u32)
         .map(|k| {
             let sc = Scenario::generate(&cfg, 700 + u64::from(k));
-            let p: Vec<[f32; 2]> = sc.points.iter().map(|&(u, x)| [u as f32, x as f32]).collect();
+            let p: Vec<[f32; 2]> = sc
+                .points
+                .iter()
+                .map(|&(u, x)| [u as f32, x as f32])
+                .collect();
             frame(k + 1, i64::from(k + 1) * 50_000, &p[..p.len().min(CAP)])
         })
         .collect();
