@@ -332,14 +332,15 @@ fn sizes(elf: &Path) -> Result<Sizes> {
     })
 }
 
-/// Parses one binary's semihosting output.
-fn parse(
-    stdout: &str,
-) -> Result<(
+/// What one binary printed: its scenarios, `(stack used, stack size)` and the probe overhead.
+type Parsed = (
     BTreeMap<String, ScenarioFigures>,
     Option<(u64, u64)>,
     Option<u64>,
-)> {
+);
+
+/// Parses one binary's semihosting output.
+fn parse(stdout: &str) -> Result<Parsed> {
     let mut frames: Vec<(String, Vec<BTreeMap<&str, u64>>)> = Vec::new();
     let mut stack = None;
     let mut overhead = None;
