@@ -199,8 +199,9 @@ pub struct FrameInfo {
     pub count: usize,
 }
 
-/// Counters of a [`Receiver`]: one per outcome (every call to [`Receiver::accept`] or
-/// [`Receiver::read`] increments exactly one of them; they saturate).
+/// Counters of a [`Receiver`] (saturating). Every call to [`Receiver::accept`] or
+/// [`Receiver::read`] increments exactly one of `frames` and the rejection counters;
+/// `skipped` adds up the sequence gaps between accepted frames.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LinkStats {
