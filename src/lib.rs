@@ -40,3 +40,4 @@ pub mod spatial;
 pub mod tables;
 pub mod temporal;
 pub mod tracker;
+pub mod wire;

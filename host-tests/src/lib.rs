@@ -5,6 +5,7 @@
 
 pub mod camera;
 pub mod frontend;
+pub mod fwscenario;
 pub mod hyper;
 pub mod metric;
 pub mod reference;

@@ -1,0 +1,26 @@
+//! The spatial JPDACF alone on every scenario (see `stjpdacf_host::fwscenario`): it runs on the
+//! reference MCU's memory map while the whole tracker does not fit yet.
+#![no_std]
+#![no_main]
+
+use panic_semihosting as _;
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    match cortex_m::Peripherals::take() {
+        Some(p) => stjpdacf_firmware::run_spatial(
+            &[
+                ("typical", include_bytes!("../../scenarios/typical.stjf")),
+                ("worst", include_bytes!("../../scenarios/worst.stjf")),
+                (
+                    "worst_patterns",
+                    include_bytes!("../../scenarios/worst_patterns.stjf"),
+                ),
+            ],
+            p.SYST,
+        ),
+        None => loop {
+            cortex_m::asm::nop();
+        },
+    }
+}

@@ -1,0 +1,20 @@
+//! The whole tracker on scenario `worst` (see `stjpdacf_host::fwscenario`), from
+//! `scenarios/worst.stjf`.
+#![no_std]
+#![no_main]
+
+use panic_semihosting as _;
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    match cortex_m::Peripherals::take() {
+        Some(p) => stjpdacf_firmware::run_tracker(
+            "worst",
+            include_bytes!("../../scenarios/worst.stjf"),
+            p.SYST,
+        ),
+        None => loop {
+            cortex_m::asm::nop();
+        },
+    }
+}
