@@ -56,7 +56,11 @@ fn keeps_lanes_and_ids_over_frames() {
         }
         assert_eq!(frame_ids, ids, "frame {k}: ids changed");
         for l in &out.filtered {
-            assert_eq!((l.age, l.hits), (k as u32, k as u32 + 1), "frame {k}: {l:?}");
+            assert_eq!(
+                (l.age, l.hits),
+                (k as u32, k as u32 + 1),
+                "frame {k}: {l:?}"
+            );
         }
         // Positions near the truth at the nearest index point (lanes at −5.4, −1.8, 1.8 + drift).
         let mut z0: Vec<f32> = out.filtered.iter().map(|l| l.z[0]).collect();

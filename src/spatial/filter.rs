@@ -294,6 +294,8 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
     /// # Complexity
     /// As [`SpatialFilter::run`].
     #[allow(non_snake_case, clippy::too_many_lines)]
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
     pub fn run_probed<const NT: usize, const POINTS: usize, P: Probe>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,

@@ -279,6 +279,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     ///
     /// # Complexity
     /// `O(n_act · 2r · lanes)` with `n_act = 2r·lanes` the active state size; in place.
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
     pub fn start_lane<const NT: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -555,6 +557,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
 
     /// The gain parts of [`TemporalFilter::update`] (shared with the fixed-lag smoother).
     #[allow(non_snake_case, clippy::too_many_lines)]
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
     pub(crate) fn prepare_update<const NT: usize>(
         &self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -723,6 +727,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
 
     /// Applies checked gain parts in place: `x += G w`, `P −= G M Gᵀ` over the active block
     /// (one triangle computed, mirrored).
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
     pub(crate) fn apply_update(&mut self, g: &UpdateParts<RANK, NX>) {
         let sp = self.spans(g.r);
         let w: [f32; RANK] = core::array::from_fn(|k| g.w.get(k).copied().unwrap_or(0.0));
@@ -779,21 +785,23 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             return None;
         }
         let r = Self::r_used(tables);
-        let v = &tables.gram_eigvec;
-        let vg = |i: usize, j: usize| v.get((i, j)).copied().unwrap_or(0.0);
-        let mean = SVector::<f32, POINTS>::from_fn(|i, _| {
-            (0..r).map(|j| vg(i, j) * self.xg(Self::idx(s, j, 0))).sum()
-        });
-        let var = SVector::<f32, POINTS>::from_fn(|i, _| {
-            let mut acc = 0.0;
-            for j in 0..r {
-                for j2 in 0..r {
-                    acc += vg(i, j) * vg(i, j2) * self.pg(Self::idx(s, j, 0), Self::idx(s, j2, 0));
-                }
+        let a: [f32; RANK] = core::array::from_fn(|j| {
+            if j < r {
+                self.xg(Self::idx(s, j, 0))
+            } else {
+                0.0
             }
-            acc
         });
-        Some((mean, var))
+        let p: [[f32; RANK]; RANK] = core::array::from_fn(|j| {
+            core::array::from_fn(|j2| {
+                if j < r && j2 < r {
+                    self.pg(Self::idx(s, j, 0), Self::idx(s, j2, 0))
+                } else {
+                    0.0
+                }
+            })
+        });
+        Some(project(&tables.gram_eigvec, r, &a, &p))
     }
 
     /// `cᵀ Cov(a_s) c` over the first `r` position coefficients of slot `s` (0 for a free slot).
@@ -844,6 +852,32 @@ pub(crate) fn times_sym<const R: usize>(a: &[f32; R], m: &SMatrix<f32, R, R>) ->
         let col = ms.get(k * R..(k + 1) * R).unwrap_or(&[]);
         a.iter().zip(col).map(|(x, y)| x * y).sum()
     })
+}
+
+/// A lane from its coefficients: positions `f_i = v_i · a` and variances `v_i P v_iᵀ` at every
+/// index point, `v_i` the first `r` entries of row `i` of the Gram eigenvectors `v`.
+/// `POINTS · (RANK² + 2·RANK)` multiply-adds.
+pub(crate) fn project<const POINTS: usize, const RANK: usize>(
+    v: &SMatrix<f32, POINTS, POINTS>,
+    r: usize,
+    a: &[f32; RANK],
+    p: &[[f32; RANK]; RANK],
+) -> (SVector<f32, POINTS>, SVector<f32, POINTS>) {
+    let mut mean = SVector::<f32, POINTS>::zeros();
+    let mut var = SVector::<f32, POINTS>::zeros();
+    for (i, (m, w)) in mean.iter_mut().zip(var.iter_mut()).enumerate() {
+        let vi: [f32; RANK] = core::array::from_fn(|j| {
+            if j < r {
+                v.get((i, j)).copied().unwrap_or(0.0)
+            } else {
+                0.0
+            }
+        });
+        *m = dot(&vi, a);
+        let pv: [f32; RANK] = core::array::from_fn(|j| p.get(j).map_or(0.0, |row| dot(row, &vi)));
+        *w = dot(&pv, &vi);
+    }
+    (mean, var)
 }
 
 /// In-place Cholesky factorisation of the leading `n×n` block of `a` (the lower triangle is read

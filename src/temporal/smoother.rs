@@ -30,7 +30,7 @@
 
 use nalgebra::{Matrix2, SMatrix, SVector};
 
-use super::filter::{dot, times_sym, Spans, TemporalError, TemporalFilter, UpdateParts};
+use super::filter::{dot, project, times_sym, Spans, TemporalError, TemporalFilter, UpdateParts};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::LaneObservation;
 use crate::spatial::{get, set};
@@ -151,6 +151,8 @@ impl<
     ///
     /// # Errors
     /// As [`TemporalFilter::start_lane`]; the state is unchanged.
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
     pub fn start_lane<const NT: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -221,6 +223,8 @@ impl<
     ///
     /// # Errors
     /// As [`Temporal::predict`].
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
     pub fn predict_probed<const NT: usize, P: Probe>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -318,6 +322,8 @@ impl<
     ///
     /// # Errors
     /// As [`Temporal::update`].
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
     pub fn update_probed<const NT: usize, P: Probe>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -377,24 +383,24 @@ impl<
             return None;
         }
         let r = (tables.gram_rank as usize).min(RANK);
-        let v = &tables.gram_eigvec;
-        let vg = |i: usize, j: usize| v.get((i, j)).copied().unwrap_or(0.0);
         let blk = l.blocks.get(s)?;
-        let mean = SVector::<f32, POINTS>::from_fn(|i, _| {
-            (0..r)
-                .map(|j| vg(i, j) * l.mean.get(s * RANK + j).copied().unwrap_or(0.0))
-                .sum()
-        });
-        let var = SVector::<f32, POINTS>::from_fn(|i, _| {
-            let mut acc = 0.0;
-            for j in 0..r {
-                for j2 in 0..r {
-                    acc += vg(i, j) * vg(i, j2) * blk.get((j, j2)).copied().unwrap_or(0.0);
-                }
+        let a: [f32; RANK] = core::array::from_fn(|j| {
+            if j < r {
+                l.mean.get(s * RANK + j).copied().unwrap_or(0.0)
+            } else {
+                0.0
             }
-            acc
         });
-        Some((mean, var))
+        let p: [[f32; RANK]; RANK] = core::array::from_fn(|j| {
+            core::array::from_fn(|j2| {
+                if j < r && j2 < r {
+                    blk.get((j, j2)).copied().unwrap_or(0.0)
+                } else {
+                    0.0
+                }
+            })
+        });
+        Some(project(&tables.gram_eigvec, r, &a, &p))
     }
 }
 
@@ -439,6 +445,8 @@ fn times_transition<const LANES: usize, const RANK: usize, const NA: usize, cons
 
 /// With `K = C[:, a_s]` (before the update): `a += K w`, `Σ_t −= K_t M K_tᵀ` (per present lane),
 /// `C −= K M Gᵀ` on the active columns.
+// Not inlined: its stack frame must not add to its caller's (stack budget).
+#[inline(never)]
 fn lag_update<const LANES: usize, const RANK: usize, const NA: usize, const NX: usize>(
     lag: &mut Lagged<LANES, RANK, NA, NX>,
     g: &UpdateParts<RANK, NX>,
