@@ -116,7 +116,8 @@ pub struct LaneEstimate<const POINTS: usize> {
     pub z: SVector<f32, POINTS>,
     /// Its variance, m².
     pub var: SVector<f32, POINTS>,
-    /// Observed extent (union over the last `LAG + 1` frames), metres ahead.
+    /// Observed extent, metres ahead: the union over the `LAG + 1` frames ending at the lane's
+    /// frame (the current one for filtered lanes, `LAG` frames back for smoothed lanes).
     pub u_first: f32,
     /// Far end of the observed extent.
     pub u_last: f32,
@@ -203,9 +204,13 @@ pub struct Tracker<
     temporal: Temporal<LANES, POINTS, RANK, NX, NA, LAG>,
     info: [SlotInfo; LANES],
     /// Extent history per slot: `[u_first, u_last]` of the last `LAG + 1` frames' observations.
-    extent: [[[f32; 2]; LANES]; 8],
+    /// The last `2·LAG + 1` frames are used: the filtered lanes' extents cover frames `k−LAG..=k`,
+    /// the smoothed lanes' (frame `k − LAG`) frames `k−2·LAG..=k−LAG`.
+    extent: [[[f32; 2]; LANES]; 16],
     /// Slot → id `j` frames back (for the smoothed output).
     id_hist: [[Option<LaneId>; LANES]; 17],
+    /// B slot (rank from the left) of each active lane after the last step.
+    ranks: [u8; LANES],
     last: Option<Instant>,
     frames: u32,
 }
@@ -259,8 +264,9 @@ impl<
             ids: LaneTable::new(),
             temporal: Temporal::new(),
             info: [NO_INFO; LANES],
-            extent: [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; 8],
+            extent: [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; 16],
             id_hist: [[None; LANES]; 17],
+            ranks: [0; LANES],
             last: None,
             frames: 0,
         }
@@ -434,6 +440,7 @@ impl<
         // Re-rank the lanes present (slots = rank from the left at the bottom of the window).
         let ranks = self.current_ranks();
         let _ = self.temporal.set_ranks(&ranks);
+        self.ranks = ranks;
         // 6. Extent and id histories.
         for j in (1..self.extent.len()).rev() {
             if let Some(prev) = self.extent.get(j - 1).copied() {
@@ -468,7 +475,7 @@ impl<
                 self.ids.lane(s),
                 self.temporal.filter().lane(self.tables, s),
             ) {
-                let (u_first, u_last) = self.extent_of(s);
+                let (u_first, u_last) = self.extent_of(s, 0);
                 let info = get(&self.info, s);
                 let _ = filtered.push(LaneEstimate {
                     id: lane.id,
@@ -493,7 +500,7 @@ impl<
             {
                 // The same lane's counters at the current frame (0 once it is gone).
                 let now = self.ids.lane(s).filter(|l| l.id == id);
-                let (u_first, u_last) = self.extent_of(s);
+                let (u_first, u_last) = self.extent_of(s, LAG);
                 let _ = smoothed.push(LaneEstimate {
                     id,
                     slot: s as u8,
@@ -517,10 +524,12 @@ impl<
         })
     }
 
-    fn extent_of(&self, s: usize) -> (f32, f32) {
+    /// Union of slot `s`'s observed extents over the history frames `from..=from + LAG` (0 is
+    /// the current frame).
+    fn extent_of(&self, s: usize, from: usize) -> (f32, f32) {
         let mut lo = f32::INFINITY;
         let mut hi = f32::NEG_INFINITY;
-        for h in self.extent.iter().take(LAG + 1) {
+        for h in self.extent.iter().skip(from).take(LAG + 1) {
             let [a, b] = get(h, s);
             lo = lo.min(a);
             hi = hi.max(b);
@@ -632,7 +641,7 @@ impl<
         }
         // Variance: cᵀ Cov(a_slot) c from the filter's coefficient block.
         let var_a = self.temporal.filter().coefficient_var(slot, &cvec, r);
-        let rank = usize::from(self.current_ranks().get(slot).copied().unwrap_or(0));
+        let rank = usize::from(get(&self.ranks, slot));
         let bss = self.tables.coreg.get((rank, rank)).copied().unwrap_or(0.0);
         let residual = (h.spatial_variance - explained).max(0.0) * bss;
         Some((mean, var_a + residual))

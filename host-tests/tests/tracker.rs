@@ -255,3 +255,57 @@ fn probed_step_reports_every_stage_and_changes_nothing() {
         .is_err());
     assert_eq!(trace.0.last(), Some(&Stage::Done));
 }
+
+/// The smoothed lanes (frame k − L) carry the extent the lanes had then, not the current one:
+/// lanes seen only up to 40 m for 10 frames, then up to the end of the window.
+#[test]
+fn smoothed_lanes_carry_the_extent_of_their_frame() {
+    const LAG: usize = 4;
+    let mut t = tracker();
+    for k in 0..20u64 {
+        let mut pts = frame(k, 0.0, 3);
+        if k < 10 {
+            pts.retain(|p| p[0] <= 40.0);
+        }
+        let out = t
+            .step(Instant::from_micros(50_000 * (k as i64 + 1)), &pts)
+            .unwrap();
+        let far = |ls: &[stjpdacf::tracker::LaneEstimate<16>]| {
+            ls.iter()
+                .map(|l| l.u_last)
+                .fold(f32::NEG_INFINITY, f32::max)
+        };
+        assert_eq!(out.filtered.len(), 3, "frame {k}");
+        // Filtered: frames k−L..=k; the far end jumps as soon as the far points come.
+        if k >= 10 {
+            assert!(
+                far(&out.filtered) > 70.0,
+                "frame {k}: {}",
+                far(&out.filtered)
+            );
+        } else {
+            assert!(
+                far(&out.filtered) <= 41.0,
+                "frame {k}: {}",
+                far(&out.filtered)
+            );
+        }
+        // Smoothed (frame k − L): frames k−2L..=k−L, so the far end follows L frames later.
+        if k as usize >= LAG {
+            assert_eq!(out.smoothed.len(), 3, "frame {k}");
+            if (k as usize) < 10 + LAG {
+                assert!(
+                    far(&out.smoothed) <= 41.0,
+                    "frame {k}: {}",
+                    far(&out.smoothed)
+                );
+            } else {
+                assert!(
+                    far(&out.smoothed) > 70.0,
+                    "frame {k}: {}",
+                    far(&out.smoothed)
+                );
+            }
+        }
+    }
+}
