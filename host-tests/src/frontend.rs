@@ -461,17 +461,35 @@ pub fn run_dir(
     camera: Option<&Camera>,
     labels: &[TuSimpleRecord],
     p: &FrontendParams,
-    mut progress: impl FnMut(usize, usize),
+    progress: impl FnMut(usize, usize),
 ) -> Result<Vec<Frame>> {
+    Ok(run_dir_timed(dir, camera, labels, p, progress)?
+        .into_iter()
+        .map(|(f, _)| f)
+        .collect())
+}
+
+/// [`run_dir`], also returning the time [`detect`] took on each image (ms: IPM to feature
+/// points; reading and decoding the file are not counted).
+pub fn run_dir_timed(
+    dir: &Path,
+    camera: Option<&Camera>,
+    labels: &[TuSimpleRecord],
+    p: &FrontendParams,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<(Frame, f64)>> {
     let files = find_images(dir)?;
     if files.is_empty() {
         bail!("no *.jpg or *.png images under {}", dir.display());
     }
     let mut frames: Vec<Frame> = Vec::with_capacity(files.len());
+    let mut times = Vec::with_capacity(files.len());
     for (n, path) in files.iter().enumerate() {
         let img = load_rgb(path)?;
-        let cam = camera_for(&img, camera)?;
+        let cam = camera_for(&img, camera).with_context(|| format!("{}", path.display()))?;
+        let start = std::time::Instant::now();
         let points = detect(&img, &cam, p).with_context(|| format!("{}", path.display()))?;
+        times.push(start.elapsed().as_secs_f64() * 1e3);
         let raw_file = raw_file_of(dir, path);
         let clip = raw_file
             .rsplit_once('/')
@@ -499,7 +517,7 @@ pub fn run_dir(
         });
         progress(n + 1, files.len());
     }
-    Ok(frames)
+    Ok(frames.into_iter().zip(times).collect())
 }
 
 /// Draw `points` (red dots, 3×3 px) and, if given, labelled `lanes` (green dots at the label

@@ -296,8 +296,20 @@ pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
 /// Read a prediction file and a ground-truth file (TuSimple JSON lines), check that they pair
 /// one to one ([`check_one_to_one`]) and score them ([`bench_one_submit`]). Errors name the file.
 pub fn evaluate_files(pred_path: &Path, gt_path: &Path) -> Result<Score> {
-    let gts = read_labels(gt_path)?;
-    let preds = read_predictions(pred_path)?;
+    evaluate_files_scaled(pred_path, gt_path, 1.0)
+}
+
+/// [`evaluate_files`] with every column and row of both files multiplied by `scale` first
+/// (negative "no point" values stay as they are), e.g. 2.5 to score files of 512×288 frames at
+/// TuSimple's 1280×720, where the metric's 20 px threshold is defined.
+pub fn evaluate_files_scaled(pred_path: &Path, gt_path: &Path, scale: f64) -> Result<Score> {
+    let mut gts = read_labels(gt_path)?;
+    let mut preds = read_predictions(pred_path)?;
+    if scale != 1.0 {
+        for r in gts.iter_mut().chain(preds.iter_mut()) {
+            r.scale_pixels(scale);
+        }
+    }
     let ctx = || {
         format!(
             "scoring {} against {}",
