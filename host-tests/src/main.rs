@@ -103,6 +103,12 @@ enum Command {
         /// Replay seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Noise presets of the replay (comma-separated).
+        #[arg(long, value_enum, value_delimiter = ',', default_values_t = [NoiseLevel::Low, NoiseLevel::Mid, NoiseLevel::High])]
+        noise: Vec<NoiseLevel>,
+        /// Frames per replay clip (default 20; the last one is the labelled frame).
+        #[arg(long)]
+        frames_per_clip: Option<usize>,
         /// Skip the PNG files.
         #[arg(long)]
         no_images: bool,
@@ -512,6 +518,8 @@ fn main() -> Result<()> {
             data,
             clips,
             seed,
+            noise,
+            frames_per_clip,
             no_images,
             json,
         } => {
@@ -519,6 +527,8 @@ fn main() -> Result<()> {
                 out,
                 clips,
                 seed,
+                levels: noise,
+                frames_per_clip,
                 images: !no_images,
                 ..demo::DemoOptions::default()
             };
