@@ -157,6 +157,11 @@ pub struct DemoRow {
     pub frames: usize,
     /// Clips (tracker resets).
     pub clips: usize,
+    /// Distinct lane ids published (seen within `MAX_REPORT_MISSES` frames) per clip: with
+    /// stable identities, about the number of lanes in the clip (replay only).
+    pub ids_per_clip: Option<f64>,
+    /// Ground-truth lanes per clip (of the last frame; replay only).
+    pub gt_lanes_per_clip: Option<f64>,
     /// Mean per-frame `run_time`, ms.
     pub run_time_mean_ms: f64,
     /// Largest per-frame `run_time`, ms.
@@ -333,6 +338,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
             let draw = opts.images && level == bev_level && coupling == Coupling::Coupled;
             let n_frames = o.frames.iter().filter(|f| f.clip == bev_clip).count();
             let mut k_in_clip = 0;
+            let mut ids: HashSet<(String, u32)> = HashSet::new();
             let (preds, stats) = track::track_with(
                 &o.frames,
                 tables,
@@ -340,6 +346,15 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                 Space::Image,
                 TrackerConfig::DEFAULT,
                 |v: FrameView<'_>| {
+                    if let Some(out) = v.output {
+                        for l in out
+                            .filtered
+                            .iter()
+                            .filter(|l| l.misses <= MAX_REPORT_MISSES)
+                        {
+                            ids.insert((v.frame.clip.clone(), l.id.0));
+                        }
+                    }
                     if draw && v.frame.clip == bev_clip {
                         k_in_clip += 1;
                         if k_in_clip == 1
@@ -371,6 +386,11 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                 score_all: Some(score_on(&preds, &o.gt_all, opts.score_run_time)?),
                 frames: stats.frames,
                 clips: stats.clips,
+                ids_per_clip: Some(ids.len() as f64 / stats.clips.max(1) as f64),
+                gt_lanes_per_clip: Some(
+                    o.gt_last.iter().map(|g| g.lanes.len()).sum::<usize>() as f64
+                        / o.gt_last.len().max(1) as f64,
+                ),
                 run_time_mean_ms: stats.run_mean_ms,
                 run_time_max_ms: stats.run_max_ms,
             });
@@ -468,6 +488,8 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         score_all: None,
         frames: stats.frames,
         clips: stats.clips,
+        ids_per_clip: None,
+        gt_lanes_per_clip: None,
         run_time_mean_ms: run_times.iter().sum::<f64>() / run_times.len().max(1) as f64,
         run_time_max_ms: run_times.iter().copied().fold(0.0, f64::max),
     });
@@ -493,6 +515,8 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         score_all: None,
         frames: lstats.frames,
         clips: lstats.clips,
+        ids_per_clip: None,
+        gt_lanes_per_clip: None,
         run_time_mean_ms: lstats.run_mean_ms,
         run_time_max_ms: lstats.run_max_ms,
     });
@@ -583,8 +607,8 @@ pub fn render_markdown(r: &DemoReport) -> String {
         r.replay_clips, r.frames_per_clip, r.seed
     ));
     s.push_str(
-        "| input | noise | B | accuracy | FP | FN | accuracy (all frames) | run_time mean / max (ms) | frames |\n\
-         |---|---|---|---|---|---|---|---|---|\n",
+        "| input | noise | B | accuracy | FP | FN | accuracy (all frames) | lane ids / clip (gt lanes) | run_time mean / max (ms) | frames |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
     );
     for row in &r.rows {
         let input = match row.input {
@@ -598,8 +622,12 @@ pub fn render_markdown(r: &DemoReport) -> String {
         let all = row
             .score_all
             .map_or("—".to_string(), |a| format!("{:.3}", a.accuracy));
+        let ids = match (row.ids_per_clip, row.gt_lanes_per_clip) {
+            (Some(i), Some(g)) => format!("{i:.1} ({g:.1})"),
+            _ => "—".to_string(),
+        };
         s.push_str(&format!(
-            "| {input} | {noise} | {} | {:.3} | {:.3} | {:.3} | {all} | {:.2} / {:.2} | {} |\n",
+            "| {input} | {noise} | {} | {:.3} | {:.3} | {:.3} | {all} | {ids} | {:.2} / {:.2} | {} |\n",
             row.coupling.label(),
             row.score.accuracy,
             row.score.fp,
