@@ -190,7 +190,8 @@ pub struct RealFrameResult {
 /// Everything [`run`] measured and wrote.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DemoReport {
-    /// Replay rows (noise × coupling) then the real-frame row.
+    /// Replay rows (noise × coupling), then the real frames through the front end, then the
+    /// real frames with the label points.
     pub rows: Vec<DemoRow>,
     /// Per real frame.
     pub real_frames: Vec<RealFrameResult>,
@@ -213,7 +214,7 @@ struct Snapshot {
     bands: Vec<LaneBand>,
 }
 
-/// Keeps the frames `want` says to keep, with their lane bands sampled at `us(frame)`.
+/// A frame and its published lanes (seen within `MAX_REPORT_MISSES` frames) sampled at `us`.
 fn snapshot(v: &FrameView<'_>, tables: &ReferenceTables, us: &[f64]) -> Snapshot {
     let bands = v
         .output
@@ -316,10 +317,18 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     let mut done = 0;
     let mut rows = Vec::new();
     let mut files = Vec::new();
-    // The BEV figure: the middle noise level, coupled, frames 1, 10 and the last of one clip.
+    // The BEV figure: the middle noise level, coupled, the first, middle and last frames of one
+    // clip, lanes sampled every 0.5 m over the window.
     let bev_level = opts.levels[opts.levels.len() / 2];
     let bev_clip = format!("synth{:04}", opts.bev_clip.min(labels.len() - 1));
-    let bev_us: Vec<f64> = (0..=160).map(|i| 3.0 + 0.5 * f64::from(i)).collect();
+    let (u_min, u_max) = (
+        f64::from(coupled.hyper.u_min),
+        f64::from(coupled.hyper.u_max),
+    );
+    let bev_us: Vec<f64> = (0..)
+        .map(|i| u_min + 0.5 * f64::from(i))
+        .take_while(|&u| u <= u_max)
+        .collect();
     let mut bev: Vec<Snapshot> = Vec::new();
     let mut bev_gt: Vec<TuSimpleRecord> = Vec::new();
     for &level in &opts.levels {
