@@ -45,7 +45,7 @@ use plotters::prelude::*;
 use serde::Serialize;
 
 use stjpdacf::tables::ReferenceTables;
-use stjpdacf::tracker::TrackerConfig;
+use stjpdacf::tracker::{LaneEstimate, TrackerConfig};
 
 use crate::camera::Camera;
 use crate::frontend::{self, FrontendParams};
@@ -162,10 +162,29 @@ pub struct DemoRow {
     pub ids_per_clip: Option<f64>,
     /// Ground-truth lanes per clip (of the last frame; replay only).
     pub gt_lanes_per_clip: Option<f64>,
+    /// The fixed-lag smoother against the filter on the replay frames that have a smoothed
+    /// estimate (replay only).
+    pub smoother: Option<SmootherScore>,
     /// Mean per-frame `run_time`, ms.
     pub run_time_mean_ms: f64,
     /// Largest per-frame `run_time`, ms.
     pub run_time_max_ms: f64,
+}
+
+/// The fixed-lag smoother scored on the replay's per-frame ground truth: every frame `k` of a
+/// clip that has a frame `k + L` (the smoothed estimate of frame `k` comes out at frame `k + L`,
+/// L = [`track::REFERENCE_LAG`]), the filtered and the smoothed lanes of frame `k`. The smoothed
+/// lanes are those the filter published at frame `k` (same ids), evaluated at the rows from their
+/// index-point values ([`track::lane_x_from_points`]); the filtered ones as written in the
+/// predictions.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SmootherScore {
+    /// Frames scored.
+    pub frames: usize,
+    /// The filter's predictions on those frames.
+    pub filtered: Score,
+    /// The smoother's.
+    pub smoothed: Score,
 }
 
 /// The result on one real frame.
@@ -248,6 +267,71 @@ fn score_on(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord], timed: bool) -> Re
         .collect();
     metric::check_one_to_one(&kept, gts)?;
     metric::bench_one_submit(&kept, gts)
+}
+
+/// The smoothed prediction that frame `v` carries: for frame `v.index − L` of the same clip
+/// (when the clip has that frame and it asks for a prediction), the smoothed lanes whose ids the
+/// filter published at that frame (`published[k]` for the clip's frame `k`), at its rows, over
+/// the extent the filter published for them at that frame (the core's smoothed lanes carry the
+/// current frame's extent; see the README).
+fn smoothed_prediction(
+    v: &FrameView<'_>,
+    frames: &[Frame],
+    published: &[HashMap<u32, LaneEstimate<16>>],
+    tables: &ReferenceTables,
+) -> Option<TuSimpleRecord> {
+    let lag = track::REFERENCE_LAG;
+    let out = v.output?;
+    let k = published.len().checked_sub(1 + lag)?;
+    let then = frames.get(v.index.checked_sub(lag)?)?;
+    let (raw, rows) = (then.raw_file.as_ref()?, then.h_samples.as_ref()?);
+    let ids = published.get(k)?;
+    let cam = Camera::tusimple();
+    let mut lanes: Vec<(f64, Vec<f64>)> = out
+        .smoothed
+        .iter()
+        .filter_map(|l| {
+            let f = ids.get(&l.id.0)?;
+            let l = LaneEstimate {
+                u_first: f.u_first,
+                u_last: f.u_last,
+                ..*l
+            };
+            let xs = track::lane_columns(&cam, rows, |u| track::lane_x_from_points(tables, &l, u));
+            Some((f64::from(l.z[0]), xs))
+        })
+        .filter(|(_, xs)| xs.iter().any(|x| *x >= 0.0))
+        .collect();
+    lanes.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Some(TuSimpleRecord {
+        raw_file: raw.clone(),
+        lanes: lanes.into_iter().map(|(_, xs)| xs).collect(),
+        h_samples: rows.clone(),
+        run_time: v.prediction.and_then(|p| p.run_time),
+    })
+}
+
+/// Scores the filter and the smoother on the frames that have a smoothed prediction.
+fn smoother_score(
+    filtered: &[TuSimpleRecord],
+    smoothed: &[TuSimpleRecord],
+    gt_all: &[TuSimpleRecord],
+    timed: bool,
+) -> Result<Option<SmootherScore>> {
+    if smoothed.is_empty() {
+        return Ok(None);
+    }
+    let files: HashSet<&str> = smoothed.iter().map(|p| p.raw_file.as_str()).collect();
+    let gts: Vec<TuSimpleRecord> = gt_all
+        .iter()
+        .filter(|g| files.contains(g.raw_file.as_str()))
+        .cloned()
+        .collect();
+    Ok(Some(SmootherScore {
+        frames: gts.len(),
+        filtered: score_on(filtered, &gts, timed)?,
+        smoothed: score_on(smoothed, &gts, timed)?,
+    }))
 }
 
 /// A frame whose feature points are a label's lanes, sampled at every image row between
@@ -348,6 +432,10 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
             let n_frames = o.frames.iter().filter(|f| f.clip == bev_clip).count();
             let mut k_in_clip = 0;
             let mut ids: HashSet<(String, u32)> = HashSet::new();
+            // Per frame of the current clip, the ids the filter published; the smoothed
+            // predictions (of frame k − L, made at frame k).
+            let mut published: Vec<HashMap<u32, LaneEstimate<16>>> = Vec::new();
+            let mut smoothed_preds: Vec<TuSimpleRecord> = Vec::new();
             let (preds, stats) = track::track_with(
                 &o.frames,
                 tables,
@@ -355,6 +443,12 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                 Space::Image,
                 TrackerConfig::DEFAULT,
                 |v: FrameView<'_>| {
+                    let new_clip = v.index == 0
+                        || o.frames.get(v.index - 1).map(|f| &f.clip) != Some(&v.frame.clip);
+                    if new_clip {
+                        published.clear();
+                    }
+                    let mut now = HashMap::new();
                     if let Some(out) = v.output {
                         for l in out
                             .filtered
@@ -362,8 +456,11 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                             .filter(|l| l.misses <= MAX_REPORT_MISSES)
                         {
                             ids.insert((v.frame.clip.clone(), l.id.0));
+                            now.insert(l.id.0, *l);
                         }
                     }
+                    published.push(now);
+                    smoothed_preds.extend(smoothed_prediction(&v, &o.frames, &published, tables));
                     if draw && v.frame.clip == bev_clip {
                         k_in_clip += 1;
                         if k_in_clip == 1
@@ -396,6 +493,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                 frames: stats.frames,
                 clips: stats.clips,
                 ids_per_clip: Some(ids.len() as f64 / stats.clips.max(1) as f64),
+                smoother: smoother_score(&preds, &smoothed_preds, &o.gt_all, opts.score_run_time)?,
                 gt_lanes_per_clip: Some(
                     o.gt_last.iter().map(|g| g.lanes.len()).sum::<usize>() as f64
                         / o.gt_last.len().max(1) as f64,
@@ -499,6 +597,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         clips: stats.clips,
         ids_per_clip: None,
         gt_lanes_per_clip: None,
+        smoother: None,
         run_time_mean_ms: run_times.iter().sum::<f64>() / run_times.len().max(1) as f64,
         run_time_max_ms: run_times.iter().copied().fold(0.0, f64::max),
     });
@@ -526,6 +625,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         clips: lstats.clips,
         ids_per_clip: None,
         gt_lanes_per_clip: None,
+        smoother: None,
         run_time_mean_ms: lstats.run_mean_ms,
         run_time_max_ms: lstats.run_max_ms,
     });
@@ -645,6 +745,35 @@ pub fn render_markdown(r: &DemoReport) -> String {
             row.run_time_max_ms,
             row.frames
         ));
+    }
+    let smoother: Vec<&DemoRow> = r.rows.iter().filter(|r| r.smoother.is_some()).collect();
+    if !smoother.is_empty() {
+        s.push_str(&format!(
+            "\nFixed-lag smoother (L = {}) against the filter, on the replay frames that have a \
+             smoothed estimate (all but the last {} of each clip), against the per-frame ground \
+             truth:\n\n\
+             | noise | B | frames | filtered accuracy / FP / FN | smoothed accuracy / FP / FN |\n\
+             |---|---|---|---|---|\n",
+            track::REFERENCE_LAG,
+            track::REFERENCE_LAG
+        ));
+        for row in smoother {
+            let Some(sm) = row.smoother else { continue };
+            let noise = row
+                .noise
+                .map_or("—".to_string(), |n| format!("{n:?}").to_lowercase());
+            s.push_str(&format!(
+                "| {noise} | {} | {} | {:.3} / {:.3} / {:.3} | {:.3} / {:.3} / {:.3} |\n",
+                row.coupling.label(),
+                sm.frames,
+                sm.filtered.accuracy,
+                sm.filtered.fp,
+                sm.filtered.fn_,
+                sm.smoothed.accuracy,
+                sm.smoothed.fp,
+                sm.smoothed.fn_
+            ));
+        }
     }
     s.push_str(
         "\n| real frame | points | lanes (gt / predicted) | accuracy | FP | FN | run_time (ms, of which front end) |\n\

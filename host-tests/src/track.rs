@@ -159,6 +159,37 @@ pub fn preprocess(points: &[(f64, f64)], tables: &ReferenceTables) -> Vec<[f32; 
     out
 }
 
+/// The smoother lag of the [`ReferenceTracker`] (`StepOutput::smoothed` is this many frames
+/// back).
+pub const REFERENCE_LAG: usize = 4;
+
+/// Whether `u` lies in the part of a lane that predictions report: within its observed extent
+/// (one index interval of margin), and beyond the far end of the window only for a lane observed
+/// up to it.
+fn reported(tables: &ReferenceTables, lane: &LaneEstimate<16>, u: f64) -> bool {
+    let h = &tables.hyper;
+    let u_max = f64::from(h.u_max);
+    let interval = (u_max - f64::from(h.u_min)) / 15.0;
+    let (first, last) = (f64::from(lane.u_first), f64::from(lane.u_last));
+    u.is_finite() && u >= first - interval && !(u > last + interval && last + interval < u_max)
+}
+
+/// A lane outside the window: the line through its two outermost index points at that end.
+fn extension(tables: &ReferenceTables, lane: &LaneEstimate<16>, u: f64) -> f64 {
+    let (i, j) = if u > f64::from(tables.hyper.u_max) {
+        (14, 15)
+    } else {
+        (1, 0)
+    };
+    let (ui, uj) = (f64::from(tables.index_u[i]), f64::from(tables.index_u[j]));
+    let (xi, xj) = (f64::from(lane.z[i]), f64::from(lane.z[j]));
+    xj + (u - uj) * (xj - xi) / (uj - ui)
+}
+
+fn inside(tables: &ReferenceTables, u: f64) -> bool {
+    u >= f64::from(tables.hyper.u_min) && u <= f64::from(tables.hyper.u_max)
+}
+
 /// Where a lane is at `u` metres ahead, by the rules of the predictions: inside the BEV window
 /// the tracker's GP evaluation ([`ReferenceTracker::lane_at`], with its variance); beyond either
 /// end of the window the line through the two nearest index points (no variance; DESIGN 4.0:
@@ -171,47 +202,51 @@ pub fn lane_x(
     lane: &LaneEstimate<16>,
     u: f64,
 ) -> Option<(f64, Option<f64>)> {
-    let h = &tables.hyper;
-    let (u_min, u_max) = (f64::from(h.u_min), f64::from(h.u_max));
-    let interval = (u_max - u_min) / 15.0;
-    let (first, last) = (f64::from(lane.u_first), f64::from(lane.u_last));
-    if !u.is_finite() || u < first - interval || (u > last + interval && last + interval < u_max) {
-        return None;
-    }
-    let line = |i: usize, j: usize| {
-        let (ui, uj) = (f64::from(tables.index_u[i]), f64::from(tables.index_u[j]));
-        let (xi, xj) = (f64::from(lane.z[i]), f64::from(lane.z[j]));
-        Some((xj + (u - uj) * (xj - xi) / (uj - ui), None))
-    };
-    if u > u_max {
-        line(14, 15)
-    } else if u < u_min {
-        line(1, 0)
-    } else {
+    if !reported(tables, lane, u) {
+        None
+    } else if inside(tables, u) {
         let (x, var) = tr.lane_at(usize::from(lane.slot), u as f32)?;
         Some((f64::from(x), Some(f64::from(var))))
+    } else {
+        Some((extension(tables, lane, u), None))
     }
 }
 
-/// A lane's column at image row `row` ([`lane_x`] through the camera), or −2 (also outside the
-/// image).
-fn sample(
-    tr: &ReferenceTracker,
+/// [`lane_x`] from the lane's index-point values alone (linear between index points; for
+/// lanes the tracker no longer holds, e.g. the smoothed ones), with the same extent rules.
+pub fn lane_x_from_points(
     tables: &ReferenceTables,
-    cam: &Camera,
     lane: &LaneEstimate<16>,
-    row: f64,
-) -> f64 {
-    let Some((u, _)) = cam.to_bev(cam.vp_col, row) else {
-        return NO_POINT;
-    };
-    let Some((x, _)) = lane_x(tr, tables, lane, u) else {
-        return NO_POINT;
-    };
-    match cam.to_image(u, x) {
-        Some((col, _)) if col >= 0.0 && col < cam.width => col,
-        _ => NO_POINT,
+    u: f64,
+) -> Option<f64> {
+    if !reported(tables, lane, u) {
+        return None;
     }
+    if !inside(tables, u) {
+        return Some(extension(tables, lane, u));
+    }
+    let us = &tables.index_u;
+    let j = (1..16).find(|&j| f64::from(us[j]) >= u).unwrap_or(15);
+    let (u0, u1) = (f64::from(us[j - 1]), f64::from(us[j]));
+    let (x0, x1) = (f64::from(lane.z[j - 1]), f64::from(lane.z[j]));
+    Some(x0 + (x1 - x0) * (u - u0) / (u1 - u0))
+}
+
+/// A lane's columns at image rows `rows` through the camera, `x_at(u)` giving its lateral
+/// position at `u` metres ahead; −2 where it gives none, above the horizon and outside the
+/// image.
+pub fn lane_columns(cam: &Camera, rows: &[f64], x_at: impl Fn(f64) -> Option<f64>) -> Vec<f64> {
+    rows.iter()
+        .map(|&row| {
+            let Some((u, _)) = cam.to_bev(cam.vp_col, row) else {
+                return NO_POINT;
+            };
+            match x_at(u).and_then(|x| cam.to_image(u, x)) {
+                Some((col, _)) if col >= 0.0 && col < cam.width => col,
+                _ => NO_POINT,
+            }
+        })
+        .collect()
 }
 
 /// One point of a [`LaneBand`].
@@ -365,9 +400,7 @@ pub fn track_with(
                     .map(|l| {
                         (
                             f64::from(l.z[0]),
-                            rows.iter()
-                                .map(|&r| sample(tr, tables, cam, l, r))
-                                .collect::<Vec<f64>>(),
+                            lane_columns(cam, rows, |u| lane_x(tr, tables, l, u).map(|(x, _)| x)),
                         )
                     })
                     .filter(|(_, xs)| xs.iter().any(|v| *v >= 0.0))

@@ -58,6 +58,13 @@ fn reduced_demo_scores_and_writes_its_files() {
         let ids = row.ids_per_clip.unwrap();
         assert!((1.0..=30.0).contains(&ids), "{ids}");
         assert!(row.gt_lanes_per_clip.unwrap() >= 2.0);
+        // The smoother (L = 4) has an estimate of frame 1 of each 5-frame clip.
+        let sm = row.smoother.unwrap();
+        assert_eq!(
+            (sm.frames, sm.filtered.frames, sm.smoothed.frames),
+            (3, 3, 3)
+        );
+        assert!((0.0..=1.0).contains(&sm.smoothed.accuracy), "{sm:?}");
         assert!(row.run_time_mean_ms > 0.0 && row.run_time_max_ms >= row.run_time_mean_ms);
     }
     let (real, label) = (&r.rows[4], &r.rows[5]);
@@ -65,6 +72,7 @@ fn reduced_demo_scores_and_writes_its_files() {
     for row in [real, label] {
         assert_eq!((row.frames, row.clips, row.score.frames), (10, 10, 10));
         assert!(row.score_all.is_none() && row.noise.is_none() && row.ids_per_clip.is_none());
+        assert!(row.smoother.is_none());
     }
     // Measured (the same numbers in debug and release; `stjpdacf demo --clips 3
     // --frames-per-clip 5 --noise low,high`): replay low 0.894 coupled / 0.943 diag(B), high
@@ -113,6 +121,8 @@ fn reduced_demo_scores_and_writes_its_files() {
         "{md}"
     );
     assert!(md.contains("| clips/0313-2/520/20.jpg |"), "{md}");
+    assert!(md.contains("Fixed-lag smoother (L = 4)"), "{md}");
+    assert!(md.contains("| high | diag(B) | 3 |"), "{md}");
     let js: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(js["rows"].as_array().unwrap().len(), 6);
