@@ -15,7 +15,11 @@
 //!    filtering, no smoothing). The labels are 512×288 (the 1280×720 labels × 0.4, rounded);
 //!    predictions and labels are scaled back by 2.5 before scoring, so that the metric's 20 px
 //!    threshold means what it means on TuSimple's 1280×720 frames (scoring at 512×288 would
-//!    accept 50 px errors at full size).
+//!    accept 50 px errors at full size). The same frames are also run with the labelled lanes
+//!    as feature points (every image row): the tracker without the front end's errors.
+//! 3. **Smoother**: on the replay frames that have a fixed-lag estimate (all but the last L of a
+//!    clip), the smoothed lanes against the filtered ones, both on the per-frame ground truth
+//!    ([`SmootherScore`]).
 //!
 //! Every run is sequential on one thread, so the per-frame `run_time` is not inflated by a
 //! sibling run. Replay `run_time`: the tracker's time on a frame, from its points to its lanes

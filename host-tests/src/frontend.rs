@@ -25,13 +25,13 @@
 //! 4. **Threshold, road check and NMS per BEV row**: cells with `R ≥ max(ridge_threshold [10],
 //!    noise_k [1.25] · σ_row)` — σ_row = 1.4826 × the row's median |R|, a robust level of that
 //!    row's texture, so the threshold adapts to contrast along the range — that are the maximum
-//!    of R within ±τ, whose two flanks I(x±τ) are within `road_tolerance` [60] grey levels of the
+//!    of R within ±τ, whose two flanks I(x±τ) are within `road_tolerance` \[60\] grey levels of the
 //!    row's median intensity (the road surface), refined to sub-cell position by a parabola
 //!    through the peak and its neighbours. Dark ridges likewise with `D ≥ max(dark_threshold
 //!    [15], noise_k · σ_row)` and no colour check; a dark ridge within `dark_exclusion` [1.2 m]
 //!    of a bright ridge of the same row is dropped (the shadow or seam beside a painted line).
-//! 5. **Continuity**: a peak is kept if at least `support` [2] peaks lie within ±`support_rows`
-//!    [3] BEV rows and max(`marking_width`, 2 px) laterally (markings persist, texture does not).
+//! 5. **Continuity**: a peak is kept if at least `support` \[2\] peaks lie within ±`support_rows`
+//!    \[3\] BEV rows and max(`marking_width`, 2 px) laterally (markings persist, texture does not).
 //! 6. **Output**: each peak (u, x) mapped back with [`Camera::to_image`] to (column, row).
 //!
 //! # Measured accuracy (512×288, 10 labelled TuSimple frames)
