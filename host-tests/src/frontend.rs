@@ -25,13 +25,13 @@
 //! 4. **Threshold, road check and NMS per BEV row**: cells with `R ≥ max(ridge_threshold [10],
 //!    noise_k [1.25] · σ_row)` — σ_row = 1.4826 × the row's median |R|, a robust level of that
 //!    row's texture, so the threshold adapts to contrast along the range — that are the maximum
-//!    of R within ±τ, whose two flanks I(x±τ) are within `road_tolerance` [60] grey levels of the
+//!    of R within ±τ, whose two flanks I(x±τ) are within `road_tolerance` \[60\] grey levels of the
 //!    row's median intensity (the road surface), refined to sub-cell position by a parabola
 //!    through the peak and its neighbours. Dark ridges likewise with `D ≥ max(dark_threshold
 //!    [15], noise_k · σ_row)` and no colour check; a dark ridge within `dark_exclusion` [1.2 m]
 //!    of a bright ridge of the same row is dropped (the shadow or seam beside a painted line).
-//! 5. **Continuity**: a peak is kept if at least `support` [2] peaks lie within ±`support_rows`
-//!    [3] BEV rows and max(`marking_width`, 2 px) laterally (markings persist, texture does not).
+//! 5. **Continuity**: a peak is kept if at least `support` \[2\] peaks lie within ±`support_rows`
+//!    \[3\] BEV rows and max(`marking_width`, 2 px) laterally (markings persist, texture does not).
 //! 6. **Output**: each peak (u, x) mapped back with [`Camera::to_image`] to (column, row).
 //!
 //! # Measured accuracy (512×288, 10 labelled TuSimple frames)
@@ -461,17 +461,35 @@ pub fn run_dir(
     camera: Option<&Camera>,
     labels: &[TuSimpleRecord],
     p: &FrontendParams,
-    mut progress: impl FnMut(usize, usize),
+    progress: impl FnMut(usize, usize),
 ) -> Result<Vec<Frame>> {
+    Ok(run_dir_timed(dir, camera, labels, p, progress)?
+        .into_iter()
+        .map(|(f, _)| f)
+        .collect())
+}
+
+/// [`run_dir`], also returning the time [`detect`] took on each image (ms: IPM to feature
+/// points; reading and decoding the file are not counted).
+pub fn run_dir_timed(
+    dir: &Path,
+    camera: Option<&Camera>,
+    labels: &[TuSimpleRecord],
+    p: &FrontendParams,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<(Frame, f64)>> {
     let files = find_images(dir)?;
     if files.is_empty() {
         bail!("no *.jpg or *.png images under {}", dir.display());
     }
     let mut frames: Vec<Frame> = Vec::with_capacity(files.len());
+    let mut times = Vec::with_capacity(files.len());
     for (n, path) in files.iter().enumerate() {
         let img = load_rgb(path)?;
-        let cam = camera_for(&img, camera)?;
+        let cam = camera_for(&img, camera).with_context(|| format!("{}", path.display()))?;
+        let start = std::time::Instant::now();
         let points = detect(&img, &cam, p).with_context(|| format!("{}", path.display()))?;
+        times.push(start.elapsed().as_secs_f64() * 1e3);
         let raw_file = raw_file_of(dir, path);
         let clip = raw_file
             .rsplit_once('/')
@@ -499,7 +517,7 @@ pub fn run_dir(
         });
         progress(n + 1, files.len());
     }
-    Ok(frames)
+    Ok(frames.into_iter().zip(times).collect())
 }
 
 /// Draw `points` (red dots, 3×3 px) and, if given, labelled `lanes` (green dots at the label

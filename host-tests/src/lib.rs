@@ -4,6 +4,7 @@
 //! This crate uses `std` freely; the no_std core is the `stjpdacf` crate.
 
 pub mod camera;
+pub mod demo;
 pub mod frontend;
 pub mod fwscenario;
 pub mod hyper;

@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 use stjpdacf_host::camera::Camera;
+use stjpdacf_host::demo;
 use stjpdacf_host::frontend;
 use stjpdacf_host::hyper::HyperFile;
 use stjpdacf_host::metric;
@@ -58,10 +59,15 @@ enum Command {
         /// Hyperparameter file (default: the built-in tables of data/hyper/default.json).
         #[arg(long)]
         hyper: Option<PathBuf>,
-        /// Camera: `tusimple` or a camera JSON file.
+        /// Camera: `tusimple` (1280x720) or a camera JSON file (fields width, height, vp_col,
+        /// vp_row, height_m, focal_px).
         #[arg(long, default_value = "tusimple")]
         camera: String,
-        /// Coordinates of the points: image pixels or BEV metres.
+        /// Image scale relative to the camera (0.4 for 512x288 frames with `--camera tusimple`).
+        #[arg(long)]
+        scale: Option<f64>,
+        /// Coordinates of the points: image pixels `[column, row]` of the camera, or BEV metres
+        /// `[x lateral, u ahead]` (then the camera only maps the lanes back to the h_samples rows).
         #[arg(long, value_enum, default_value_t = SpaceArg::Image)]
         space: SpaceArg,
     },
@@ -74,6 +80,39 @@ enum Command {
         #[arg(long)]
         gt: PathBuf,
         /// Print `{"Accuracy": .., "FP": .., "FN": .., "frames": ..}` instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Multiply every column and row of both files by this before scoring (2.5 scores files
+        /// of 512x288 frames at TuSimple's 1280x720, where the metric's 20 px threshold is set).
+        #[arg(long, default_value_t = 1.0)]
+        pixel_scale: f64,
+    },
+    /// The demo on bundled data: replay clips (three noise levels, coupled B and diag(B)) and the
+    /// 10 real frames through the front end → tracker → official TuSimple metric; prints the
+    /// results table and writes overlays and plots.
+    Demo {
+        /// Output folder for the PNG overlays, plots and results.
+        #[arg(long, default_value = "out/demo")]
+        out: PathBuf,
+        /// The repository's data folder (bundled labels, frames, hyperparameters).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// Replay only the first K bundled label clips (default: all 40).
+        #[arg(long)]
+        clips: Option<usize>,
+        /// Replay seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Noise presets of the replay (comma-separated).
+        #[arg(long, value_enum, value_delimiter = ',', default_values_t = [NoiseLevel::Low, NoiseLevel::Mid, NoiseLevel::High])]
+        noise: Vec<NoiseLevel>,
+        /// Frames per replay clip (default 20; the last one is the labelled frame).
+        #[arg(long)]
+        frames_per_clip: Option<usize>,
+        /// Skip the PNG files.
+        #[arg(long)]
+        no_images: bool,
+        /// Print the results as JSON (stdout) instead of tables.
         #[arg(long)]
         json: bool,
     },
@@ -216,6 +255,7 @@ fn main() -> Result<()> {
             out,
             hyper,
             camera,
+            scale,
             space,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
@@ -223,6 +263,13 @@ fn main() -> Result<()> {
                 None => &stjpdacf::tables::DEFAULT,
             };
             let cam = Camera::from_spec(&camera)?;
+            let cam = match scale {
+                Some(s) => {
+                    anyhow::ensure!(s > 0.0 && s.is_finite(), "--scale must be > 0");
+                    cam.scaled(s)
+                }
+                None => cam,
+            };
             let frames = tusimple::read_frames(&frames)?;
             let bar = indicatif::ProgressBar::new(frames.len() as u64);
             let space = match space {
@@ -235,8 +282,8 @@ fn main() -> Result<()> {
             bar.finish_and_clear();
             tusimple::write_records(&out, &preds)?;
             eprintln!(
-                "{} frames in {} clips, {} predictions to {}; step {:.3} ms mean, {:.3} ms max; {} points above the horizon or non-finite; {} steps rejected",
-                stats.frames, stats.clips, stats.predictions, out.display(), stats.mean_ms, stats.max_ms, stats.unmapped_points, stats.rejected_steps
+                "{} frames in {} clips, {} predictions to {}; run_time {:.3} ms mean, {:.3} ms max (Tracker::step {:.3} / {:.3} ms); {} points above the horizon or non-finite; {} steps rejected",
+                stats.frames, stats.clips, stats.predictions, out.display(), stats.run_mean_ms, stats.run_max_ms, stats.step_mean_ms, stats.step_max_ms, stats.unmapped_points, stats.rejected_steps
             );
         }
         Command::Kernels => {
@@ -245,8 +292,17 @@ fn main() -> Result<()> {
                 stjpdacf_host::reference::statespace::approximation_table(2..=6)
             );
         }
-        Command::Eval { pred, gt, json } => {
-            let s = metric::evaluate_files(&pred, &gt)?;
+        Command::Eval {
+            pred,
+            gt,
+            json,
+            pixel_scale,
+        } => {
+            anyhow::ensure!(
+                pixel_scale > 0.0 && pixel_scale.is_finite(),
+                "--pixel-scale must be > 0"
+            );
+            let s = metric::evaluate_files_scaled(&pred, &gt, pixel_scale)?;
             if json {
                 println!(
                     "{}",
@@ -276,11 +332,7 @@ fn main() -> Result<()> {
             report,
         } => {
             let camera = match camera {
-                Some(p) => serde_json::from_str(
-                    &std::fs::read_to_string(&p)
-                        .with_context(|| format!("reading {}", p.display()))?,
-                )
-                .with_context(|| format!("parsing camera {}", p.display()))?,
+                Some(p) => Camera::from_spec(&p.to_string_lossy())?,
                 None => Camera::tusimple(),
             };
             let opts = trainrun::TrainOptions {
@@ -460,6 +512,59 @@ fn main() -> Result<()> {
                 start.elapsed().as_secs_f64() * 1e3 / frames.len() as f64,
                 out.display()
             );
+        }
+        Command::Demo {
+            out,
+            data,
+            clips,
+            seed,
+            noise,
+            frames_per_clip,
+            no_images,
+            json,
+        } => {
+            let mut opts = demo::DemoOptions {
+                out,
+                clips,
+                seed,
+                levels: noise,
+                frames_per_clip,
+                images: !no_images,
+                ..demo::DemoOptions::default()
+            };
+            if let Some(d) = data {
+                opts.data = d;
+            }
+            let bar = indicatif::ProgressBar::new(1);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {wide_msg}",
+                )
+                .context("progress template")?,
+            );
+            let report = demo::run(&opts, |k, n, what| {
+                bar.set_length(n as u64);
+                bar.set_position(k as u64);
+                bar.set_message(what.to_string());
+            })?;
+            bar.finish_and_clear();
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&report).context("serialising the report")?
+                );
+            } else {
+                print!("{}", demo::render_markdown(&report));
+                println!(
+                    "\nwrote {} files to {} in {:.1} s:",
+                    report.files.len(),
+                    opts.out.display(),
+                    report.wall_s
+                );
+                for f in &report.files {
+                    println!("  {}", f.display());
+                }
+            }
         }
     }
     Ok(())

@@ -89,7 +89,7 @@ pub fn lane_threshold(angle: f64) -> f64 {
 /// Share of rows where a predicted lane is within `thresh` of a ground-truth lane, as
 /// `LaneEval.line_accuracy`: negative values on either side become −100, a row is correct when
 /// `|pred − gt| < thresh`, and the count is divided by `gt.len()` (all rows). `pred` and `gt`
-/// must have the same length (rows beyond the shorter one are not compared; [`bench`] checks).
+/// must have the same length (rows beyond the shorter one are not compared; [`bench()`] checks).
 pub fn line_accuracy(pred: &[f64], gt: &[f64], thresh: f64) -> f64 {
     let fix = |v: f64| if v >= 0.0 { v } else { MISSING };
     let correct = pred
@@ -214,7 +214,7 @@ pub struct Score {
 /// Score predictions against ground truth: `LaneEval.bench_one_submit`, in its order. Errors, as
 /// the original raises them: a prediction count different from the ground-truth line count; a
 /// prediction without `run_time`; a prediction whose `raw_file` is not in the ground truth; a
-/// frame that [`bench`] rejects. Also an error (the original divides by zero): no ground truth.
+/// frame that [`bench()`] rejects. Also an error (the original divides by zero): no ground truth.
 /// Like the original, this accepts repeated `raw_file`s; [`check_one_to_one`] rejects them.
 pub fn bench_one_submit(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Result<Score> {
     ensure!(
@@ -296,8 +296,20 @@ pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
 /// Read a prediction file and a ground-truth file (TuSimple JSON lines), check that they pair
 /// one to one ([`check_one_to_one`]) and score them ([`bench_one_submit`]). Errors name the file.
 pub fn evaluate_files(pred_path: &Path, gt_path: &Path) -> Result<Score> {
-    let gts = read_labels(gt_path)?;
-    let preds = read_predictions(pred_path)?;
+    evaluate_files_scaled(pred_path, gt_path, 1.0)
+}
+
+/// [`evaluate_files`] with every column and row of both files multiplied by `scale` first
+/// (negative "no point" values stay as they are), e.g. 2.5 to score files of 512×288 frames at
+/// TuSimple's 1280×720, where the metric's 20 px threshold is defined.
+pub fn evaluate_files_scaled(pred_path: &Path, gt_path: &Path, scale: f64) -> Result<Score> {
+    let mut gts = read_labels(gt_path)?;
+    let mut preds = read_predictions(pred_path)?;
+    if scale != 1.0 {
+        for r in gts.iter_mut().chain(preds.iter_mut()) {
+            r.scale_pixels(scale);
+        }
+    }
     let ctx = || {
         format!(
             "scoring {} against {}",

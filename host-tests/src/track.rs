@@ -5,26 +5,29 @@
 //! [`preprocess`] (row binning and lateral clustering, what a front end hands the MCU),
 //! `Tracker::step` at the frame's time (a new clip resets the tracker), then, for frames that
 //! carry `h_samples`, each lane seen within the last `MAX_REPORT_MISSES` frames is written at
-//! those rows: inside the BEV window by the tracker's GP evaluation (`Tracker::lane_at`), beyond
-//! the far end by extending the lane linearly from its last two index points (DESIGN 4.0: rows
-//! near the horizon are extrapolated, never left out), −2 outside the lane's observed extent
-//! (one index interval of margin) and outside the image. `run_time` is the milliseconds spent in
-//! `Tracker::step` for that frame.
+//! those rows ([`lane_x`]): inside the BEV window by the tracker's GP evaluation
+//! (`Tracker::lane_at`), beyond either end by extending the lane linearly from its two outermost
+//! index points (DESIGN 4.0: rows near the horizon are extrapolated, never left out), −2 outside
+//! the lane's observed extent (one index interval of margin) and outside the image. Lanes are
+//! written left to right (by their position at the nearest index point); a lane with no point in
+//! the image is left out. `run_time` is the milliseconds spent on that frame from its points to
+//! its lanes (see [`track_with`]).
 
 use std::time::Instant as WallClock;
 
 use anyhow::{bail, Context, Result};
 
+use serde::Serialize;
 use stjpdacf::kernel::{Matern32, RbfStateSpace};
 use stjpdacf::tables::{
     Hyper, ReferenceTables, SpatialTables, Tables, TemporalTables, FORMAT_VERSION,
 };
-use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker};
+use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, StepOutput, TrackerConfig};
 
 use crate::camera::Camera;
 use crate::hyper::HyperFile;
 use crate::tablegen::ModelTables;
-use crate::tusimple::{Frame, TuSimpleRecord};
+use crate::tusimple::{Frame, TuSimpleRecord, NO_POINT};
 
 /// Lanes not seen for more frames than this are not written.
 pub const MAX_REPORT_MISSES: u16 = 2;
@@ -51,10 +54,15 @@ pub struct TrackStats {
     pub unmapped_points: usize,
     /// Steps the tracker rejected (non-increasing time within a clip).
     pub rejected_steps: usize,
-    /// Mean and largest `Tracker::step` time, ms.
-    pub mean_ms: f64,
-    /// Largest step time, ms.
-    pub max_ms: f64,
+    /// Mean `Tracker::step` time, ms.
+    pub step_mean_ms: f64,
+    /// Largest `Tracker::step` time, ms.
+    pub step_max_ms: f64,
+    /// Mean time spent on a frame (the predictions' `run_time`: mapping, preprocessing, step and
+    /// evaluation at the `h_samples` rows), ms.
+    pub run_mean_ms: f64,
+    /// Largest time spent on a frame, ms.
+    pub run_max_ms: f64,
 }
 
 /// Builds f32 tables for the reference configuration from a hyperparameter file at run time (the
@@ -151,47 +159,166 @@ pub fn preprocess(points: &[(f64, f64)], tables: &ReferenceTables) -> Vec<[f32; 
     out
 }
 
-/// A lane's column at image row `row`, or −2.
-fn sample(
+/// The smoother lag of the [`ReferenceTracker`] (`StepOutput::smoothed` is this many frames
+/// back).
+pub const REFERENCE_LAG: usize = 4;
+
+/// Whether `u` lies in the part of a lane that predictions report: within its observed extent
+/// (one index interval of margin), and beyond the far end of the window only for a lane observed
+/// up to it.
+fn reported(tables: &ReferenceTables, lane: &LaneEstimate<16>, u: f64) -> bool {
+    let h = &tables.hyper;
+    let u_max = f64::from(h.u_max);
+    let interval = (u_max - f64::from(h.u_min)) / 15.0;
+    let (first, last) = (f64::from(lane.u_first), f64::from(lane.u_last));
+    u.is_finite() && u >= first - interval && !(u > last + interval && last + interval < u_max)
+}
+
+/// A lane outside the window: the line through its two outermost index points at that end.
+fn extension(tables: &ReferenceTables, lane: &LaneEstimate<16>, u: f64) -> f64 {
+    let (i, j) = if u > f64::from(tables.hyper.u_max) {
+        (14, 15)
+    } else {
+        (1, 0)
+    };
+    let (ui, uj) = (f64::from(tables.index_u[i]), f64::from(tables.index_u[j]));
+    let (xi, xj) = (f64::from(lane.z[i]), f64::from(lane.z[j]));
+    xj + (u - uj) * (xj - xi) / (uj - ui)
+}
+
+fn inside(tables: &ReferenceTables, u: f64) -> bool {
+    u >= f64::from(tables.hyper.u_min) && u <= f64::from(tables.hyper.u_max)
+}
+
+/// Where a lane is at `u` metres ahead, by the rules of the predictions: inside the BEV window
+/// the tracker's GP evaluation ([`ReferenceTracker::lane_at`], with its variance); beyond either
+/// end of the window the line through the two nearest index points (no variance; DESIGN 4.0:
+/// rows outside the window are extrapolated, never left out) — at the far end only for a lane
+/// observed up to it, at the near end only for a lane observed down to it. `None` outside the
+/// lane's observed extent (one index interval of margin) or for a free slot.
+pub fn lane_x(
     tr: &ReferenceTracker,
     tables: &ReferenceTables,
-    cam: &Camera,
     lane: &LaneEstimate<16>,
-    row: f64,
-) -> f64 {
-    let h = &tables.hyper;
-    let Some((u, _)) = cam.to_bev(cam.vp_col, row) else {
-        return -2.0;
-    };
-    let interval = f64::from(h.u_max - h.u_min) / 15.0;
-    if u < f64::from(lane.u_first) - interval {
-        return -2.0;
-    }
-    let x = if u <= f64::from(h.u_max) {
-        if u > f64::from(lane.u_last) + interval {
-            return -2.0;
-        }
-        let uc = u.max(f64::from(h.u_min)) as f32;
-        match tr.lane_at(usize::from(lane.slot), uc) {
-            Some((x, _)) => f64::from(x),
-            None => return -2.0,
-        }
+    u: f64,
+) -> Option<(f64, Option<f64>)> {
+    if !reported(tables, lane, u) {
+        None
+    } else if inside(tables, u) {
+        let (x, var) = tr.lane_at(usize::from(lane.slot), u as f32)?;
+        Some((f64::from(x), Some(f64::from(var))))
     } else {
-        // Beyond the window: only lanes observed up to its far end, extended linearly.
-        if f64::from(lane.u_last) + interval < f64::from(h.u_max) {
-            return -2.0;
-        }
-        let (u1, u2) = (f64::from(tables.index_u[14]), f64::from(tables.index_u[15]));
-        let (x1, x2) = (f64::from(lane.z[14]), f64::from(lane.z[15]));
-        x2 + (u - u2) * (x2 - x1) / (u2 - u1)
-    };
-    match cam.to_image(u, x) {
-        Some((col, _)) if col >= 0.0 && col < cam.width => col,
-        _ => -2.0,
+        Some((extension(tables, lane, u), None))
     }
 }
 
+/// [`lane_x`] from the lane's index-point values alone (linear between index points; for
+/// lanes the tracker no longer holds, e.g. the smoothed ones), with the same extent rules.
+pub fn lane_x_from_points(
+    tables: &ReferenceTables,
+    lane: &LaneEstimate<16>,
+    u: f64,
+) -> Option<f64> {
+    if !reported(tables, lane, u) {
+        return None;
+    }
+    if !inside(tables, u) {
+        return Some(extension(tables, lane, u));
+    }
+    let us = &tables.index_u;
+    let j = (1..16).find(|&j| f64::from(us[j]) >= u).unwrap_or(15);
+    let (u0, u1) = (f64::from(us[j - 1]), f64::from(us[j]));
+    let (x0, x1) = (f64::from(lane.z[j - 1]), f64::from(lane.z[j]));
+    Some(x0 + (x1 - x0) * (u - u0) / (u1 - u0))
+}
+
+/// A lane's columns at image rows `rows` through the camera, `x_at(u)` giving its lateral
+/// position at `u` metres ahead; −2 where it gives none, above the horizon and outside the
+/// image.
+pub fn lane_columns(cam: &Camera, rows: &[f64], x_at: impl Fn(f64) -> Option<f64>) -> Vec<f64> {
+    rows.iter()
+        .map(|&row| {
+            let Some((u, _)) = cam.to_bev(cam.vp_col, row) else {
+                return NO_POINT;
+            };
+            match x_at(u).and_then(|x| cam.to_image(u, x)) {
+                Some((col, _)) if col >= 0.0 && col < cam.width => col,
+                _ => NO_POINT,
+            }
+        })
+        .collect()
+}
+
+/// One point of a [`LaneBand`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct BandPoint {
+    /// Metres ahead.
+    pub u: f64,
+    /// Lateral position, metres.
+    pub x: f64,
+    /// Standard deviation of `x` (the tracker's posterior), metres; `None` where the lane is
+    /// extrapolated beyond the window.
+    pub sd: Option<f64>,
+}
+
+/// A published lane sampled along `u` for drawing: mean and ±σ inside the window, the linear
+/// extension beyond it (see [`lane_x`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LaneBand {
+    /// The lane's stable id.
+    pub id: u32,
+    /// Frames since the lane was last seen.
+    pub misses: u16,
+    /// Samples by increasing `u`.
+    pub points: Vec<BandPoint>,
+}
+
+/// Samples a published lane at the distances `us` (metres ahead), leaving out those where
+/// [`lane_x`] does not define it.
+pub fn lane_band(
+    tr: &ReferenceTracker,
+    tables: &ReferenceTables,
+    lane: &LaneEstimate<16>,
+    us: impl IntoIterator<Item = f64>,
+) -> LaneBand {
+    let points = us
+        .into_iter()
+        .filter_map(|u| {
+            lane_x(tr, tables, lane, u).map(|(x, var)| BandPoint {
+                u,
+                x,
+                sd: var.map(|v| v.max(0.0).sqrt()),
+            })
+        })
+        .collect();
+    LaneBand {
+        id: lane.id.0,
+        misses: lane.misses,
+        points,
+    }
+}
+
+/// What [`track_with`] shows its observer after each frame.
+pub struct FrameView<'a> {
+    /// Index of the frame in the input.
+    pub index: usize,
+    /// The frame.
+    pub frame: &'a Frame,
+    /// The points handed to the tracker (BEV `[u, x]`, after [`preprocess`]).
+    pub points: &'a [[f32; 2]],
+    /// The tracker after the step.
+    pub tracker: &'a ReferenceTracker,
+    /// The step's output (`None` when the tracker refused the frame).
+    pub output: Option<&'a StepOutput<6, 16>>,
+    /// The prediction written for this frame, if any.
+    pub prediction: Option<&'a TuSimpleRecord>,
+}
+
 /// Runs the tracker over `frames`; returns the predictions for the frames with `h_samples`.
+/// `progress(k)` is called after frame `k`.
+///
+/// # Errors
+/// A frame that fails [`Frame::check`].
 pub fn track(
     frames: &[Frame],
     tables: &'static ReferenceTables,
@@ -199,20 +326,46 @@ pub fn track(
     space: Space,
     mut progress: impl FnMut(usize),
 ) -> Result<(Vec<TuSimpleRecord>, TrackStats)> {
+    track_with(
+        frames,
+        tables,
+        cam,
+        space,
+        TrackerConfig::DEFAULT,
+        |v: FrameView<'_>| progress(v.index),
+    )
+}
+
+/// [`track`] with a tracker configuration, calling `observe` after every frame (for overlays and
+/// progress). `run_time` of a prediction (and the `run_*` statistics) is the wall time spent on
+/// the frame from its points to its lanes: mapping to BEV, [`preprocess`], `Tracker::step` and
+/// the evaluation at the `h_samples` rows; `observe` is not counted.
+///
+/// # Errors
+/// A frame that fails [`Frame::check`].
+pub fn track_with(
+    frames: &[Frame],
+    tables: &'static ReferenceTables,
+    cam: &Camera,
+    space: Space,
+    config: TrackerConfig,
+    mut observe: impl FnMut(FrameView<'_>),
+) -> Result<(Vec<TuSimpleRecord>, TrackStats)> {
     let mut stats = TrackStats::default();
     let mut out = Vec::new();
     let mut tracker: Option<Box<ReferenceTracker>> = None;
     let mut clip: Option<&str> = None;
-    let mut total_ms = 0.0;
+    let (mut step_total, mut run_total) = (0.0, 0.0);
     for (k, f) in frames.iter().enumerate() {
         f.check()
             .with_context(|| format!("frame {k} (clip {})", f.clip))?;
         if clip != Some(f.clip.as_str()) {
-            tracker = Some(Box::new(ReferenceTracker::new(tables)));
+            tracker = Some(Box::new(ReferenceTracker::with_config(tables, config)));
             clip = Some(f.clip.as_str());
             stats.clips += 1;
         }
         let Some(tr) = tracker.as_mut() else { continue };
+        let start = WallClock::now();
         let mut bev_pts: Vec<(f64, f64)> = Vec::with_capacity(f.points.len());
         for p in &f.points {
             let bev = match space {
@@ -225,50 +378,66 @@ pub fn track(
             }
         }
         let pts = preprocess(&bev_pts, tables);
-        let start = WallClock::now();
+        let step_start = WallClock::now();
         let res = tr.step(Instant::from_micros((f.t * 1e6).round() as i64), &pts);
-        let ms = start.elapsed().as_secs_f64() * 1e3;
-        total_ms += ms;
-        stats.max_ms = stats.max_ms.max(ms);
+        let step_ms = step_start.elapsed().as_secs_f64() * 1e3;
+        step_total += step_ms;
+        stats.step_max_ms = stats.step_max_ms.max(step_ms);
         stats.frames += 1;
-        progress(k);
         let output = match res {
-            Ok(o) => o,
+            Ok(o) => Some(o),
             Err(_) => {
                 stats.rejected_steps += 1;
-                continue;
+                None
             }
         };
-        let (Some(raw), Some(rows)) = (&f.raw_file, &f.h_samples) else {
-            continue;
+        let prediction = match (&output, &f.raw_file, &f.h_samples) {
+            (Some(output), Some(raw), Some(rows)) => {
+                let mut lanes: Vec<(f64, Vec<f64>)> = output
+                    .filtered
+                    .iter()
+                    .filter(|l| l.misses <= MAX_REPORT_MISSES)
+                    .map(|l| {
+                        (
+                            f64::from(l.z[0]),
+                            lane_columns(cam, rows, |u| lane_x(tr, tables, l, u).map(|(x, _)| x)),
+                        )
+                    })
+                    .filter(|(_, xs)| xs.iter().any(|v| *v >= 0.0))
+                    .collect();
+                lanes.sort_by(|a, b| a.0.total_cmp(&b.0));
+                Some(TuSimpleRecord {
+                    raw_file: raw.clone(),
+                    lanes: lanes.into_iter().map(|(_, xs)| xs).collect(),
+                    h_samples: rows.clone(),
+                    run_time: None,
+                })
+            }
+            _ => None,
         };
-        let mut lanes: Vec<(f64, Vec<f64>)> = output
-            .filtered
-            .iter()
-            .filter(|l| l.misses <= MAX_REPORT_MISSES)
-            .map(|l| {
-                (
-                    f64::from(l.z[0]),
-                    rows.iter()
-                        .map(|&r| sample(tr, tables, cam, l, r))
-                        .collect::<Vec<f64>>(),
-                )
-            })
-            .filter(|(_, xs)| xs.iter().any(|v| *v >= 0.0))
-            .collect();
-        lanes.sort_by(|a, b| a.0.total_cmp(&b.0));
-        out.push(TuSimpleRecord {
-            raw_file: raw.clone(),
-            lanes: lanes.into_iter().map(|(_, xs)| xs).collect(),
-            h_samples: rows.clone(),
-            run_time: Some(ms),
+        let run_ms = start.elapsed().as_secs_f64() * 1e3;
+        run_total += run_ms;
+        stats.run_max_ms = stats.run_max_ms.max(run_ms);
+        let prediction = prediction.map(|p| TuSimpleRecord {
+            run_time: Some(run_ms),
+            ..p
         });
-        stats.predictions += 1;
+        observe(FrameView {
+            index: k,
+            frame: f,
+            points: &pts,
+            tracker: tr,
+            output: output.as_ref(),
+            prediction: prediction.as_ref(),
+        });
+        if let Some(p) = prediction {
+            out.push(p);
+            stats.predictions += 1;
+        }
     }
-    stats.mean_ms = if stats.frames > 0 {
-        total_ms / stats.frames as f64
-    } else {
-        0.0
-    };
+    if stats.frames > 0 {
+        stats.step_mean_ms = step_total / stats.frames as f64;
+        stats.run_mean_ms = run_total / stats.frames as f64;
+    }
     Ok((out, stats))
 }

@@ -8,8 +8,9 @@
 //!   official scorer refuses predictions without it).
 //! * [`Frame`] — one frame of feature points for the tracker:
 //!   `{"clip": str, "t": seconds, "points": [[x, y], ...], "raw_file": str?, "h_samples": [row, ...]?}`.
-//!   Frames of one clip are consecutive; `raw_file`/`h_samples` are present on frames for which a
-//!   TuSimple prediction is to be written.
+//!   Frames of one clip are consecutive and their times increase strictly; `raw_file`/`h_samples`
+//!   are present on frames for which a TuSimple prediction is to be written (`h_samples` needs
+//!   `raw_file`, and a `raw_file` with `h_samples` appears once per file: the scorer joins on it).
 //!
 //! Readers skip blank lines and report malformed input as `FILE:LINE: ...` errors. Unknown keys
 //! are ignored (submissions commonly carry extra keys).
@@ -43,6 +44,19 @@ pub struct TuSimpleRecord {
 }
 
 impl TuSimpleRecord {
+    /// Multiply every column (≥ 0) and every row by `s`; negative "no point" values become
+    /// [`NO_POINT`].
+    pub fn scale_pixels(&mut self, s: f64) {
+        for lane in &mut self.lanes {
+            for x in lane.iter_mut() {
+                *x = if *x >= 0.0 { *x * s } else { NO_POINT };
+            }
+        }
+        for h in &mut self.h_samples {
+            *h *= s;
+        }
+    }
+
     /// Check the shape: `h_samples` non-empty and every lane with one value per `h_samples` row.
     pub fn check_shape(&self) -> Result<()> {
         ensure!(
@@ -81,7 +95,8 @@ pub struct Frame {
 }
 
 impl Frame {
-    /// Check values: a finite time and finite points.
+    /// Check one frame's values: a finite time, finite points, and `h_samples` (if any) non-empty,
+    /// finite and with a `raw_file`.
     pub fn check(&self) -> Result<()> {
         ensure!(
             self.t.is_finite(),
@@ -89,6 +104,18 @@ impl Frame {
             self.clip,
             self.t
         );
+        if let Some(rows) = &self.h_samples {
+            ensure!(
+                self.raw_file.is_some(),
+                "clip {}: h_samples without raw_file (a prediction needs both)",
+                self.clip
+            );
+            ensure!(
+                !rows.is_empty() && rows.iter().all(|r| r.is_finite()),
+                "clip {}: h_samples must be a non-empty list of finite rows",
+                self.clip
+            );
+        }
         if let Some((i, p)) = self
             .points
             .iter()
@@ -114,6 +141,19 @@ where
     R: BufRead,
     F: Fn(&T) -> Result<()>,
 {
+    Ok(parse_numbered(reader, source, what, check)?
+        .into_iter()
+        .map(|(_, item)| item)
+        .collect())
+}
+
+/// [`parse_checked`], keeping each item's line number (1-based).
+fn parse_numbered<T, R, F>(reader: R, source: &str, what: &str, check: F) -> Result<Vec<(usize, T)>>
+where
+    T: DeserializeOwned,
+    R: BufRead,
+    F: Fn(&T) -> Result<()>,
+{
     let mut out = Vec::new();
     for (i, line) in reader.lines().enumerate() {
         let n = i + 1;
@@ -124,7 +164,7 @@ where
         let item: T = serde_json::from_str(&line)
             .with_context(|| format!("{source}:{n}: malformed {what}"))?;
         check(&item).with_context(|| format!("{source}:{n}: bad {what}"))?;
-        out.push(item);
+        out.push((n, item));
     }
     Ok(out)
 }
@@ -194,9 +234,53 @@ pub fn write_records(path: &Path, records: &[TuSimpleRecord]) -> Result<()> {
     write_jsonl(path, records)
 }
 
-/// Parse frame records and check each one ([`Frame::check`]); errors name `source` and the line.
+/// Parse frame records, check each one ([`Frame::check`]) and their order ([`check_sequence`]);
+/// errors name `source` and the line.
 pub fn parse_frames<R: BufRead>(reader: R, source: &str) -> Result<Vec<Frame>> {
-    parse_checked(reader, source, "frame", Frame::check)
+    let numbered = parse_numbered(reader, source, "frame", Frame::check)?;
+    check_sequence(&numbered, source)?;
+    Ok(numbered.into_iter().map(|(_, f)| f).collect())
+}
+
+/// The order of a frames file: the frames of a clip are consecutive (a clip that reappears after
+/// another clip is an error: the tracker would have been reset), times increase strictly within
+/// a clip, and a `raw_file` that asks for a prediction (`h_samples` present) appears once.
+/// `frames` pairs each frame with its line number; errors are `SOURCE:LINE: ...`.
+pub fn check_sequence(frames: &[(usize, Frame)], source: &str) -> Result<()> {
+    use std::collections::HashMap;
+    let mut clip_end: HashMap<&str, usize> = HashMap::new();
+    let mut predicted: HashMap<&str, usize> = HashMap::new();
+    let mut prev: Option<&(usize, Frame)> = None;
+    for item in frames {
+        let (n, f) = item;
+        match prev {
+            Some((pn, p)) if p.clip == f.clip => ensure!(
+                f.t > p.t,
+                "{source}:{n}: time {} s of clip {} is not after {} s (line {pn}); times must \
+                 increase within a clip",
+                f.t,
+                f.clip,
+                p.t
+            ),
+            _ => {
+                if let Some(last) = clip_end.get(f.clip.as_str()) {
+                    bail!(
+                        "{source}:{n}: clip {} appears again (its frames ended at line {last}); \
+                         the frames of a clip must be consecutive",
+                        f.clip
+                    );
+                }
+            }
+        }
+        clip_end.insert(f.clip.as_str(), *n);
+        if let (Some(raw), Some(_)) = (&f.raw_file, &f.h_samples) {
+            if let Some(first) = predicted.insert(raw.as_str(), *n) {
+                bail!("{source}:{n}: raw_file {raw} already asks for a prediction at line {first}");
+            }
+        }
+        prev = Some(item);
+    }
+    Ok(())
 }
 
 /// Read a frames file (JSON lines), checking each frame.
@@ -332,6 +416,65 @@ mod tests {
         let s = "{\"clip\": \"c\", \"t\": 0, \"points\": []}\n{\"clip\": \"c\", \"t\": 1, \"points\": [[1]]}\n";
         let msg = format!("{:#}", parse_frames(s.as_bytes(), "f.jsonl").unwrap_err());
         assert!(msg.starts_with("f.jsonl:2: malformed frame"), "{msg}");
+    }
+
+    #[test]
+    fn frame_order_errors_name_the_line() {
+        let line =
+            |clip: &str, t: f64| format!("{{\"clip\": \"{clip}\", \"t\": {t}, \"points\": []}}\n");
+        let ok = line("a", 0.0) + &line("a", 0.05) + "\n" + &line("b", 0.0);
+        assert_eq!(parse_frames(ok.as_bytes(), "f").unwrap().len(), 3);
+        let back = line("a", 0.0) + &line("a", 0.05) + &line("a", 0.05);
+        let msg = format!(
+            "{:#}",
+            parse_frames(back.as_bytes(), "f.jsonl").unwrap_err()
+        );
+        assert!(msg.starts_with("f.jsonl:3: time 0.05 s of clip a"), "{msg}");
+        assert!(msg.contains("(line 2)"), "{msg}");
+        let again = line("a", 0.0) + &line("b", 0.0) + "\n" + &line("a", 1.0);
+        let msg = format!(
+            "{:#}",
+            parse_frames(again.as_bytes(), "f.jsonl").unwrap_err()
+        );
+        assert!(msg.starts_with("f.jsonl:4: clip a appears again"), "{msg}");
+        assert!(msg.contains("ended at line 1"), "{msg}");
+    }
+
+    #[test]
+    fn frame_prediction_keys_are_checked() {
+        let no_raw = r#"{"clip": "c", "t": 0, "points": [], "h_samples": [1, 2]}"#;
+        let msg = format!(
+            "{:#}",
+            parse_frames(no_raw.as_bytes(), "f.jsonl").unwrap_err()
+        );
+        assert!(msg.starts_with("f.jsonl:1: bad frame"), "{msg}");
+        assert!(msg.contains("h_samples without raw_file"), "{msg}");
+        let empty = r#"{"clip": "c", "t": 0, "points": [], "raw_file": "x", "h_samples": []}"#;
+        let msg = format!(
+            "{:#}",
+            parse_frames(empty.as_bytes(), "f.jsonl").unwrap_err()
+        );
+        assert!(msg.contains("non-empty"), "{msg}");
+        let twice = concat!(
+            r#"{"clip": "c", "t": 0, "points": [], "raw_file": "x", "h_samples": [1]}"#,
+            "\n",
+            r#"{"clip": "d", "t": 0, "points": [], "raw_file": "x", "h_samples": [1]}"#
+        );
+        let msg = format!(
+            "{:#}",
+            parse_frames(twice.as_bytes(), "f.jsonl").unwrap_err()
+        );
+        assert!(
+            msg.starts_with("f.jsonl:2: raw_file x already asks for a prediction at line 1"),
+            "{msg}"
+        );
+        // A raw_file without h_samples asks for nothing and may repeat.
+        let plain = concat!(
+            r#"{"clip": "c", "t": 0, "points": [], "raw_file": "x"}"#,
+            "\n",
+            r#"{"clip": "c", "t": 1, "points": [], "raw_file": "x"}"#
+        );
+        assert_eq!(parse_frames(plain.as_bytes(), "f").unwrap().len(), 2);
     }
 
     #[test]

@@ -99,7 +99,16 @@ fn precision_and_recall_on_held_out_frames() {
 #[test]
 fn frames_are_deterministic_and_well_formed() {
     let a = run();
-    assert_eq!(a, run());
+    let timed = frontend::run_dir_timed(
+        &sample_dir(),
+        None,
+        &labels(),
+        &FrontendParams::default(),
+        |_, _| {},
+    )
+    .unwrap();
+    assert!(timed.iter().all(|(_, ms)| *ms > 0.0));
+    assert_eq!(a, timed.into_iter().map(|(f, _)| f).collect::<Vec<_>>());
     for f in &a {
         let raw = f.raw_file.as_deref().unwrap();
         assert!(

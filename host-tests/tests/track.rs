@@ -1,15 +1,21 @@
 //! `stjpdacf track` end to end: real-geometry replay clips (`synth`, bundled TuSimple labels) →
 //! the core tracker → TuSimple predictions → the official metric; plus the run-time tables.
 
+use std::path::PathBuf;
+use std::process::Command;
+
 use stjpdacf::tables::DEFAULT;
+use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_host::camera::Camera;
 use stjpdacf_host::hyper::HyperFile;
 use stjpdacf_host::metric::bench_one_submit;
 use stjpdacf_host::repo_root;
 use stjpdacf_host::synth::{synthesize, NoiseLevel, SynthParams};
 use stjpdacf_host::tablegen;
-use stjpdacf_host::track::{preprocess, tables_from_hyper, track, Space};
-use stjpdacf_host::tusimple::read_labels;
+use stjpdacf_host::track::{
+    lane_band, lane_x, preprocess, tables_from_hyper, track, track_with, FrameView, Space,
+};
+use stjpdacf_host::tusimple::{read_labels, read_predictions, write_frames, Frame, TuSimpleRecord};
 
 #[test]
 fn run_time_tables_equal_the_committed_ones() {
@@ -54,11 +60,273 @@ fn replay_clips_score_on_the_official_metric() {
     assert_eq!(stats.rejected_steps, 0);
     let last: std::collections::HashSet<&str> =
         out.gt_last.iter().map(|g| g.raw_file.as_str()).collect();
+    // Scored without the metric's run_time > 200 ms rule: this unoptimised test build is ~100×
+    // slower than release, and the rule would score the build and the machine's load.
     let preds_last: Vec<_> = preds
         .into_iter()
         .filter(|p| last.contains(p.raw_file.as_str()))
+        .map(|p| TuSimpleRecord {
+            run_time: Some(0.0),
+            ..p
+        })
         .collect();
     let score = bench_one_submit(&preds_last, &out.gt_last).unwrap();
     println!("replay, low noise, 12 clips: {score:?}");
     assert!(score.accuracy >= 0.65, "{score:?}");
+}
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("stjpdacf-track-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Points `[x, u]` (BEV) of straight lanes at lateral positions `xs`, one per BEV row from
+/// 3 m to `u_far`.
+fn bev_lanes(xs: &[f64], u_far: f64) -> Vec<[f64; 2]> {
+    let mut pts = Vec::new();
+    for r in 0..=60 {
+        let u = 3.0 + f64::from(r) * 77.0 / 60.0;
+        if u <= u_far {
+            pts.extend(xs.iter().map(|&x| [x, u]));
+        }
+    }
+    pts
+}
+
+fn bev_clip(xs: &[f64], u_far: f64, frames: usize, rows: &[f64]) -> Vec<Frame> {
+    (0..frames)
+        .map(|k| Frame {
+            clip: "c".into(),
+            t: k as f64 * 0.05,
+            points: bev_lanes(xs, u_far),
+            raw_file: (k + 1 == frames).then(|| "clips/c/20.jpg".to_string()),
+            h_samples: (k + 1 == frames).then(|| rows.to_vec()),
+        })
+        .collect()
+}
+
+/// Lanes are written at every h_samples row, through the inverse IPM: inside the window, beyond
+/// its far end (extrapolated) and −2 only outside the lane's extent.
+#[test]
+fn bev_frames_give_predictions_at_every_row() {
+    let cam = Camera::tusimple();
+    let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
+    let frames = bev_clip(&[-1.8, 1.8], 80.0, 5, &rows);
+    let (preds, stats) = track(&frames, &DEFAULT, &cam, Space::Bev, |_| {}).unwrap();
+    assert_eq!((stats.frames, stats.predictions), (5, 1));
+    assert!(stats.run_mean_ms >= stats.step_mean_ms && stats.run_max_ms > 0.0);
+    let p = &preds[0];
+    assert_eq!(p.lanes.len(), 2);
+    assert!(p.run_time.unwrap() > 0.0);
+    for (lane, x) in p.lanes.iter().zip([-1.8, 1.8]) {
+        for (&col, &row) in lane.iter().zip(&rows) {
+            let Some((u, _)) = cam.to_bev(cam.vp_col, row) else {
+                assert_eq!(col, -2.0, "row {row} above the horizon");
+                continue;
+            };
+            let (want, _) = cam.to_image(u, x).unwrap();
+            assert!(col >= 0.0, "row {row} (u = {u:.0} m) left out");
+            // The lanes are straight and exact: within 3 cm laterally (20 px at the bottom row
+            // is 7 cm).
+            // Beyond the window (extrapolated, hundreds of metres away near the horizon) within
+            // 2 px.
+            let err_m = (col - want).abs() * u / cam.focal_px;
+            let ok = if u <= 80.0 {
+                err_m < 0.03
+            } else {
+                (col - want).abs() < 2.0
+            };
+            assert!(ok, "row {row}: {col} vs {want} ({err_m} m at {u} m)");
+        }
+    }
+    // A lane seen only up to 30 m is not extrapolated beyond the window: −2 far away.
+    let frames = bev_clip(&[-1.8, 1.8], 30.0, 5, &rows);
+    let (preds, _) = track(&frames, &DEFAULT, &cam, Space::Bev, |_| {}).unwrap();
+    for lane in &preds[0].lanes {
+        let far = cam.row_at(60.0).unwrap();
+        for (&col, &row) in lane.iter().zip(&rows) {
+            if row < far {
+                assert_eq!(col, -2.0, "row {row}");
+            }
+        }
+        assert!(lane.last().unwrap() >= &0.0);
+    }
+}
+
+#[test]
+fn lane_x_extends_beyond_the_window_and_bands_carry_the_variance() {
+    let frames = bev_clip(&[-1.8, 1.8], 80.0, 3, &[700.0]);
+    let mut seen = 0;
+    track_with(
+        &frames,
+        &DEFAULT,
+        &Camera::tusimple(),
+        Space::Bev,
+        TrackerConfig::DEFAULT,
+        |v: FrameView<'_>| {
+            let out = v.output.unwrap();
+            if v.index < 2 {
+                return;
+            }
+            seen += 1;
+            assert_eq!(out.filtered.len(), 2);
+            for l in &out.filtered {
+                let want = if l.z[0] < 0.0 { -1.8 } else { 1.8 };
+                let (x, var) = lane_x(v.tracker, &DEFAULT, l, 40.0).unwrap();
+                assert!((x - want).abs() < 0.05 && var.unwrap() > 0.0, "{x} {var:?}");
+                // Beyond the far end and before the near end: the line of the end index
+                // points, no variance.
+                let (u14, u15) = (
+                    f64::from(DEFAULT.index_u[14]),
+                    f64::from(DEFAULT.index_u[15]),
+                );
+                let (x14, x15) = (f64::from(l.z[14]), f64::from(l.z[15]));
+                let (x, var) = lane_x(v.tracker, &DEFAULT, l, 120.0).unwrap();
+                assert!(var.is_none());
+                assert!((x - (x15 + (120.0 - u15) * (x15 - x14) / (u15 - u14))).abs() < 1e-9);
+                let (x, var) = lane_x(v.tracker, &DEFAULT, l, 1.0).unwrap();
+                assert!(var.is_none() && (x - want).abs() < 0.1, "{x}");
+                assert!(lane_x(v.tracker, &DEFAULT, l, f64::NAN).is_none());
+                let band = lane_band(v.tracker, &DEFAULT, l, [1.0, 3.0, 40.0, 80.0, 120.0]);
+                assert_eq!(band.points.len(), 5);
+                let sds: Vec<bool> = band.points.iter().map(|p| p.sd.is_some()).collect();
+                assert_eq!(sds, [false, true, true, true, false]);
+                assert!(band
+                    .points
+                    .iter()
+                    .flat_map(|p| p.sd)
+                    .all(|s| s > 0.0 && s < 1.0));
+            }
+        },
+    )
+    .unwrap();
+    assert_eq!(seen, 1);
+}
+
+fn run_cli(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn track_cli_camera_file_scale_and_bad_files() {
+    let d = temp_dir("cli");
+    let rows: Vec<f64> = (0..48).map(|i| 96.0 + 4.0 * f64::from(i)).collect();
+    // 512×288 frames of straight BEV lanes, in image pixels of the scaled TuSimple camera.
+    let small = Camera::tusimple().scaled(0.4);
+    let mut frames = bev_clip(&[-1.8, 1.8], 80.0, 3, &rows);
+    for f in &mut frames {
+        f.points = f
+            .points
+            .iter()
+            .map(|p| {
+                let (c, r) = small.to_image(p[1], p[0]).unwrap();
+                [c, r]
+            })
+            .collect();
+    }
+    let fpath = d.join("f.jsonl");
+    write_frames(&fpath, &frames).unwrap();
+    let cam_file = d.join("cam.json");
+    std::fs::write(&cam_file, serde_json::to_string(&small).unwrap()).unwrap();
+    let (p1, p2, p3) = (d.join("p1.jsonl"), d.join("p2.jsonl"), d.join("p3.jsonl"));
+    let o = run_cli(&[
+        "track".as_ref(),
+        "--frames".as_ref(),
+        fpath.as_ref(),
+        "--out".as_ref(),
+        p1.as_ref(),
+        "--scale".as_ref(),
+        "0.4".as_ref(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run_cli(&[
+        "track".as_ref(),
+        "--frames".as_ref(),
+        fpath.as_ref(),
+        "--out".as_ref(),
+        p2.as_ref(),
+        "--camera".as_ref(),
+        cam_file.as_ref(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, b) = (
+        read_predictions(&p1).unwrap(),
+        read_predictions(&p2).unwrap(),
+    );
+    assert_eq!(a.len(), 1);
+    assert_eq!(a[0].lanes, b[0].lanes);
+    assert_eq!(a[0].lanes.len(), 2);
+    // Columns at 512×288: the bottom row of the left lane.
+    let (want, _) = small
+        .to_image(small.to_bev(0.0, 284.0).unwrap().0, -1.8)
+        .unwrap();
+    assert!(
+        (a[0].lanes[0][47] - want).abs() < 3.0,
+        "{:?}",
+        a[0].lanes[0]
+    );
+    // Without the scale the 512×288 points are read as 1280×720 pixels: different lanes.
+    let o = run_cli(&[
+        "track".as_ref(),
+        "--frames".as_ref(),
+        fpath.as_ref(),
+        "--out".as_ref(),
+        p3.as_ref(),
+    ]);
+    assert!(o.status.success());
+    assert_ne!(read_predictions(&p3).unwrap()[0].lanes, a[0].lanes);
+    // A camera file with a missing field, and one with a zero focal length.
+    let bad = d.join("badcam.json");
+    std::fs::write(
+        &bad,
+        r#"{"width": 512, "height": 288, "vp_col": 261.6, "vp_row": 95.4, "height_m": 1.67}"#,
+    )
+    .unwrap();
+    let o = run_cli(&[
+        "track".as_ref(),
+        "--frames".as_ref(),
+        fpath.as_ref(),
+        "--out".as_ref(),
+        p3.as_ref(),
+        "--camera".as_ref(),
+        bad.as_ref(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(!o.status.success());
+    assert!(
+        err.contains("badcam.json: malformed camera") && err.contains("focal_px"),
+        "{err}"
+    );
+    std::fs::write(&bad, r#"{"width": 512, "height": 288, "vp_col": 261.6, "vp_row": 95.4, "height_m": 1.67, "focal_px": 0}"#).unwrap();
+    let o = run_cli(&[
+        "track".as_ref(),
+        "--frames".as_ref(),
+        fpath.as_ref(),
+        "--out".as_ref(),
+        p3.as_ref(),
+        "--camera".as_ref(),
+        bad.as_ref(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(err.contains("badcam.json: camera sizes"), "{err}");
+    // A frames file whose time goes backwards names the file and the line.
+    let mut text = std::fs::read_to_string(&fpath).unwrap();
+    text.push_str(r#"{"clip": "c", "t": 0.01, "points": []}"#);
+    text.push('\n');
+    std::fs::write(&fpath, text).unwrap();
+    let o = run_cli(&[
+        "track".as_ref(),
+        "--frames".as_ref(),
+        fpath.as_ref(),
+        "--out".as_ref(),
+        p3.as_ref(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(!o.status.success());
+    assert!(err.contains("f.jsonl:4: time 0.01 s of clip c"), "{err}");
+    std::fs::remove_dir_all(&d).unwrap();
 }

@@ -160,3 +160,48 @@ fn eval_cli_reports_bad_inputs() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn pixel_scale_scores_512_files_at_1280() {
+    // Every labelled point moved 15 px right at 512×288: within the 20 px threshold as is, but
+    // 37.5 px at TuSimple's 1280×720, beyond 20 / cos θ for every lane less steep than 58°.
+    let dir = temp_dir("scale");
+    let gts = labels();
+    let mut preds = as_predictions(&gts);
+    for p in &mut preds {
+        for lane in &mut p.lanes {
+            for x in lane.iter_mut().filter(|x| **x >= 0.0) {
+                *x += 15.0;
+            }
+        }
+    }
+    let pred = dir.join("pred.json");
+    write_records(&pred, &preds).unwrap();
+    let native = metric::evaluate_files(&pred, &labels_path()).unwrap();
+    assert_eq!((native.accuracy, native.fp, native.fn_), (1.0, 0.0, 0.0));
+    let full = metric::evaluate_files_scaled(&pred, &labels_path(), 2.5).unwrap();
+    // Measured 0.563 accuracy, 0.475 FN (the steep outer lanes still match).
+    assert!(full.accuracy < 0.7 && full.fn_ > 0.3, "{full:?}");
+    // The same through the CLI.
+    let out = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+        .args(["eval", "--json", "--pixel-scale", "2.5", "--pred"])
+        .arg(&pred)
+        .arg("--gt")
+        .arg(labels_path())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["Accuracy"].as_f64(), Some(full.accuracy));
+    // Scaling keeps −2 and scales the rows.
+    let mut r = gts[0].clone();
+    r.scale_pixels(2.5);
+    assert_eq!(r.h_samples[0], 240.0);
+    assert_eq!(r.lanes[0][0], -2.0);
+    assert_eq!(r.lanes[0][3], gts[0].lanes[0][3] * 2.5);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
