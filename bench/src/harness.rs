@@ -1,0 +1,265 @@
+//! Driving trackers of any configuration over a sequence, with or without probes, and the
+//! per-stage profile of a sequence (`cargo bench -p stjpdacf-bench --bench stages`).
+
+use std::time::{Duration, Instant as WallClock};
+
+use serde::{Deserialize, Serialize};
+use stjpdacf::probe::{NoProbe, Probe, Stage};
+use stjpdacf::tracker::{Instant, Tracker};
+
+use crate::inputs::{Frame, STEP_US};
+use crate::probes::{CallCounter, StageGroup, StageTimer};
+
+/// What one frame did (from the tracker's `StepReport`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FrameSummary {
+    /// Points given to the spatial filter (after the `MEAS` cut).
+    pub points: u32,
+    /// Joint events scored over the frame.
+    pub events: u32,
+    /// Rows whose events were pruned to fit E.
+    pub rows_approximated: u32,
+    /// Filtered lanes published.
+    pub lanes: u32,
+    /// Smoothed lanes published.
+    pub smoothed: u32,
+}
+
+/// A tracker of any configuration, stepped through a probe.
+pub trait Step {
+    /// One frame at `now`; `None` when the tracker refuses it.
+    fn step_with<P: Probe>(
+        &mut self,
+        now: Instant,
+        points: &[[f32; 2]],
+        probe: &mut P,
+    ) -> Option<FrameSummary>;
+}
+
+impl<
+        const NT: usize,
+        const NS: usize,
+        const LANES: usize,
+        const POINTS: usize,
+        const ROWS: usize,
+        const PER_ROW: usize,
+        const MEAS: usize,
+        const RANK: usize,
+        const NX: usize,
+        const NA: usize,
+        const LAG: usize,
+    > Step for Tracker<NT, NS, LANES, POINTS, ROWS, PER_ROW, MEAS, RANK, NX, NA, LAG>
+{
+    fn step_with<P: Probe>(
+        &mut self,
+        now: Instant,
+        points: &[[f32; 2]],
+        probe: &mut P,
+    ) -> Option<FrameSummary> {
+        let out = self.step_probed(now, points, probe).ok()?;
+        let r = &out.report;
+        Some(FrameSummary {
+            points: r.spatial.points_in,
+            events: r.spatial.events,
+            rows_approximated: r.spatial.rows_approximated,
+            lanes: out.filtered.len() as u32,
+            smoothed: out.smoothed.len() as u32,
+        })
+    }
+}
+
+/// A tracker and its clock, cycling through a sequence.
+#[derive(Debug)]
+pub struct Driver<S> {
+    /// The tracker.
+    pub tracker: Box<S>,
+    now: i64,
+    next: usize,
+}
+
+impl<S: Step> Driver<S> {
+    /// Wraps `tracker`; the first frame is at 50 ms.
+    pub fn new(tracker: Box<S>) -> Self {
+        Self {
+            tracker,
+            now: 0,
+            next: 0,
+        }
+    }
+
+    /// The next frame of `frames` (cyclic), 50 ms after the previous one.
+    ///
+    /// # Panics
+    /// When `frames` is empty or the tracker refuses the frame (it cannot: time increases).
+    pub fn step<P: Probe>(&mut self, frames: &[Frame], probe: &mut P) -> FrameSummary {
+        self.now += STEP_US;
+        let f = &frames[self.next % frames.len()];
+        self.next = (self.next + 1) % frames.len();
+        self.tracker
+            .step_with(Instant::from_micros(self.now), &f.p32, probe)
+            .expect("time increases")
+    }
+
+    /// `passes` passes over `frames` (to reach the sequence's steady state); returns the last
+    /// frame's summary.
+    pub fn warm_up(&mut self, frames: &[Frame], passes: usize) -> FrameSummary {
+        let mut last = FrameSummary::default();
+        for _ in 0..passes * frames.len() {
+            last = self.step(frames, &mut NoProbe);
+        }
+        last
+    }
+
+    /// Summaries of one pass over `frames` (state advances).
+    pub fn summaries(&mut self, frames: &[Frame]) -> Vec<FrameSummary> {
+        (0..frames.len())
+            .map(|_| self.step(frames, &mut NoProbe))
+            .collect()
+    }
+}
+
+/// Per-stage time of a sequence (see [`profile`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageProfile {
+    /// Sequence name.
+    pub sequence: String,
+    /// Frames in the sequence.
+    pub frames: usize,
+    /// Timed passes over it.
+    pub passes: usize,
+    /// Probe calls per frame (mean over the sequence).
+    pub calls_per_frame: f64,
+    /// Step time without a probe, µs per frame.
+    pub total_no_probe_us: f64,
+    /// Step time with the counting probe, µs per frame.
+    pub total_count_probe_us: f64,
+    /// Step time with the timing probe, µs per frame.
+    pub total_timing_probe_us: f64,
+    /// Per stage (`Stage::name`, Binning … Output), µs per frame.
+    pub stage_us: Vec<(String, f64)>,
+    /// Per group (spatial, identity, temporal, smoother, output), µs per frame.
+    pub group_us: Vec<(String, f64)>,
+    /// What the frames did (first timed pass).
+    pub summary: Vec<FrameSummary>,
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn us(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e6
+}
+
+/// Per-stage time of `frames` on three identical trackers made by `make` (one without a probe,
+/// one with [`CallCounter`], one with [`StageTimer`]), fed the same frames at the same times, so
+/// their states stay identical. After `warm` untimed passes, `passes` passes are timed; in each,
+/// every frame is stepped on the three trackers one after the other (the order rotates from pass
+/// to pass), so the three see the same machine load. Every figure is the **mean over the
+/// sequence's frames of the frame's median over the passes** (the median removes most of the
+/// load spikes of a shared machine; the mean over frames is the sequence's average cost, as a
+/// criterion iteration that cycles through the sequence measures it).
+///
+/// # Panics
+/// When `frames` is empty or `passes` is 0.
+pub fn profile<S: Step>(
+    name: &str,
+    make: impl Fn() -> Box<S>,
+    frames: &[Frame],
+    warm: usize,
+    passes: usize,
+) -> StageProfile {
+    assert!(!frames.is_empty() && passes > 0);
+    let mut plain = Driver::new(make());
+    let mut counted = Driver::new(make());
+    let mut timed = Driver::new(make());
+    for d in [&mut plain, &mut counted, &mut timed] {
+        d.warm_up(frames, warm);
+    }
+    let n = frames.len();
+    // [frame][pass]
+    let mut t_plain = vec![Vec::with_capacity(passes); n];
+    let mut t_count = vec![Vec::with_capacity(passes); n];
+    let mut t_timed = vec![Vec::with_capacity(passes); n];
+    let mut t_stage = vec![vec![Vec::with_capacity(passes); Stage::COUNT]; n];
+    let mut calls = vec![0u64; n];
+    let mut summary = Vec::with_capacity(n);
+    for pass in 0..passes {
+        for k in 0..n {
+            for v in 0..3 {
+                match (v + pass) % 3 {
+                    0 => {
+                        let t0 = WallClock::now();
+                        let s = plain.step(frames, &mut NoProbe);
+                        t_plain[k].push(us(t0.elapsed()));
+                        if pass == 0 {
+                            summary.push(s);
+                        }
+                    }
+                    1 => {
+                        let mut c = CallCounter::default();
+                        let t0 = WallClock::now();
+                        counted.step(frames, &mut c);
+                        t_count[k].push(us(t0.elapsed()));
+                        calls[k] = c.total();
+                    }
+                    _ => {
+                        let mut p = StageTimer::new();
+                        let t0 = WallClock::now();
+                        timed.step(frames, &mut p);
+                        t_timed[k].push(us(t0.elapsed()));
+                        for s in Stage::ALL {
+                            t_stage[k][s as usize].push(us(p.get(s)));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let mean_of_medians = |v: &mut [Vec<f64>]| -> f64 {
+        v.iter_mut().map(|x| median(x)).sum::<f64>() / n as f64
+    };
+    let stage_med: Vec<f64> = (0..Stage::COUNT)
+        .map(|s| {
+            let mut per_frame: Vec<Vec<f64>> = t_stage.iter().map(|f| f[s].clone()).collect();
+            mean_of_medians(&mut per_frame)
+        })
+        .collect();
+    let stage_us: Vec<(String, f64)> = Stage::ALL
+        .iter()
+        .filter(|s| **s != Stage::Done)
+        .map(|s| (s.name().to_string(), stage_med[*s as usize]))
+        .collect();
+    let group_us = StageGroup::ALL
+        .iter()
+        .map(|g| {
+            let v: f64 = Stage::ALL
+                .iter()
+                .filter(|s| g.contains(**s))
+                .map(|s| stage_med[*s as usize])
+                .sum();
+            (g.name().to_string(), v)
+        })
+        .collect();
+    StageProfile {
+        sequence: name.to_string(),
+        frames: n,
+        passes,
+        calls_per_frame: calls.iter().sum::<u64>() as f64 / n as f64,
+        total_no_probe_us: mean_of_medians(&mut t_plain),
+        total_count_probe_us: mean_of_medians(&mut t_count),
+        total_timing_probe_us: mean_of_medians(&mut t_timed),
+        stage_us,
+        group_us,
+        summary,
+    }
+}
