@@ -8,9 +8,11 @@
 //! ```
 //!
 //! Const generics fix the points of each curve (`stjpdacf_bench::config`):
-//! * **M** (points per frame, `MEAS`) ∈ 64, 128, 256, 512, 768 on the `dense` frames (770–880
-//!   points: 6 lanes on all 61 rows and 0.35 /m clutter); the tracker uses the first M (the
-//!   nearest rows), so every frame fills the budget;
+//! * **M** (points per frame, `MEAS`) ∈ 64, 128, 256, 512, 768, two curves: the `dense` frames
+//!   (770–880 points: 6 lanes on all 61 rows and 0.35 /m clutter) of which the tracker uses the
+//!   first M (the nearest rows), so every frame fills the budget; and `adversarial_points(M)`,
+//!   the adversarial frames with M points (16 lead-in rows, then rows of 16 points inside the
+//!   lanes' gates), the worst case of the budget;
 //! * **D** (lane slots, `LANES`; `NX = 2·D·7`, `NA = 7·D`) ∈ 2, 3, 4, 6, 8 on `lanes(D)`: D lanes
 //!   3.6 m apart, 41 rows, 0.04 /m clutter, the first 256 points (D = 6 is the `worst`
 //!   sequence); tables from `config::hyper_with_lanes` (B's stationary profile);
@@ -48,6 +50,7 @@ fn point<S: Step>(
     axis: &str,
     value: usize,
     reference: bool,
+    series: &str,
     sequence: &str,
     note: String,
     tracker: Box<S>,
@@ -57,7 +60,7 @@ fn point<S: Step>(
     d.warm_up(frames, 2);
     let summary = d.summaries(frames);
     println!(
-        "{axis} = {value}: events {:?}, rows over E {:?}, lanes {:?}",
+        "{axis} = {value} ({series}): events {:?}, rows over E {:?}, lanes {:?}",
         summary.iter().map(|s| s.events).collect::<Vec<_>>(),
         summary
             .iter()
@@ -65,11 +68,13 @@ fn point<S: Step>(
             .collect::<Vec<_>>(),
         summary.iter().map(|s| s.lanes).collect::<Vec<_>>(),
     );
-    let id = BenchmarkId::new("core_f32", value);
+    let function = format!("core_f32_{series}");
+    let id = BenchmarkId::new(&function, value);
     out.push(ScalingInput {
         axis: axis.to_string(),
         value,
-        id: format!("scaling_{axis}/core_f32/{value}"),
+        series: series.to_string(),
+        id: format!("scaling_{axis}/{function}/{value}"),
         reference,
         sequence: sequence.to_string(),
         note,
@@ -86,19 +91,31 @@ fn reference_note() -> String {
 
 /// The M axis: `Tracker<…, MEAS = M, …>` at the reference configuration otherwise.
 macro_rules! m_point {
-    ($g:expr, $out:expr, $frames:expr, $m:literal) => {{
-        let t: Box<Tracker<2, 3, 6, 16, 64, 16, $m, 7, 84, 42, 4>> =
-            Box::new(Tracker::new(&DEFAULT));
+    ($g:expr, $out:expr, $dense:expr, $m:literal) => {{
+        type T = Tracker<2, 3, 6, 16, 64, 16, $m, 7, 84, 42, 4>;
+        point(
+            $g,
+            $out,
+            "M",
+            $m,
+            false,
+            "dense",
+            "dense",
+            format!("M {}", $m),
+            Box::new(T::new(&DEFAULT)),
+            $dense,
+        );
         point(
             $g,
             $out,
             "M",
             $m,
             $m == 256,
-            "dense",
+            "adversarial",
+            &format!("adversarial_points({})", $m),
             format!("M {}", $m),
-            t,
-            $frames,
+            Box::new(T::new(&DEFAULT)),
+            &inputs::adversarial_points($m),
         );
     }};
 }
@@ -122,6 +139,7 @@ macro_rules! d_point {
             "D",
             $d,
             $d == 6,
+            "lanes",
             &format!("lanes({})", $d),
             format!("D {}, NX {}, NA {}", $d, $nx, $na),
             t,
@@ -160,6 +178,7 @@ macro_rules! n_point {
             "N",
             $n,
             $n == 16,
+            "worst",
             "worst",
             format!("N {}, rank {}, K {}", $n, $r, k),
             t,
@@ -216,6 +235,7 @@ fn scaling(c: &mut Criterion) {
             "E",
             e,
             e == 512,
+            "adversarial",
             "adversarial",
             if e == 512 {
                 reference_note()

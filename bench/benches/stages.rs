@@ -41,12 +41,15 @@ fn main() {
             PASSES,
         );
         println!(
-            "{:<12} step {:>8.1} µs (count probe {:>8.1}, timing probe {:>8.1}; {:.0} calls/frame)",
+            "{:<12} step {:>8.1} µs (count probe {:>8.1}, timing probe {:>8.1}; {:.0} calls/frame \
+             at {:.1} ns = {:.1} µs)",
             p.sequence,
             p.total_no_probe_us,
             p.total_count_probe_us,
             p.total_timing_probe_us,
-            p.calls_per_frame
+            p.calls_per_frame,
+            p.timer_call_ns,
+            p.calls_per_frame * p.timer_call_ns * 1e-3
         );
         for (s, v) in &p.stage_us {
             println!("    {s:<12} {v:>9.1} µs");

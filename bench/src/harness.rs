@@ -135,6 +135,11 @@ pub struct StageProfile {
     pub total_count_probe_us: f64,
     /// Step time with the timing probe, µs per frame.
     pub total_timing_probe_us: f64,
+    /// Cost of one `Instant::now()` + the timer's bookkeeping, ns (median of 21 runs of
+    /// 100,000 [`StageTimer::enter`] calls): `calls_per_frame ×` this is the timing probe's
+    /// overhead per frame, free of the step's own noise.
+    #[serde(default)]
+    pub timer_call_ns: f64,
     /// Per stage (`Stage::name`, Binning … Output), µs per frame.
     pub stage_us: Vec<(String, f64)>,
     /// Per group (spatial, identity, temporal, smoother, output), µs per frame.
@@ -158,6 +163,27 @@ fn median(v: &mut [f64]) -> f64 {
 
 fn us(d: Duration) -> f64 {
     d.as_secs_f64() * 1e6
+}
+
+/// Cost of one [`StageTimer::enter`] call, ns (median of 21 runs of 100,000 calls).
+pub fn timer_call_ns() -> f64 {
+    const CALLS: u32 = 100_000;
+    let mut runs: Vec<f64> = (0..21)
+        .map(|_| {
+            let mut p = StageTimer::new();
+            let t0 = WallClock::now();
+            for i in 0..CALLS {
+                p.enter(if i % 2 == 0 {
+                    Stage::Gating
+                } else {
+                    Stage::Events
+                });
+            }
+            std::hint::black_box(p.all());
+            t0.elapsed().as_secs_f64() * 1e9 / f64::from(CALLS)
+        })
+        .collect();
+    median(&mut runs)
 }
 
 /// Per-stage time of `frames` on three identical trackers made by `make` (one without a probe,
@@ -251,6 +277,7 @@ pub fn profile<S: Step>(
         })
         .collect();
     StageProfile {
+        timer_call_ns: timer_call_ns(),
         sequence: name.to_string(),
         frames: n,
         passes,

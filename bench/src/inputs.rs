@@ -108,35 +108,42 @@ fn normal(rng: &mut ChaCha8Rng) -> f32 {
 /// and confirm).
 pub const LEAD_IN_ROWS: usize = 16;
 
-/// **adversarial** — 8 frames (seeds 0–7) of exactly 256 points, the spatial bench's worst-case
-/// frame (`bench/benches/spatial.rs`): 6 straight lanes 3.6 m apart (x = −9 … 9 m); rows 0–15
-/// hold one point per lane (σ = 0.1 m), rows 16–25 hold 16 points each, the 6 lane points and
-/// 10 points within ±0.4 m of a random lane (inside its gate). These rows exceed E = 512 events
-/// and are pruned: the input of the E axis and the bounded worst case of a frame.
+/// **adversarial** — [`adversarial_points`]`(256)`: 8 frames of exactly 256 points, the spatial
+/// bench's worst-case frame (`bench/benches/spatial.rs`): rows 0–15 hold one point per lane,
+/// rows 16–25 hold 16 points each. Their events exceed E = 512 and are pruned: the input of the
+/// E axis and the bounded worst case of a frame.
 pub fn adversarial() -> Vec<Frame> {
+    adversarial_points(256)
+}
+
+/// 8 frames (seeds 0–7) of exactly `m` points (`m ≤ 816`): 6 straight lanes 3.6 m apart
+/// (x = −9 … 9 m); rows 0–15 ([`LEAD_IN_ROWS`]) hold one point per lane (σ = 0.1 m), the next
+/// rows 16 points each, the 6 lane points and 10 points within ±0.4 m of a random lane (inside
+/// its gate); the frame is cut after `m` points. The worst case of a budget of `m` points.
+pub fn adversarial_points(m: usize) -> Vec<Frame> {
     const LANES: usize = 6;
     const PER_ROW: usize = 16;
-    const MEAS: usize = 256;
     let du = 77.0f32 / 60.0;
     (0..8u64)
         .map(|seed| {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            let mut pts = Vec::with_capacity(MEAS);
-            let full_rows = (MEAS - LANES * LEAD_IN_ROWS) / PER_ROW;
+            let mut pts = Vec::with_capacity(m + PER_ROW);
             let lane_x = |t: usize| (t as f32 - (LANES as f32 - 1.0) / 2.0) * 3.6;
-            for r in 0..LEAD_IN_ROWS + full_rows {
+            let mut r = 0usize;
+            while pts.len() < m && r < 61 {
                 let u = 3.0 + r as f32 * du;
                 for t in 0..LANES {
                     pts.push([u, lane_x(t) + 0.1 * normal(&mut rng)]);
                 }
-                if r < LEAD_IN_ROWS {
-                    continue;
+                if r >= LEAD_IN_ROWS {
+                    for _ in LANES..PER_ROW {
+                        let t = rng.random_range(0..LANES);
+                        pts.push([u, lane_x(t) + (rng.random::<f32>() * 2.0 - 1.0) * 0.4]);
+                    }
                 }
-                for _ in LANES..PER_ROW {
-                    let t = rng.random_range(0..LANES);
-                    pts.push([u, lane_x(t) + (rng.random::<f32>() * 2.0 - 1.0) * 0.4]);
-                }
+                r += 1;
             }
+            pts.truncate(m);
             Frame::from_f32(pts)
         })
         .collect()

@@ -124,6 +124,8 @@ pub struct ScalingInput {
     pub axis: String,
     /// The value on the axis.
     pub value: usize,
+    /// The curve it belongs to (the input family).
+    pub series: String,
     /// Criterion id of its bench.
     pub id: String,
     /// Whether this is the reference configuration (D = 6, N = 16, M = 256, E = 512).
@@ -626,6 +628,16 @@ pub fn render_markdown(r: &Results) -> Result<String> {
         writeln!(
             s,
             "{}",
+            row("timing probe cost (calls × one call)", &|p| format!(
+                "{:.1} ({:.1} ns a call, {:.1} % of the step)",
+                p.calls_per_frame * p.timer_call_ns * 1e-3,
+                p.timer_call_ns,
+                100.0 * p.calls_per_frame * p.timer_call_ns * 1e-3 / p.total_no_probe_us
+            ))
+        )?;
+        writeln!(
+            s,
+            "{}",
             row("frames × timed passes", &|p| format!(
                 "{} × {}",
                 p.frames, p.passes
@@ -644,9 +656,9 @@ pub fn render_markdown(r: &Results) -> Result<String> {
         )?;
         writeln!(
             s,
-            "| axis | value | time per frame | [95 % CI] | input | capacities | points used | events | rows over E | lanes |"
+            "| axis | value | time per frame | [95 % CI] | input | capacities | points used | events / frame | rows over E / frame | lanes |"
         )?;
-        writeln!(s, "|---|---:|---:|---|---|---|---|---|---|---|")?;
+        writeln!(s, "|---|---:|---:|---|---|---|---|---:|---:|---|")?;
         for p in &r.scaling_points {
             let i = &p.input;
             let b = if i.reference { "**" } else { "" };
@@ -673,11 +685,11 @@ pub fn render_markdown(r: &Results) -> Result<String> {
     Ok(s)
 }
 
-/// The scaling points as CSV (`axis,value,reference,median_us,lo_us,hi_us,events_per_frame,
-/// rows_over_e_per_frame,sequence`).
+/// The scaling points as CSV (`axis,value,series,reference,median_us,median_lo_us,
+/// median_hi_us,events_per_frame,rows_over_e_per_frame,sequence`).
 pub fn render_csv(r: &Results) -> String {
     let mut s = String::from(
-        "axis,value,reference,median_us,median_lo_us,median_hi_us,events_per_frame,rows_over_e_per_frame,sequence\n",
+        "axis,value,series,reference,median_us,median_lo_us,median_hi_us,events_per_frame,rows_over_e_per_frame,sequence\n",
     );
     for p in &r.scaling_points {
         let i = &p.input;
@@ -686,9 +698,10 @@ pub fn render_csv(r: &Results) -> String {
         });
         let _ = writeln!(
             s,
-            "{},{},{},{m:.3},{lo:.3},{hi:.3},{:.1},{:.2},{}",
+            "{},{},{},{},{m:.3},{lo:.3},{hi:.3},{:.1},{:.2},{}",
             i.axis,
             i.value,
+            i.series,
             i.reference,
             mean(i.frames.iter().map(|f| f64::from(f.events))),
             mean(i.frames.iter().map(|f| f64::from(f.rows_approximated))),
@@ -735,7 +748,7 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
     let panels = [
         Panel {
             axis: "M",
-            title: "M: points per frame (dense frames, first M used)",
+            title: "M: points per frame (dense: first M used; adversarial: M points)",
             log_x: true,
         },
         Panel {
@@ -756,21 +769,38 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
     ];
     let areas = rest.split_evenly((2, 2));
     for (area, panel) in areas.iter().zip(panels.iter()) {
-        let pts: Vec<(f64, f64, f64, f64, bool)> = points
+        let on_axis: Vec<&ScalingPoint> =
+            points.iter().filter(|p| p.input.axis == panel.axis).collect();
+        let mut names: Vec<&str> = Vec::new();
+        for p in &on_axis {
+            if !names.contains(&p.input.series.as_str()) {
+                names.push(&p.input.series);
+            }
+        }
+        let curves: Vec<(&str, Vec<Pt>)> = names
             .iter()
-            .filter(|p| p.input.axis == panel.axis)
-            .filter_map(|p| {
-                p.time.map(|e| {
-                    (
-                        p.input.value as f64,
-                        e.median_ns / 1e3,
-                        e.median_lo_ns / 1e3,
-                        e.median_hi_ns / 1e3,
-                        p.input.reference,
-                    )
-                })
+            .map(|n| {
+                (
+                    *n,
+                    on_axis
+                        .iter()
+                        .filter(|p| p.input.series == *n)
+                        .filter_map(|p| {
+                            p.time.map(|e| {
+                                (
+                                    p.input.value as f64,
+                                    e.median_ns / 1e3,
+                                    e.median_lo_ns / 1e3,
+                                    e.median_hi_ns / 1e3,
+                                    p.input.reference,
+                                )
+                            })
+                        })
+                        .collect(),
+                )
             })
             .collect();
+        let pts: Vec<Pt> = curves.iter().flat_map(|c| c.1.iter().copied()).collect();
         anyhow::ensure!(!pts.is_empty(), "no measured point on the {} axis", panel.axis);
         let xmin = pts.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
         let xmax = pts.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
@@ -782,7 +812,9 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
             .margin(15)
             .x_label_area_size(45)
             .y_label_area_size(70);
-        let xs: Vec<f64> = pts.iter().map(|p| p.0).collect();
+        let mut xs: Vec<f64> = pts.iter().map(|p| p.0).collect();
+        xs.sort_by(f64::total_cmp);
+        xs.dedup();
         if panel.log_x {
             let mut chart = b.build_cartesian_2d(
                 (xmin / 1.3..xmax * 1.3).log_scale(),
@@ -797,7 +829,10 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
                 .y_label_formatter(&|v| format!("{v:.0}"))
                 .label_style(("sans-serif", 15))
                 .draw()?;
-            series(&mut chart, &pts)?;
+            for (i, (n, c)) in curves.iter().enumerate() {
+                series(&mut chart, n, i, c)?;
+            }
+            legend(&mut chart)?;
         } else {
             let pad = (xmax - xmin).max(1.0) * 0.08;
             let mut chart = b.build_cartesian_2d(
@@ -813,7 +848,10 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
                 .y_label_formatter(&|v| format!("{v:.0}"))
                 .label_style(("sans-serif", 15))
                 .draw()?;
-            series(&mut chart, &pts)?;
+            for (i, (n, c)) in curves.iter().enumerate() {
+                series(&mut chart, n, i, c)?;
+            }
+            legend(&mut chart)?;
         }
     }
     root.present()
@@ -821,29 +859,40 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// (value, median µs, CI low, CI high, reference configuration).
+type Pt = (f64, f64, f64, f64, bool);
+
+const COLORS: [RGBColor; 3] = [
+    RGBColor(31, 119, 180),
+    RGBColor(44, 160, 44),
+    RGBColor(148, 103, 189),
+];
+
 fn series<'a, X, Y>(
     chart: &mut ChartContext<'a, BitMapBackend<'a>, Cartesian2d<X, Y>>,
-    pts: &[(f64, f64, f64, f64, bool)],
+    name: &str,
+    index: usize,
+    pts: &[Pt],
 ) -> Result<()>
 where
     X: plotters::coord::ranged1d::Ranged<ValueType = f64>,
     Y: plotters::coord::ranged1d::Ranged<ValueType = f64>,
 {
-    let blue = RGBColor(31, 119, 180);
-    chart.draw_series(LineSeries::new(
-        pts.iter().map(|p| (p.0, p.1)),
-        blue.stroke_width(2),
-    ))?;
+    let blue = COLORS[index % COLORS.len()];
+    chart
+        .draw_series(LineSeries::new(
+            pts.iter().map(|p| (p.0, p.1)),
+            blue.stroke_width(2),
+        ))?
+        .label(format!("{name} frames"))
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], blue.stroke_width(2)));
     chart.draw_series(pts.iter().map(|p| {
         PathElement::new(vec![(p.0, p.2), (p.0, p.3)], blue.stroke_width(2))
     }))?;
-    chart
-        .draw_series(pts.iter().map(|p| {
-            let style = if p.4 { RED.filled() } else { blue.filled() };
-            Circle::new((p.0, p.1), if p.4 { 7 } else { 5 }, style)
-        }))?
-        .label("median (red: reference configuration)")
-        .legend(|(x, y)| Circle::new((x, y), 5, RED.filled()));
+    chart.draw_series(pts.iter().map(|p| {
+        let style = if p.4 { RED.filled() } else { blue.filled() };
+        Circle::new((p.0, p.1), if p.4 { 7 } else { 5 }, style)
+    }))?;
     chart
         .draw_series(pts.iter().map(|p| {
             let label = if p.1 >= 1000.0 {
@@ -854,6 +903,20 @@ where
             EmptyElement::at((p.0, p.1))
                 + Text::new(label, (8, -20), ("sans-serif", 14).into_font())
         }))?;
+    Ok(())
+}
+
+fn legend<'a, X, Y>(
+    chart: &mut ChartContext<'a, BitMapBackend<'a>, Cartesian2d<X, Y>>,
+) -> Result<()>
+where
+    X: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+    Y: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+{
+    chart
+        .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())?
+        .label("red dot: reference configuration")
+        .legend(|(x, y)| Circle::new((x + 10, y), 5, RED.filled()));
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)
