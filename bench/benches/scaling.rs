@@ -22,13 +22,13 @@
 //! * **E** (events per row, `Config::max_events`, a run-time setting) ∈ 64 … 2048 on the
 //!   `adversarial` frames (rows of 16 points inside the gates of 6 lanes: the rows exceed E).
 //!
+//! Times are the bench thread's CPU time (`stjpdacf_bench::cputime`: the machine is shared).
 //! The inputs' counters (points used, events, rows over E, lanes) go to
 //! `target/stjpdacf-bench/scaling.json`.
 
 use std::hint::black_box;
 use std::time::Duration;
 
-use criterion::measurement::WallTime;
 use criterion::{criterion_group, criterion_main, BenchmarkGroup, BenchmarkId, Criterion};
 use stjpdacf::probe::NoProbe;
 use stjpdacf::spatial::filter::Config;
@@ -37,6 +37,7 @@ use stjpdacf::tracker::{ReferenceTracker, Tracker, TrackerConfig};
 use stjpdacf_bench::config::{
     hyper_with_lanes, hyper_with_points, rows_per_interval, D_AXIS, E_AXIS, M_AXIS, N_AXIS,
 };
+use stjpdacf_bench::cputime::ThreadCpuTime;
 use stjpdacf_bench::harness::{Driver, Step};
 use stjpdacf_bench::inputs::{self, Frame};
 use stjpdacf_bench::report::{self, Machine, ScalingInput, ScalingOut};
@@ -45,7 +46,7 @@ use stjpdacf_host::tablegen::static_tables;
 /// One point of a curve: warm the tracker up on `frames`, record what a pass does, time it.
 #[allow(clippy::too_many_arguments)]
 fn point<S: Step>(
-    g: &mut BenchmarkGroup<'_, WallTime>,
+    g: &mut BenchmarkGroup<'_, ThreadCpuTime>,
     out: &mut Vec<ScalingInput>,
     axis: &str,
     value: usize,
@@ -159,8 +160,8 @@ macro_rules! n_point {
             $n,
             $r
         );
-        let tables = static_tables::<2, 6, $n>(&hyper_with_points($n).expect("hyper"))
-            .expect("tables");
+        let tables =
+            static_tables::<2, 6, $n>(&hyper_with_points($n).expect("hyper")).expect("tables");
         assert_eq!(tables.gram_rank as usize, $r, "RANK must follow the tables");
         let k = rows_per_interval($n).expect("rows per interval");
         let cfg = TrackerConfig {
@@ -187,7 +188,7 @@ macro_rules! n_point {
     }};
 }
 
-fn scaling(c: &mut Criterion) {
+fn scaling(c: &mut Criterion<ThreadCpuTime>) {
     let machine_start = Machine::now();
     let mut out = Vec::new();
 
@@ -262,6 +263,7 @@ fn scaling(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default()
+        .with_measurement(ThreadCpuTime)
         .sample_size(10)
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(2));

@@ -9,6 +9,10 @@
 //! cargo run -p stjpdacf-bench --example bench_report   # tables and plot in docs/bench/
 //! ```
 //!
+//! Every bench measures the bench thread's **CPU time** (`stjpdacf_bench::cputime`), not wall
+//! time: the machine's 2 cores are shared with other builds, and wall time would count the time
+//! the thread waits for a core.
+//!
 //! Inputs: `stjpdacf_bench::inputs` (`typical`, `worst`, `adversarial`); a bench iteration is
 //! one frame, the sequence is cycled with frames 50 ms apart, after warm-up passes. Groups:
 //! * `tracker_step_typical` — core (also with the counting and the timing probe: the probe's
@@ -18,7 +22,8 @@
 //!   enumerate every event of them);
 //! * `stage_<stage>_<sequence>` for spatial, identity, temporal, smoother — `core_f32_in_step`:
 //!   the stage's time inside the core's full step, from the timing probe
-//!   (`Bencher::iter_custom` returns the time charged to the stage); `reference_f64`: the
+//!   (`Bencher::iter_custom` returns the time charged to the stage, over frames the thread ran
+//!   throughout); `reference_f64`: the
 //!   reference's piece of that stage alone on the same frames (spatial `run_frame`; identity
 //!   `assign` against the dense predictions; dense predict + update; the fixed-lag RTS output);
 //!   for the spatial stage also `core_f32`, the core's `SpatialFilter::run` alone;
@@ -38,6 +43,7 @@ use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, Status};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf::tracker::ReferenceTracker;
+use stjpdacf_bench::cputime::ThreadCpuTime;
 use stjpdacf_bench::harness::Driver;
 use stjpdacf_bench::inputs::{self, Frame, STEP_US};
 use stjpdacf_bench::probes::{CallCounter, StageGroup, StageTimer};
@@ -205,8 +211,11 @@ impl RefStages {
     }
 }
 
+/// The stage's time inside full steps: the timing probe's wall-clock time of the stage, over
+/// frames that ran without the thread being descheduled (`Driver::step_clean`), so that it is
+/// comparable with the thread CPU time the other benches measure.
 fn in_step(
-    g: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    g: &mut criterion::BenchmarkGroup<'_, ThreadCpuTime>,
     driver: &mut Driver<ReferenceTracker>,
     frames: &[Frame],
     group: StageGroup,
@@ -215,8 +224,7 @@ fn in_step(
         b.iter_custom(|iters| {
             let mut acc = Duration::ZERO;
             for _ in 0..iters {
-                let mut p = StageTimer::new();
-                black_box(driver.step(frames, &mut p));
+                let p = driver.step_clean(frames, StageTimer::new);
                 acc += group.of(&p);
             }
             acc
@@ -225,7 +233,7 @@ fn in_step(
 }
 
 #[allow(clippy::too_many_lines)]
-fn tracker(c: &mut Criterion) {
+fn tracker(c: &mut Criterion<ThreadCpuTime>) {
     let machine_start = Machine::now();
     let mut sequences = Vec::new();
     let t = tables();
@@ -308,16 +316,16 @@ fn tracker(c: &mut Criterion) {
                 "{name} (reference): lanes {:?}, events {:?}, fixed-lag output computed {:?}",
                 m.reference_lanes, m.reference_events, m.reference_fixed_lag_computed
             );
-            g.bench_function("reference_f64", |b| {
-                b.iter(|| black_box(r.step(frames)))
-            });
+            g.bench_function("reference_f64", |b| b.iter(|| black_box(r.step(frames))));
         }
         g.finish();
 
         // Stages.
         let fr = with_reference.then(|| ref_frames(&model, &rcfg, frames));
         let lanes = m.reference_lanes.iter().copied().max().unwrap_or(0);
-        let rs = fr.as_ref().map(|fr| RefStages::build(&dense, fr, lanes.max(1)));
+        let rs = fr
+            .as_ref()
+            .map(|fr| RefStages::build(&dense, fr, lanes.max(1)));
         m.reference_dense_lanes = rs.as_ref().map_or(0, |r| r.lanes);
 
         let mut g = c.benchmark_group(format!("stage_spatial_{name}"));
@@ -419,7 +427,7 @@ fn tracker(c: &mut Criterion) {
 }
 
 /// The temporal stage alone with 3 lanes on the typical frames (kept from the first benches).
-fn temporal_3lanes(c: &mut Criterion, t: &ModelTables, frames: &[Frame]) {
+fn temporal_3lanes(c: &mut Criterion<ThreadCpuTime>, t: &ModelTables, frames: &[Frame]) {
     let model = Model::new(t, K).expect("model");
     let rcfg = refspatial::Config::from_tables(t);
     let mut sf = Box::new(SpatialFilter::<3, 6, 64, 16>::new());
@@ -482,6 +490,7 @@ fn temporal_3lanes(c: &mut Criterion, t: &ModelTables, frames: &[Frame]) {
 criterion_group! {
     name = benches;
     config = Criterion::default()
+        .with_measurement(ThreadCpuTime)
         .sample_size(10)
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(2));

@@ -61,6 +61,9 @@ fn main() -> Result<()> {
     if results.scaling_points.iter().any(|p| p.time.is_some()) {
         plot_scaling(&results.scaling_points, &out.join("scaling.png"))?;
     }
-    println!("wrote {}/{{results.json,results.md,scaling.csv,scaling.png}}", out.display());
+    println!(
+        "wrote {}/{{results.json,results.md,scaling.csv,scaling.png}}",
+        out.display()
+    );
     Ok(())
 }

@@ -42,7 +42,10 @@ pub fn hyper_with_lanes(lanes: usize) -> Result<HyperFile> {
         b.get(i.abs_diff(j)).copied().unwrap_or(last)
     });
     let lmin = bm.clone().symmetric_eigen().eigenvalues.min();
-    ensure!(lmin > 0.0, "B extended to {lanes} slots is not positive definite");
+    ensure!(
+        lmin > 0.0,
+        "B extended to {lanes} slots is not positive definite"
+    );
     let kappa = lmin / 2.0;
     let w = (bm - DMatrix::identity(lanes, lanes) * kappa)
         .cholesky()
@@ -90,8 +93,7 @@ pub fn hyper_with_points(points: usize) -> Result<HyperFile> {
     let k = rows_per_interval(points).context("points − 1 must divide 60")?;
     let mut h = default_hyper()?;
     h.index_points = points;
-    h.spatial.row_step =
-        (h.window.u_max - h.window.u_min) / ((points - 1) * usize::from(k)) as f64;
+    h.spatial.row_step = (h.window.u_max - h.window.u_min) / ((points - 1) * usize::from(k)) as f64;
     h.description = format!("bench: default with {points} index points, {k} rows per interval");
     h.validate()?;
     Ok(h)

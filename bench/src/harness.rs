@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 use stjpdacf::probe::{NoProbe, Probe, Stage};
 use stjpdacf::tracker::{Instant, Tracker};
 
+use crate::cputime::{ran_throughout, thread_cpu};
 use crate::inputs::{Frame, STEP_US};
 use crate::probes::{CallCounter, StageGroup, StageTimer};
 
@@ -100,6 +101,24 @@ impl<S: Step> Driver<S> {
             .expect("time increases")
     }
 
+    /// Steps frames until one runs without the thread being descheduled
+    /// ([`ran_throughout`]; at most 50 tries, then the last one is taken), each with a fresh
+    /// probe from `probe`; returns that frame's probe. The frames stepped meanwhile advance the
+    /// tracker as usual.
+    pub fn step_clean<P: Probe>(&mut self, frames: &[Frame], probe: impl Fn() -> P) -> P {
+        let mut tries = 0;
+        loop {
+            let mut p = probe();
+            let (w0, c0) = (WallClock::now(), thread_cpu());
+            self.step(frames, &mut p);
+            let (w, c) = (w0.elapsed(), thread_cpu().saturating_sub(c0));
+            tries += 1;
+            if ran_throughout(w, c) || tries >= 50 {
+                return p;
+            }
+        }
+    }
+
     /// `passes` passes over `frames` (to reach the sequence's steady state); returns the last
     /// frame's summary.
     pub fn warm_up(&mut self, frames: &[Frame], passes: usize) -> FrameSummary {
@@ -127,6 +146,9 @@ pub struct StageProfile {
     pub frames: usize,
     /// Timed passes over it.
     pub passes: usize,
+    /// Share of the timed steps that ran without being descheduled (only those are used).
+    #[serde(default)]
+    pub clean_fraction: f64,
     /// Probe calls per frame (mean over the sequence).
     pub calls_per_frame: f64,
     /// Step time without a probe, µs per frame.
@@ -190,10 +212,11 @@ pub fn timer_call_ns() -> f64 {
 /// one with [`CallCounter`], one with [`StageTimer`]), fed the same frames at the same times, so
 /// their states stay identical. After `warm` untimed passes, `passes` passes are timed; in each,
 /// every frame is stepped on the three trackers one after the other (the order rotates from pass
-/// to pass), so the three see the same machine load. Every figure is the **mean over the
-/// sequence's frames of the frame's median over the passes** (the median removes most of the
-/// load spikes of a shared machine; the mean over frames is the sequence's average cost, as a
-/// criterion iteration that cycles through the sequence measures it).
+/// to pass), so the three see the same machine load. A step during which the thread was
+/// descheduled (wall-clock time above its CPU time: [`ran_throughout`]) is dropped. Every figure
+/// is the **mean over the sequence's frames of the frame's median over the kept passes** (the
+/// mean over frames is the sequence's average cost, as a criterion iteration that cycles through
+/// the sequence measures it); a frame with no kept pass uses all its passes.
 ///
 /// # Panics
 /// When `frames` is empty or `passes` is 0.
@@ -217,32 +240,51 @@ pub fn profile<S: Step>(
     let mut t_count = vec![Vec::with_capacity(passes); n];
     let mut t_timed = vec![Vec::with_capacity(passes); n];
     let mut t_stage = vec![vec![Vec::with_capacity(passes); Stage::COUNT]; n];
+    // Every measurement with its "ran throughout" flag.
+    let mut f_plain = vec![Vec::with_capacity(passes); n];
+    let mut f_count = vec![Vec::with_capacity(passes); n];
+    let mut f_timed = vec![Vec::with_capacity(passes); n];
     let mut calls = vec![0u64; n];
     let mut summary = Vec::with_capacity(n);
+    let mut kept = 0usize;
+    let clock = || (WallClock::now(), thread_cpu());
+    let clean = |(w0, c0): (WallClock, Duration)| {
+        let (w, c) = (w0.elapsed(), thread_cpu().saturating_sub(c0));
+        (us(w), ran_throughout(w, c))
+    };
     for pass in 0..passes {
         for k in 0..n {
             for v in 0..3 {
                 match (v + pass) % 3 {
                     0 => {
-                        let t0 = WallClock::now();
+                        let t0 = clock();
                         let s = plain.step(frames, &mut NoProbe);
-                        t_plain[k].push(us(t0.elapsed()));
+                        let (t, ok) = clean(t0);
+                        t_plain[k].push(t);
+                        f_plain[k].push(ok);
+                        kept += usize::from(ok);
                         if pass == 0 {
                             summary.push(s);
                         }
                     }
                     1 => {
                         let mut c = CallCounter::default();
-                        let t0 = WallClock::now();
+                        let t0 = clock();
                         counted.step(frames, &mut c);
-                        t_count[k].push(us(t0.elapsed()));
+                        let (t, ok) = clean(t0);
+                        t_count[k].push(t);
+                        f_count[k].push(ok);
+                        kept += usize::from(ok);
                         calls[k] = c.total();
                     }
                     _ => {
                         let mut p = StageTimer::new();
-                        let t0 = WallClock::now();
+                        let t0 = clock();
                         timed.step(frames, &mut p);
-                        t_timed[k].push(us(t0.elapsed()));
+                        let (t, ok) = clean(t0);
+                        t_timed[k].push(t);
+                        f_timed[k].push(ok);
+                        kept += usize::from(ok);
                         for s in Stage::ALL {
                             t_stage[k][s as usize].push(us(p.get(s)));
                         }
@@ -251,9 +293,28 @@ pub fn profile<S: Step>(
             }
         }
     }
-    let mean_of_medians = |v: &mut [Vec<f64>]| -> f64 {
-        v.iter_mut().map(|x| median(x)).sum::<f64>() / n as f64
+    // Keep the clean passes of each frame (all of them when none is clean).
+    let keep = |v: &[f64], f: &[bool]| -> Vec<f64> {
+        let c: Vec<f64> = v.iter().zip(f).filter(|x| *x.1).map(|x| *x.0).collect();
+        if c.is_empty() {
+            v.to_vec()
+        } else {
+            c
+        }
     };
+    let filter = |v: &[Vec<f64>], f: &[Vec<bool>]| -> Vec<Vec<f64>> {
+        v.iter().zip(f).map(|(v, f)| keep(v, f)).collect()
+    };
+    let mut t_plain = filter(&t_plain, &f_plain);
+    let mut t_count = filter(&t_count, &f_count);
+    let mut t_timed_kept = filter(&t_timed, &f_timed);
+    let t_stage: Vec<Vec<Vec<f64>>> = t_stage
+        .iter()
+        .zip(&f_timed)
+        .map(|(per_stage, f)| per_stage.iter().map(|v| keep(v, f)).collect())
+        .collect();
+    let mean_of_medians =
+        |v: &mut [Vec<f64>]| -> f64 { v.iter_mut().map(|x| median(x)).sum::<f64>() / n as f64 };
     let stage_med: Vec<f64> = (0..Stage::COUNT)
         .map(|s| {
             let mut per_frame: Vec<Vec<f64>> = t_stage.iter().map(|f| f[s].clone()).collect();
@@ -281,10 +342,11 @@ pub fn profile<S: Step>(
         sequence: name.to_string(),
         frames: n,
         passes,
+        clean_fraction: kept as f64 / (3 * n * passes) as f64,
         calls_per_frame: calls.iter().sum::<u64>() as f64 / n as f64,
         total_no_probe_us: mean_of_medians(&mut t_plain),
         total_count_probe_us: mean_of_medians(&mut t_count),
-        total_timing_probe_us: mean_of_medians(&mut t_timed),
+        total_timing_probe_us: mean_of_medians(&mut t_timed_kept),
         stage_us,
         group_us,
         summary,

@@ -10,6 +10,7 @@
 //!   `docs/bench/results.json`, `results.md`, `scaling.csv` and `scaling.png`.
 
 pub mod config;
+pub mod cputime;
 pub mod harness;
 pub mod inputs;
 pub mod probes;

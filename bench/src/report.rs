@@ -48,14 +48,13 @@ impl Machine {
                 *l = v.parse().unwrap_or(0.0);
             }
         }
-        let rustc = std::process::Command::new(
-            std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into()),
-        )
-        .arg("-V")
-        .output()
-        .ok()
-        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
-        .unwrap_or_default();
+        let rustc =
+            std::process::Command::new(std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into()))
+                .arg("-V")
+                .output()
+                .ok()
+                .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+                .unwrap_or_default();
         Self {
             cpus: std::thread::available_parallelism().map_or(0, usize::from),
             cpu,
@@ -149,6 +148,28 @@ pub struct ScalingOut {
     pub points: Vec<ScalingInput>,
 }
 
+/// Instructions per frame of one sequence (callgrind, `examples/icount.rs`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IcountRow {
+    /// Sequence.
+    pub sequence: String,
+    /// Frames counted (one pass).
+    pub frames: usize,
+    /// Core `Tracker::step`, instructions per frame.
+    pub core_per_frame: u64,
+    /// Reference step + fixed-lag output, instructions per frame.
+    pub reference_per_frame: u64,
+}
+
+/// `target/stjpdacf-bench/icount.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IcountOut {
+    /// The machine (the counts do not depend on its load).
+    pub machine: Machine,
+    /// One row per sequence.
+    pub rows: Vec<IcountRow>,
+}
+
 /// A criterion estimate, nanoseconds per iteration.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Estimate {
@@ -183,6 +204,9 @@ pub struct Results {
     pub stages: Option<StagesOut>,
     /// The scaling curves.
     pub scaling: Option<ScalingOut>,
+    /// Instruction counts (callgrind).
+    #[serde(default)]
+    pub icount: Option<IcountOut>,
     /// The scaling points with their times.
     pub scaling_points: Vec<ScalingPoint>,
     /// Criterion estimates of the tracker and scaling benches, by id.
@@ -302,6 +326,7 @@ impl Results {
         let tracker: Option<TrackerMeta> = read_json(&dir.join("tracker.json"))?;
         let stages: Option<StagesOut> = read_json(&dir.join("stages.json"))?;
         let scaling: Option<ScalingOut> = read_json(&dir.join("scaling.json"))?;
+        let icount: Option<IcountOut> = read_json(&dir.join("icount.json"))?;
         let criterion = read_criterion(
             &target_dir().join("criterion"),
             &["tracker_step_", "stage_", "scaling_"],
@@ -323,6 +348,7 @@ impl Results {
             tracker,
             stages,
             scaling,
+            icount,
             scaling_points,
             criterion,
         })
@@ -351,6 +377,7 @@ impl Results {
             tracker: self.tracker.or(old.tracker),
             stages: self.stages.or(old.stages),
             scaling,
+            icount: self.icount.or(old.icount),
             scaling_points,
             criterion,
         }
@@ -451,7 +478,11 @@ pub fn render_markdown(r: &Results) -> Result<String> {
             );
             let ref_info = if q.reference_run {
                 let lanes = range(q.reference_lanes.iter().map(|&v| v as u32));
-                let done = q.reference_fixed_lag_computed.iter().filter(|b| **b).count();
+                let done = q
+                    .reference_fixed_lag_computed
+                    .iter()
+                    .filter(|b| **b)
+                    .count();
                 format!("{lanes} / {done} of {} frames", q.frames)
             } else {
                 "not run".to_string()
@@ -527,6 +558,36 @@ pub fn render_markdown(r: &Results) -> Result<String> {
             fmt_est(r3),
             ratio(c3, r3)
         )?;
+    }
+    if let Some(ic) = &r.icount {
+        writeln!(
+            s,
+            "## Instructions per frame (callgrind, load-independent)\n"
+        )?;
+        writeln!(
+            s,
+            "`cargo build --release -p stjpdacf-bench --example icount && \
+             target/release/examples/icount` — x86-64 instructions retired per frame (one pass \
+             over the sequence after a warm-up pass), {}. A cross-check of the speed-up that does \
+             not depend on the machine's load; instructions are not time.\n",
+            ic.machine.rustc
+        )?;
+        writeln!(
+            s,
+            "| sequence | core f32 | reference f64 (step + fixed-lag output) | ratio |"
+        )?;
+        writeln!(s, "|---|---:|---:|---:|")?;
+        for row in &ic.rows {
+            writeln!(
+                s,
+                "| {} | {:.3} M | {:.1} M | {:.1}× |",
+                row.sequence,
+                row.core_per_frame as f64 * 1e-6,
+                row.reference_per_frame as f64 * 1e-6,
+                row.reference_per_frame as f64 / row.core_per_frame.max(1) as f64
+            )?;
+        }
+        writeln!(s)?;
     }
     if let Some(st) = &r.stages {
         writeln!(s, "## Per-stage split of the core's step (timing probe)\n")?;
@@ -694,7 +755,11 @@ pub fn render_csv(r: &Results) -> String {
     for p in &r.scaling_points {
         let i = &p.input;
         let (m, lo, hi) = p.time.map_or((f64::NAN, f64::NAN, f64::NAN), |e| {
-            (e.median_ns / 1e3, e.median_lo_ns / 1e3, e.median_hi_ns / 1e3)
+            (
+                e.median_ns / 1e3,
+                e.median_lo_ns / 1e3,
+                e.median_hi_ns / 1e3,
+            )
         });
         let _ = writeln!(
             s,
@@ -769,8 +834,10 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
     ];
     let areas = rest.split_evenly((2, 2));
     for (area, panel) in areas.iter().zip(panels.iter()) {
-        let on_axis: Vec<&ScalingPoint> =
-            points.iter().filter(|p| p.input.axis == panel.axis).collect();
+        let on_axis: Vec<&ScalingPoint> = points
+            .iter()
+            .filter(|p| p.input.axis == panel.axis)
+            .collect();
         let mut names: Vec<&str> = Vec::new();
         for p in &on_axis {
             if !names.contains(&p.input.series.as_str()) {
@@ -801,7 +868,11 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
             })
             .collect();
         let pts: Vec<Pt> = curves.iter().flat_map(|c| c.1.iter().copied()).collect();
-        anyhow::ensure!(!pts.is_empty(), "no measured point on the {} axis", panel.axis);
+        anyhow::ensure!(
+            !pts.is_empty(),
+            "no measured point on the {} axis",
+            panel.axis
+        );
         let xmin = pts.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
         let xmax = pts.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
         let ymin = pts.iter().map(|p| p.2).fold(f64::INFINITY, f64::min);
@@ -816,10 +887,8 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
         xs.sort_by(f64::total_cmp);
         xs.dedup();
         if panel.log_x {
-            let mut chart = b.build_cartesian_2d(
-                (xmin / 1.3..xmax * 1.3).log_scale(),
-                (ylo..yhi).log_scale(),
-            )?;
+            let mut chart =
+                b.build_cartesian_2d((xmin / 1.3..xmax * 1.3).log_scale(), (ylo..yhi).log_scale())?;
             chart
                 .configure_mesh()
                 .x_desc(panel.axis)
@@ -835,10 +904,7 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
             legend(&mut chart)?;
         } else {
             let pad = (xmax - xmin).max(1.0) * 0.08;
-            let mut chart = b.build_cartesian_2d(
-                xmin - pad..xmax + pad,
-                (ylo..yhi).log_scale(),
-            )?;
+            let mut chart = b.build_cartesian_2d(xmin - pad..xmax + pad, (ylo..yhi).log_scale())?;
             chart
                 .configure_mesh()
                 .x_desc(panel.axis)
@@ -886,23 +952,22 @@ where
         ))?
         .label(format!("{name} frames"))
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], blue.stroke_width(2)));
-    chart.draw_series(pts.iter().map(|p| {
-        PathElement::new(vec![(p.0, p.2), (p.0, p.3)], blue.stroke_width(2))
-    }))?;
+    chart.draw_series(
+        pts.iter()
+            .map(|p| PathElement::new(vec![(p.0, p.2), (p.0, p.3)], blue.stroke_width(2))),
+    )?;
     chart.draw_series(pts.iter().map(|p| {
         let style = if p.4 { RED.filled() } else { blue.filled() };
         Circle::new((p.0, p.1), if p.4 { 7 } else { 5 }, style)
     }))?;
-    chart
-        .draw_series(pts.iter().map(|p| {
-            let label = if p.1 >= 1000.0 {
-                format!("{:.2} ms", p.1 / 1e3)
-            } else {
-                format!("{:.0} µs", p.1)
-            };
-            EmptyElement::at((p.0, p.1))
-                + Text::new(label, (8, -20), ("sans-serif", 14).into_font())
-        }))?;
+    chart.draw_series(pts.iter().map(|p| {
+        let label = if p.1 >= 1000.0 {
+            format!("{:.2} ms", p.1 / 1e3)
+        } else {
+            format!("{:.0} µs", p.1)
+        };
+        EmptyElement::at((p.0, p.1)) + Text::new(label, (8, -20), ("sans-serif", 14).into_font())
+    }))?;
     Ok(())
 }
 

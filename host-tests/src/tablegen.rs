@@ -178,10 +178,14 @@ impl ModelTables {
                 kernel: CoreMatern32::new(f(h.temporal.variance), f(h.temporal.lengthscale)),
                 f: m(&self.temporal_f).fixed_view::<2, 2>(0, 0).into_owned(),
                 q: m(&self.temporal_q).fixed_view::<2, 2>(0, 0).into_owned(),
-                p_inf: m(&self.temporal_p_inf).fixed_view::<2, 2>(0, 0).into_owned(),
+                p_inf: m(&self.temporal_p_inf)
+                    .fixed_view::<2, 2>(0, 0)
+                    .into_owned(),
             },
             index_u: SVector::from_fn(|i, _| f(self.index_u[i])),
-            gram: m(&self.gram).fixed_view::<POINTS, POINTS>(0, 0).into_owned(),
+            gram: m(&self.gram)
+                .fixed_view::<POINTS, POINTS>(0, 0)
+                .into_owned(),
             gram_eigvec: m(&self.gram_eigvec)
                 .fixed_view::<POINTS, POINTS>(0, 0)
                 .into_owned(),
