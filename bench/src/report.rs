@@ -883,42 +883,47 @@ pub fn plot_scaling(points: &[ScalingPoint], path: &Path) -> Result<()> {
             .margin(15)
             .x_label_area_size(45)
             .y_label_area_size(70);
-        let mut xs: Vec<f64> = pts.iter().map(|p| p.0).collect();
-        xs.sort_by(f64::total_cmp);
-        xs.dedup();
-        if panel.log_x {
-            let mut chart =
-                b.build_cartesian_2d((xmin / 1.3..xmax * 1.3).log_scale(), (ylo..yhi).log_scale())?;
-            chart
-                .configure_mesh()
-                .x_desc(panel.axis)
-                .y_desc("µs per frame")
-                .x_labels(xs.len() + 2)
-                .x_label_formatter(&|v| format!("{v:.0}"))
-                .y_label_formatter(&|v| format!("{v:.0}"))
-                .label_style(("sans-serif", 15))
-                .draw()?;
-            for (i, (n, c)) in curves.iter().enumerate() {
-                series(&mut chart, n, i, c)?;
+        // M and E: log₂ of the value on a linear axis, labelled with the value.
+        let tx = |v: f64| if panel.log_x { v.log2() } else { v };
+        let curves: Vec<(&str, Vec<Pt>)> = curves
+            .into_iter()
+            .map(|(n, c)| {
+                (
+                    n,
+                    c.into_iter()
+                        .map(|p| (tx(p.0), p.1, p.2, p.3, p.4))
+                        .collect(),
+                )
+            })
+            .collect();
+        let (xmin, xmax) = (tx(xmin), tx(xmax));
+        let pad = (xmax - xmin).max(1.0) * 0.08;
+        let mut chart = b.build_cartesian_2d(xmin - pad..xmax + pad, (ylo..yhi).log_scale())?;
+        let log_x = panel.log_x;
+        let xlabel = move |v: &f64| {
+            if log_x {
+                format!("{:.0}", v.exp2())
+            } else {
+                format!("{v:.0}")
             }
-            legend(&mut chart)?;
-        } else {
-            let pad = (xmax - xmin).max(1.0) * 0.08;
-            let mut chart = b.build_cartesian_2d(xmin - pad..xmax + pad, (ylo..yhi).log_scale())?;
-            chart
-                .configure_mesh()
-                .x_desc(panel.axis)
-                .y_desc("µs per frame")
-                .x_labels(((xmax - xmin) as usize + 1).min(12))
-                .x_label_formatter(&|v| format!("{v:.0}"))
-                .y_label_formatter(&|v| format!("{v:.0}"))
-                .label_style(("sans-serif", 15))
-                .draw()?;
-            for (i, (n, c)) in curves.iter().enumerate() {
-                series(&mut chart, n, i, c)?;
-            }
-            legend(&mut chart)?;
+        };
+        chart
+            .configure_mesh()
+            .x_desc(if log_x {
+                format!("{} (log scale)", panel.axis)
+            } else {
+                panel.axis.to_string()
+            })
+            .y_desc("µs per frame (log scale)")
+            .x_labels(((xmax - xmin).round() as usize + 1).clamp(2, 12))
+            .x_label_formatter(&xlabel)
+            .y_label_formatter(&|v| format!("{v:.0}"))
+            .label_style(("sans-serif", 15))
+            .draw()?;
+        for (i, (n, c)) in curves.iter().enumerate() {
+            series(&mut chart, n, i, c)?;
         }
+        legend(&mut chart)?;
     }
     root.present()
         .with_context(|| format!("writing {}", path.display()))?;
