@@ -7,15 +7,16 @@
 //!
 //! Reads `target/stjpdacf-bench/{tracker,stages,scaling}.json` and criterion's estimates under
 //! `target/criterion/`, merges them into `docs/bench/results.json` (what was not measured again
-//! keeps its committed value), and writes `docs/bench/results.md` (the tables),
-//! `docs/bench/scaling.csv` and `docs/bench/scaling.png`. With `--committed` it only redraws
-//! the tables, the CSV and the plot from the committed `results.json`.
+//! keeps its committed value), rewrites the tables between the `bench_report` markers of
+//! `docs/bench/README.md`, and writes `docs/bench/scaling.csv` and `docs/bench/scaling.png`.
+//! With `--committed` it only redraws the tables, the CSV and the plot from the committed
+//! `results.json`.
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use stjpdacf_bench::report::{plot_scaling, render_csv, render_markdown, Results};
+use stjpdacf_bench::report::{plot_scaling, render_csv, render_markdown, splice, Results};
 use stjpdacf_host::repo_root;
 
 #[derive(Parser)]
@@ -56,13 +57,16 @@ fn main() -> Result<()> {
         }
     };
     std::fs::write(&json, serde_json::to_string_pretty(&results)?)?;
-    std::fs::write(out.join("results.md"), render_markdown(&results)?)?;
+    let readme = out.join("README.md");
+    let doc = std::fs::read_to_string(&readme)
+        .with_context(|| format!("reading {}", readme.display()))?;
+    std::fs::write(&readme, splice(&doc, &render_markdown(&results)?)?)?;
     std::fs::write(out.join("scaling.csv"), render_csv(&results))?;
     if results.scaling_points.iter().any(|p| p.time.is_some()) {
         plot_scaling(&results.scaling_points, &out.join("scaling.png"))?;
     }
     println!(
-        "wrote {}/{{results.json,results.md,scaling.csv,scaling.png}}",
+        "wrote {}/{{results.json,README.md (generated part),scaling.csv,scaling.png}}",
         out.display()
     );
     Ok(())

@@ -237,14 +237,14 @@ pub fn profile<S: Step>(
     }
     let n = frames.len();
     // [frame][pass]
-    let mut t_plain = vec![Vec::with_capacity(passes); n];
-    let mut t_count = vec![Vec::with_capacity(passes); n];
-    let mut t_timed = vec![Vec::with_capacity(passes); n];
-    let mut t_stage = vec![vec![Vec::with_capacity(passes); Stage::COUNT]; n];
+    let mut t_plain = vec![Vec::new(); n];
+    let mut t_count = vec![Vec::new(); n];
+    let mut t_timed = vec![Vec::new(); n];
+    let mut t_stage = vec![vec![Vec::new(); Stage::COUNT]; n];
     // Every measurement with its "ran throughout" flag.
-    let mut f_plain = vec![Vec::with_capacity(passes); n];
-    let mut f_count = vec![Vec::with_capacity(passes); n];
-    let mut f_timed = vec![Vec::with_capacity(passes); n];
+    let mut f_plain = vec![Vec::new(); n];
+    let mut f_count = vec![Vec::new(); n];
+    let mut f_timed = vec![Vec::new(); n];
     let mut calls = vec![0u64; n];
     let mut summary = Vec::with_capacity(n);
     let mut kept = 0usize;

@@ -7,7 +7,8 @@
 //!   timing probe ([`harness::profile`]), with the probe's own overhead;
 //! * `cargo bench -p stjpdacf-bench --bench scaling` — time per frame against M, D, N and E;
 //! * `cargo run -p stjpdacf-bench --example bench_report` — collects the three into
-//!   `docs/bench/results.json`, `results.md`, `scaling.csv` and `scaling.png`.
+//!   `docs/bench/results.json`, the tables of `docs/bench/README.md`, `scaling.csv` and
+//!   `scaling.png`.
 
 pub mod config;
 pub mod cputime;
