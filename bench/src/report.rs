@@ -360,6 +360,12 @@ impl Results {
         let mut criterion = old.criterion;
         criterion.extend(self.criterion);
         let scaling = self.scaling.or(old.scaling);
+        // Scaling estimates of points that are no longer on the curves (renamed benches).
+        if let Some(sc) = &scaling {
+            criterion.retain(|id, _| {
+                !id.starts_with("scaling_") || sc.points.iter().any(|p| &p.id == id)
+            });
+        }
         let scaling_points = scaling
             .as_ref()
             .map(|s| {
@@ -581,7 +587,7 @@ pub fn render_markdown(r: &Results) -> Result<String> {
     if let Some(ic) = &r.icount {
         writeln!(
             s,
-            "## Instructions per frame (callgrind, load-independent)\n"
+            "### Instructions per frame (callgrind, load-independent)\n"
         )?;
         writeln!(
             s,
