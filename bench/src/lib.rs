@@ -1,2 +1,18 @@
-//! Criterion benches for `stjpdacf` (host). The benches live in `benches/`; this library is empty
-//! and only exists so the package has a target besides them.
+//! Host benchmarks of `stjpdacf`: the inputs, probes and harness the criterion benches in
+//! `benches/` share, and the report that turns their measurements into `docs/bench/`.
+//!
+//! * `cargo bench -p stjpdacf-bench --bench tracker` — the full `Tracker::step` and each stage,
+//!   typical and worst case, next to the dense f64 reference (criterion);
+//! * `cargo bench -p stjpdacf-bench --bench stages` — the per-stage split of the step from a
+//!   timing probe ([`harness::profile`]), with the probe's own overhead;
+//! * `cargo bench -p stjpdacf-bench --bench scaling` — time per frame against M, D, N and E;
+//! * `cargo run -p stjpdacf-bench --example bench_report` — collects the three into
+//!   `docs/bench/results.json`, the tables of `docs/bench/README.md`, `scaling.csv` and
+//!   `scaling.png`.
+
+pub mod config;
+pub mod cputime;
+pub mod harness;
+pub mod inputs;
+pub mod probes;
+pub mod report;

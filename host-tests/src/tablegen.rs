@@ -7,7 +7,9 @@
 use std::fmt::Write as _;
 
 use anyhow::{ensure, Context, Result};
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, SVector};
+use stjpdacf::kernel::{Matern32 as CoreMatern32, RbfStateSpace};
+use stjpdacf::tables::{Hyper, SpatialTables, Tables, TemporalTables};
 
 use crate::hyper::HyperFile;
 use crate::reference::statespace::{Matern32, RbfTaylor};
@@ -123,6 +125,98 @@ impl ModelTables {
     }
 }
 
+impl ModelTables {
+    /// The core's tables `Tables<NT, LANES, POINTS>` (f32) for these f64 tables, validated.
+    ///
+    /// The values are the same f32 roundings [`render`] writes as literals, so for the committed
+    /// hyperparameter file this equals `stjpdacf::tables::DEFAULT` bit for bit (a test checks it).
+    ///
+    /// # Errors
+    /// When the hyperparameters' order, slot count or index point count differ from `NT`, `LANES`
+    /// or `POINTS`, or the core's [`Tables::validate`] refuses the result.
+    pub fn to_core<const NT: usize, const LANES: usize, const POINTS: usize>(
+        &self,
+    ) -> Result<Tables<NT, LANES, POINTS>> {
+        let h = &self.hyper;
+        ensure!(
+            h.spatial.order == NT,
+            "hyperparameters have spatial order {}, the tables type {NT}",
+            h.spatial.order
+        );
+        h.require_shape(LANES, POINTS)?;
+        let f = |v: f64| v as f32;
+        let m = |d: &DMatrix<f64>| d.map(|v| v as f32);
+        let tables = Tables {
+            version: stjpdacf::tables::FORMAT_VERSION,
+            hyper: Hyper {
+                spatial_order: u32::try_from(NT)?,
+                spatial_variance: f(h.spatial.variance),
+                spatial_lengthscale: f(h.spatial.lengthscale),
+                offset_variance: f(h.spatial.offset_variance),
+                temporal_variance: f(h.temporal.variance),
+                temporal_lengthscale: f(h.temporal.lengthscale),
+                meas_noise: f(h.noise.measurement),
+                pseudo_noise: f(h.noise.pseudo),
+                u_min: f(h.window.u_min),
+                u_max: f(h.window.u_max),
+                row_step: f(h.spatial.row_step),
+                frame_step: f(h.temporal.frame_step),
+                gram_variance_fraction: f(h.temporal.gram_variance_fraction),
+            },
+            spatial: SpatialTables {
+                model: RbfStateSpace {
+                    A: m(&self.spatial_a).fixed_view::<NT, NT>(0, 0).into_owned(),
+                    qc: f(self.spatial_qc),
+                    p_inf: m(&self.spatial_p_inf)
+                        .fixed_view::<NT, NT>(0, 0)
+                        .into_owned(),
+                },
+                f: m(&self.spatial_f).fixed_view::<NT, NT>(0, 0).into_owned(),
+                q: m(&self.spatial_q).fixed_view::<NT, NT>(0, 0).into_owned(),
+            },
+            temporal: TemporalTables {
+                kernel: CoreMatern32::new(f(h.temporal.variance), f(h.temporal.lengthscale)),
+                f: m(&self.temporal_f).fixed_view::<2, 2>(0, 0).into_owned(),
+                q: m(&self.temporal_q).fixed_view::<2, 2>(0, 0).into_owned(),
+                p_inf: m(&self.temporal_p_inf)
+                    .fixed_view::<2, 2>(0, 0)
+                    .into_owned(),
+            },
+            index_u: SVector::from_fn(|i, _| f(self.index_u[i])),
+            gram: m(&self.gram)
+                .fixed_view::<POINTS, POINTS>(0, 0)
+                .into_owned(),
+            gram_eigvec: m(&self.gram_eigvec)
+                .fixed_view::<POINTS, POINTS>(0, 0)
+                .into_owned(),
+            gram_eigval: SVector::from_fn(|i, _| f(self.gram_eigval[i])),
+            gram_rank: u32::try_from(self.gram_rank)?,
+            coreg: m(&self.coreg).fixed_view::<LANES, LANES>(0, 0).into_owned(),
+            coreg_chol: m(&self.coreg_chol)
+                .fixed_view::<LANES, LANES>(0, 0)
+                .into_owned(),
+        };
+        tables
+            .validate()
+            .map_err(|e| anyhow::anyhow!("generated tables are invalid: {e}"))?;
+        Ok(tables)
+    }
+}
+
+/// Tables for any configuration, built at run time from a hyperparameter file and leaked to
+/// `'static` (what `stjpdacf::tracker::Tracker::new` takes): for tools and benches that need
+/// other `NT`, `LANES` or `POINTS` than the committed tables. Each call leaks one
+/// `size_of::<Tables<NT, LANES, POINTS>>()` (2,648 B at the reference configuration).
+///
+/// # Errors
+/// As [`ModelTables::from_hyper`] and [`ModelTables::to_core`].
+pub fn static_tables<const NT: usize, const LANES: usize, const POINTS: usize>(
+    h: &HyperFile,
+) -> Result<&'static Tables<NT, LANES, POINTS>> {
+    let t = ModelTables::from_hyper(h)?.to_core::<NT, LANES, POINTS>()?;
+    Ok(Box::leak(Box::new(t)))
+}
+
 fn lit(v: f64) -> Result<String> {
     let f = v as f32;
     ensure!(f.is_finite(), "value {v} does not fit an f32 table");
@@ -233,3 +327,25 @@ pub fn render(t: &ModelTables, name: &str, origin: &str) -> Result<String> {
 pub const DEFAULT_HYPER: &str = "data/hyper/default.json";
 /// The committed generated tables, relative to the repository root.
 pub const DEFAULT_TABLES: &str = "src/tables/default.rs";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::repo_root;
+
+    #[test]
+    fn generic_builder_reproduces_the_committed_tables() {
+        let h = HyperFile::load(&repo_root().join(DEFAULT_HYPER)).expect("default hyper file");
+        let t = static_tables::<2, 6, 16>(&h).expect("tables");
+        assert_eq!(*t, stjpdacf::tables::DEFAULT);
+    }
+
+    #[test]
+    fn generic_builder_refuses_a_wrong_shape() {
+        let h = HyperFile::load(&repo_root().join(DEFAULT_HYPER)).expect("default hyper file");
+        let t = ModelTables::from_hyper(&h).expect("tables");
+        assert!(t.to_core::<2, 4, 16>().is_err());
+        assert!(t.to_core::<2, 6, 12>().is_err());
+        assert!(t.to_core::<3, 6, 16>().is_err());
+    }
+}
