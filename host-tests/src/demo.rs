@@ -276,8 +276,8 @@ fn score_on(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord], timed: bool) -> Re
 /// The smoothed prediction that frame `v` carries: for frame `v.index − L` of the same clip
 /// (when the clip has that frame and it asks for a prediction), the smoothed lanes whose ids the
 /// filter published at that frame (`published[k]` for the clip's frame `k`), at its rows, over
-/// the extent the filter published for them at that frame (the core's smoothed lanes carry the
-/// current frame's extent; see the README).
+/// their own extent (the core's smoothed lanes carry the extent of frame `k`, the one the filter
+/// published then).
 fn smoothed_prediction(
     v: &FrameView<'_>,
     frames: &[Frame],
@@ -295,13 +295,8 @@ fn smoothed_prediction(
         .smoothed
         .iter()
         .filter_map(|l| {
-            let f = ids.get(&l.id.0)?;
-            let l = LaneEstimate {
-                u_first: f.u_first,
-                u_last: f.u_last,
-                ..*l
-            };
-            let xs = track::lane_columns(&cam, rows, |u| track::lane_x_from_points(tables, &l, u));
+            ids.get(&l.id.0)?;
+            let xs = track::lane_columns(&cam, rows, |u| track::lane_x_from_points(tables, l, u));
             Some((f64::from(l.z[0]), xs))
         })
         .filter(|(_, xs)| xs.iter().any(|x| *x >= 0.0))
