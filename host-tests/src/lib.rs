@@ -6,9 +6,11 @@
 pub mod camera;
 pub mod frontend;
 pub mod hyper;
+pub mod invariants;
 pub mod metric;
 pub mod reference;
 pub mod scenario;
+pub mod soak;
 pub mod synth;
 pub mod tablegen;
 pub mod track;
