@@ -140,6 +140,10 @@ pub enum TablesError {
     NotPositiveDefinite,
     /// `gram_rank` is 0 or larger than `POINTS`, or eigenvalues are not decreasing.
     GramBasis,
+    /// The largest prior variance of a temporal state (`max_k B_kk · λ₁ · σ_t²`) exceeds
+    /// [`MAX_PRIOR_OVER_NOISE`] times the pseudo-measurement noise floor `r₀²`: the f32 Kalman
+    /// update of a new lane would lose its posterior to rounding.
+    IllConditioned,
 }
 
 impl core::fmt::Display for TablesError {
@@ -154,6 +158,7 @@ impl core::fmt::Display for TablesError {
                 "a covariance or factor is not symmetric positive definite"
             }
             Self::GramBasis => "Gram eigenbasis is inconsistent",
+            Self::IllConditioned => "prior variance too large for f32 against the noise floor",
         };
         f.write_str(s)
     }
@@ -163,6 +168,17 @@ impl core::error::Error for TablesError {}
 
 /// Relative tolerance of the consistency checks in [`Tables::validate`] (f32 storage of f64 values).
 const CHECK_TOL: f32 = 1e-4;
+
+/// Largest ratio of a temporal state's prior variance (`max_k B_kk · λ₁ · σ_t²`, m²) to the
+/// pseudo-measurement noise floor `r₀²` that [`Tables::validate`] accepts.
+///
+/// The first update of a new lane takes its covariance from the prior down to about the noise;
+/// in f32 the posterior is the difference of two numbers that large, so a ratio near `1/ε`
+/// leaves nothing of it. Measured with the fuzz target `tables_validate` (the default tables
+/// with the Gram matrix and its eigenvalues scaled by `2^k`, three clean lanes): the default
+/// ratio is 7.5e4; the temporal covariance stays PSD up to a ratio of 3.8e7 (×512) and loses
+/// it at 7.7e7 (×1024). 1e7 keeps a margin of ~4 below the failure and ~130 above the default.
+pub const MAX_PRIOR_OVER_NOISE: f32 = 1e7;
 
 fn all_finite<'a>(it: impl IntoIterator<Item = &'a f32>) -> bool {
     it.into_iter().all(|v| v.is_finite())
@@ -271,6 +287,12 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
         if rank == 0 || rank > POINTS || !decreasing || !nonneg {
             return Err(TablesError::GramBasis);
         }
+        let b_max = self.coreg.diagonal().iter().fold(0.0f32, |m, v| m.max(*v));
+        let lam1 = self.gram_eigval.get(0).copied().unwrap_or(0.0);
+        let prior = b_max * lam1 * self.temporal.kernel.variance;
+        if !(prior <= MAX_PRIOR_OVER_NOISE * h.pseudo_noise) {
+            return Err(TablesError::IllConditioned);
+        }
         Ok(())
     }
 }
@@ -324,6 +346,22 @@ mod tests {
         let mut t = DEFAULT;
         t.gram_rank = 0;
         assert_eq!(t.validate(), Err(TablesError::GramBasis));
+        // A consistent rescale of the Gram matrix by 1218 (fuzz finding F3) is beyond f32.
+        let mut t = DEFAULT;
+        t.gram *= 1218.0;
+        t.gram_eigval *= 1218.0;
+        assert_eq!(t.validate(), Err(TablesError::IllConditioned));
+        let mut t = DEFAULT;
+        t.hyper.pseudo_noise = 1e-9;
+        assert_eq!(t.validate(), Err(TablesError::IllConditioned));
+    }
+
+    #[test]
+    fn default_prior_over_noise_has_margin() {
+        let b = DEFAULT.coreg.diagonal().max();
+        let ratio = b * DEFAULT.gram_eigval[0] * DEFAULT.temporal.kernel.variance
+            / DEFAULT.hyper.pseudo_noise;
+        assert!(ratio > 1e4 && ratio < MAX_PRIOR_OVER_NOISE / 100.0, "{ratio}");
     }
 
     #[test]
