@@ -290,7 +290,8 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
         let b_max = self.coreg.diagonal().iter().fold(0.0f32, |m, v| m.max(*v));
         let lam1 = self.gram_eigval.get(0).copied().unwrap_or(0.0);
         let prior = b_max * lam1 * self.temporal.kernel.variance;
-        if !(prior <= MAX_PRIOR_OVER_NOISE * h.pseudo_noise) {
+        // Finite positive factors (checked above): the product is finite or +inf, never NaN.
+        if prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise {
             return Err(TablesError::IllConditioned);
         }
         Ok(())
@@ -361,7 +362,10 @@ mod tests {
         let b = DEFAULT.coreg.diagonal().max();
         let ratio = b * DEFAULT.gram_eigval[0] * DEFAULT.temporal.kernel.variance
             / DEFAULT.hyper.pseudo_noise;
-        assert!(ratio > 1e4 && ratio < MAX_PRIOR_OVER_NOISE / 100.0, "{ratio}");
+        assert!(
+            ratio > 1e4 && ratio < MAX_PRIOR_OVER_NOISE / 100.0,
+            "{ratio}"
+        );
     }
 
     #[test]
