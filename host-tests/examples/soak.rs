@@ -33,6 +33,9 @@ struct Args {
     /// Frames per comparison episode.
     #[arg(long, default_value_t = 3_000)]
     episode: u64,
+    /// Run the f64 reference in one episode out of this many (1: compare every frame).
+    #[arg(long, default_value_t = 1)]
+    compare_every: u64,
     /// Compare the smoothed lanes every this many frames (0: never).
     #[arg(long, default_value_t = 30)]
     smooth_every: u64,
@@ -53,6 +56,7 @@ fn main() -> Result<()> {
         threads: a.threads,
         reference: !a.no_reference,
         episode: a.episode,
+        compare_every: a.compare_every,
         smooth_every: a.smooth_every,
         health_every: a.health_every,
     };
@@ -61,7 +65,22 @@ fn main() -> Result<()> {
         "{elapsed_precise} [{bar:40}] {pos}/{len} frames ({per_sec}, eta {eta})",
     )?);
     let t0 = std::time::Instant::now();
-    let summary = run(&cfg, &|n| bar.set_position(n))?;
+    // Without a terminal the bar is hidden: log a line a minute to stderr instead.
+    let hidden = bar.is_hidden();
+    let last_log = std::sync::Mutex::new(std::time::Instant::now());
+    let summary = run(&cfg, &|n| {
+        bar.set_position(n);
+        if let Ok(mut l) = last_log.lock() {
+            if hidden && l.elapsed().as_secs() >= 60 {
+                *l = std::time::Instant::now();
+                eprintln!(
+                    "{:.0} s: {n}/{} frames",
+                    t0.elapsed().as_secs_f64(),
+                    cfg.frames
+                );
+            }
+        }
+    })?;
     bar.finish();
     let json = serde_json::json!({
         "config": cfg,
