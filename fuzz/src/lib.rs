@@ -36,6 +36,8 @@ use stjpdacf::tracker::{Instant, ReferenceTracker, StepError};
 #[path = "../../host-tests/src/invariants.rs"]
 pub mod invariants;
 
+// Re-exported for users of the fuzz crate (unused where a test includes this file).
+#[allow(unused_imports)]
 pub use invariants::{
     check_output, check_temporal, check_tracker, cov_health, CovHealth, PsdCheck, LANES, NX,
     POINTS, RANK,
@@ -189,11 +191,7 @@ pub fn tracker_step(data: &[u8]) -> Result<(), String> {
     let mut last: Option<i64> = None;
     for (k, (at, pts)) in decode_tracker_input(data).into_iter().enumerate() {
         let refuse = last.is_some_and(|l| at <= l);
-        let before = if refuse {
-            Some(format!("{t:?}"))
-        } else {
-            None
-        };
+        let before = if refuse { Some(format!("{t:?}")) } else { None };
         let frames = t.frames();
         match (t.step(Instant::from_micros(at), &pts), before) {
             (Err(StepError::NonIncreasingTime), Some(before)) => {
@@ -222,8 +220,8 @@ pub fn tracker_step(data: &[u8]) -> Result<(), String> {
 }
 
 /// A pseudo-measurement as the spatial filter would give (present mask, positions near a line,
-/// PSD covariance `L Lᵀ` with variances from 1e-10 to 1e2 m²), with NaN/inf injected into
-/// positions or covariance at a small rate.
+/// PSD covariance `L Lᵀ` with variances from 1e-10 to 1e2 m²), with special values injected
+/// into a position, or NaN/±inf into the covariance, at a small rate.
 fn decode_obs(u: &mut Unstructured<'_>) -> LaneObservation<POINTS> {
     let mask = u.arbitrary::<u16>().unwrap_or(0);
     let present: [bool; POINTS] = core::array::from_fn(|i| mask & (1 << i) != 0);
@@ -252,11 +250,10 @@ fn decode_obs(u: &mut Unstructured<'_>) -> LaneObservation<POINTS> {
     match byte(u) % 16 {
         0 => z[usize::from(byte(u)) % POINTS] = special(u),
         1 => {
-            let (i, j) = (
-                usize::from(byte(u)) % POINTS,
-                usize::from(byte(u)) % POINTS,
-            );
-            let v = special(u);
+            // Only non-finite values: a finite edit could make `R` indefinite, which is outside
+            // the update's contract (the spatial filter's covariances are PSD; see finding F1/F2).
+            let (i, j) = (usize::from(byte(u)) % POINTS, usize::from(byte(u)) % POINTS);
+            let v = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY][usize::from(byte(u)) % 3];
             cov[(i, j)] = v;
             cov[(j, i)] = v;
         }
@@ -283,50 +280,101 @@ fn decode_step(u: &mut Unstructured<'_>) -> f32 {
     }
 }
 
+/// One operation of [`temporal_ops`].
+#[derive(Debug, Clone)]
+pub enum Op {
+    /// `predict(dt)`.
+    Predict(f32),
+    /// `start_lane(slot, rank, ranks)`.
+    Start(usize, u8, [u8; LANES]),
+    /// `update(slot, observation)`.
+    Update(usize, Box<LaneObservation<POINTS>>),
+    /// `remove_lane(slot)`.
+    Remove(usize),
+    /// `set_ranks(ranks)`.
+    SetRanks([u8; LANES]),
+}
+
+impl Op {
+    /// Applies the operation; returns a description and the result.
+    pub fn apply(
+        &self,
+        t: &mut Temporal<LANES, POINTS, RANK, NX, 42, 4>,
+    ) -> (
+        String,
+        Result<(), stjpdacf::temporal::filter::TemporalError>,
+    ) {
+        match self {
+            Op::Predict(dt) => (format!("predict {dt:e} s"), t.predict(&DEFAULT, *dt)),
+            Op::Start(s, rank, ranks) => (
+                format!("start slot {s} rank {rank} ranks {ranks:?}"),
+                t.start_lane(&DEFAULT, *s, *rank, ranks).map(|_| ()),
+            ),
+            Op::Update(s, obs) => {
+                let n = obs.present.iter().filter(|p| **p).count();
+                let (lo, hi) = obs
+                    .cov
+                    .diagonal()
+                    .iter()
+                    .zip(obs.present)
+                    .filter(|(_, p)| *p)
+                    .fold((f32::INFINITY, 0.0f32), |(a, b), (v, _)| {
+                        (a.min(*v), b.max(*v))
+                    });
+                (
+                    format!("update slot {s}, {n} points, variances {lo:e}..{hi:e}"),
+                    t.update(&DEFAULT, *s, obs),
+                )
+            }
+            Op::Remove(s) => {
+                t.remove_lane(*s);
+                (format!("remove slot {s}"), Ok(()))
+            }
+            Op::SetRanks(ranks) => (format!("set_ranks {ranks:?}"), t.set_ranks(ranks)),
+        }
+    }
+}
+
+/// The operations a [`temporal_ops`] input describes.
+pub fn decode_temporal_input(data: &[u8]) -> Vec<Op> {
+    let mut u = Unstructured::new(data);
+    let mut ops = Vec::new();
+    for _ in 0..MAX_OPS {
+        if u.is_empty() {
+            break;
+        }
+        ops.push(match byte(&mut u) % 6 {
+            0 => Op::Predict(decode_step(&mut u)),
+            1 => {
+                let s = usize::from(byte(&mut u)) % (LANES + 1);
+                let rank = byte(&mut u) % 8;
+                Op::Start(s, rank, core::array::from_fn(|_| byte(&mut u) % 8))
+            }
+            2 | 3 => {
+                let s = usize::from(byte(&mut u)) % (LANES + 1);
+                Op::Update(s, Box::new(decode_obs(&mut u)))
+            }
+            4 => Op::Remove(usize::from(byte(&mut u)) % (LANES + 1)),
+            _ => Op::SetRanks(core::array::from_fn(|_| byte(&mut u) % 8)),
+        });
+    }
+    ops
+}
+
 /// Any sequence of the temporal stage's operations (up to [`MAX_OPS`]); after each, the state is
 /// checked ([`check_temporal`]) and a failed operation must have left it untouched.
 ///
 /// # Errors
 /// A description of the first invariant violated.
 pub fn temporal_ops(data: &[u8]) -> Result<(), String> {
-    let mut u = Unstructured::new(data);
     let mut t: Box<Temporal<LANES, POINTS, RANK, NX, 42, 4>> = Box::new(Temporal::new());
-    for k in 0..MAX_OPS {
-        if u.is_empty() {
-            break;
-        }
+    for (k, op) in decode_temporal_input(data).iter().enumerate() {
         let before = t.clone();
-        let (what, res) = match byte(&mut u) % 6 {
-            0 => {
-                let dt = decode_step(&mut u);
-                ("predict", t.predict(&DEFAULT, dt).map(|_| ()))
-            }
-            1 => {
-                let s = usize::from(byte(&mut u)) % (LANES + 1);
-                let rank = byte(&mut u) % 8;
-                let ranks: [u8; LANES] = core::array::from_fn(|_| byte(&mut u) % 8);
-                (
-                    "start",
-                    t.start_lane(&DEFAULT, s, rank, &ranks).map(|_| ()),
-                )
-            }
-            2 | 3 => {
-                let s = usize::from(byte(&mut u)) % (LANES + 1);
-                let obs = decode_obs(&mut u);
-                ("update", t.update(&DEFAULT, s, &obs))
-            }
-            4 => {
-                let s = usize::from(byte(&mut u)) % (LANES + 1);
-                t.remove_lane(s);
-                ("remove", Ok(()))
-            }
-            _ => {
-                let ranks: [u8; LANES] = core::array::from_fn(|_| byte(&mut u) % 8);
-                ("set_ranks", t.set_ranks(&ranks))
-            }
-        };
+        let (what, res) = op.apply(&mut t);
         if res.is_err() && *t != *before {
-            return Err(format!("op {k} ({what}) failed with {res:?} and changed the state"));
+            return Err(format!(
+                "op {k} ({what}) failed with {res:?} and changed the state"
+            ));
         }
         check_temporal(&t, &DEFAULT, PsdCheck::Cholesky)
             .map_err(|e| format!("op {k} ({what}, {res:?}): {e}"))?;
@@ -483,12 +531,17 @@ fn check_obs(o: &LaneObservation<POINTS>, tables: &ReferenceTables) -> Result<()
     let idx: Vec<usize> = (0..POINTS).filter(|&i| o.present[i]).collect();
     cov_health(&o.cov, &idx, PsdCheck::Cholesky).map_err(|e| format!("observation: {e}"))?;
     let (lo, hi) = (tables.hyper.u_min, tables.hyper.u_max);
-    if !(o.u_first <= o.u_last && o.u_first >= lo - tables.hyper.row_step && o.u_last <= hi + tables.hyper.row_step)
+    if !(o.u_first <= o.u_last
+        && o.u_first >= lo - tables.hyper.row_step
+        && o.u_last <= hi + tables.hyper.row_step)
     {
         return Err(format!("observation extent {} .. {}", o.u_first, o.u_last));
     }
     if !(0.0..=1.0).contains(&o.existence) || usize::from(o.rank) >= LANES {
-        return Err(format!("observation existence {} rank {}", o.existence, o.rank));
+        return Err(format!(
+            "observation existence {} rank {}",
+            o.existence, o.rank
+        ));
     }
     Ok(())
 }
@@ -553,8 +606,7 @@ pub fn tables_validate(data: &[u8]) -> Result<(), String> {
                     *r = q as u8;
                 }
                 let before = temporal.clone();
-                if temporal.start_lane(&t, s, lanes as u8, &ranks).is_err()
-                    && *temporal != *before
+                if temporal.start_lane(&t, s, lanes as u8, &ranks).is_err() && *temporal != *before
                 {
                     return Err(format!("frame {frame}: failed start changed the state"));
                 }
