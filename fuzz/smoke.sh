@@ -23,6 +23,7 @@ for t in tracker_step temporal_ops tables_validate; do
     [ -e "$c" ] || continue
     n=$((n + 1))
     msg="$("$bin/$t" "$c" 2>&1 | grep -m1 'invariant violated' || true)"
+    echo "${msg:-no invariant message}" | sed -E 's/-?[0-9][0-9.]*(e-?[0-9]+)?/N/g' >> "$work/$t/messages"
     if [ -z "$msg" ] || ! grep -Eq "$known" <<< "$msg"; then
       unknown=$((unknown + 1))
       echo "NEW FINDING in $t: ${msg:-no invariant message (panic in the core?)}: $c"
@@ -30,6 +31,7 @@ for t in tracker_step temporal_ops tables_validate; do
     fi
   done
   echo "fuzz smoke $t: ${execs:-0} executions in ${secs} s, $n crash inputs, $unknown not known findings"
+  if [ -e "$work/$t/messages" ]; then sort "$work/$t/messages" | uniq -c | sed 's/^/    /'; fi
   [ "$unknown" -eq 0 ] || status=1
 done
 rm -rf "$work"
