@@ -11,8 +11,47 @@ fn main() {
             stjpdacf_fuzz::tracker_step(&data)
         }
         "temporal_ops" => stjpdacf_fuzz::temporal_ops(&data),
-        "tables_validate" => stjpdacf_fuzz::tables_validate(&data),
+        "tables_validate" => {
+            which_differ(&data);
+            stjpdacf_fuzz::tables_validate(&data)
+        }
         _ => Err(format!("unknown target {target}")),
     };
     println!("{r:?}");
+}
+
+/// Differences of mutated tables from the default (for `tables_validate` inputs).
+pub fn table_diff(data: &[u8]) {
+    let t = stjpdacf_fuzz::mutate_tables(&mut arbitrary::Unstructured::new(data));
+    let d = stjpdacf::tables::DEFAULT;
+    println!("hyper: {:?}", t.hyper);
+    println!("default hyper: {:?}", d.hyper);
+    println!("coreg diag {:?} vs {:?}", t.coreg.diagonal().as_slice(), d.coreg.diagonal().as_slice());
+    println!("eigval0 {} vs {}; gram00 {} vs {}; rank {}", t.gram_eigval[0], d.gram_eigval[0], t.gram[(0,0)], d.gram[(0,0)], t.gram_rank);
+    println!("temporal {:?}", t.temporal.kernel);
+    println!("spatial q {:?} vs {:?}; qc {} vs {}", t.spatial.q.as_slice(), d.spatial.q.as_slice(), t.spatial.model.qc, d.spatial.model.qc);
+    println!("validate {:?}", t.validate());
+}
+
+/// Which matrices differ from the default.
+pub fn which_differ(data: &[u8]) {
+    let t = stjpdacf_fuzz::mutate_tables(&mut arbitrary::Unstructured::new(data));
+    let d = stjpdacf::tables::DEFAULT;
+    let m = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    println!(
+        "eigvec {} gram {} eigval {} coreg {} chol {} A {} p_inf {} sf {} sq {} tf {} tq {} tp {} index_u {}",
+        m(t.gram_eigvec.as_slice(), d.gram_eigvec.as_slice()),
+        m(t.gram.as_slice(), d.gram.as_slice()),
+        m(t.gram_eigval.as_slice(), d.gram_eigval.as_slice()),
+        m(t.coreg.as_slice(), d.coreg.as_slice()),
+        m(t.coreg_chol.as_slice(), d.coreg_chol.as_slice()),
+        m(t.spatial.model.A.as_slice(), d.spatial.model.A.as_slice()),
+        m(t.spatial.model.p_inf.as_slice(), d.spatial.model.p_inf.as_slice()),
+        m(t.spatial.f.as_slice(), d.spatial.f.as_slice()),
+        m(t.spatial.q.as_slice(), d.spatial.q.as_slice()),
+        m(t.temporal.f.as_slice(), d.temporal.f.as_slice()),
+        m(t.temporal.q.as_slice(), d.temporal.q.as_slice()),
+        m(t.temporal.p_inf.as_slice(), d.temporal.p_inf.as_slice()),
+        m(t.index_u.as_slice(), d.index_u.as_slice()),
+    );
 }

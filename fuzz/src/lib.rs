@@ -441,7 +441,8 @@ fn factor(u: &mut Unstructured<'_>) -> f32 {
 }
 
 /// Mutates the default tables as the input says.
-fn mutate_tables(u: &mut Unstructured<'_>) -> ReferenceTables {
+/// The tables a [`tables_validate`] input describes (the default tables, mutated).
+pub fn mutate_tables(u: &mut Unstructured<'_>) -> ReferenceTables {
     let mut t = DEFAULT;
     let n = byte(u) % 8;
     for _ in 0..n {
