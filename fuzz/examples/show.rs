@@ -20,24 +20,16 @@ fn main() {
     println!("{r:?}");
 }
 
-/// Differences of mutated tables from the default (for `tables_validate` inputs).
-pub fn table_diff(data: &[u8]) {
-    let t = stjpdacf_fuzz::mutate_tables(&mut arbitrary::Unstructured::new(data));
-    let d = stjpdacf::tables::DEFAULT;
-    println!("hyper: {:?}", t.hyper);
-    println!("default hyper: {:?}", d.hyper);
-    println!("coreg diag {:?} vs {:?}", t.coreg.diagonal().as_slice(), d.coreg.diagonal().as_slice());
-    println!("eigval0 {} vs {}; gram00 {} vs {}; rank {}", t.gram_eigval[0], d.gram_eigval[0], t.gram[(0,0)], d.gram[(0,0)], t.gram_rank);
-    println!("temporal {:?}", t.temporal.kernel);
-    println!("spatial q {:?} vs {:?}; qc {} vs {}", t.spatial.q.as_slice(), d.spatial.q.as_slice(), t.spatial.model.qc, d.spatial.model.qc);
-    println!("validate {:?}", t.validate());
-}
-
 /// Which matrices differ from the default.
 pub fn which_differ(data: &[u8]) {
     let t = stjpdacf_fuzz::mutate_tables(&mut arbitrary::Unstructured::new(data));
     let d = stjpdacf::tables::DEFAULT;
-    let m = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    let m = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
     println!(
         "eigvec {} gram {} eigval {} coreg {} chol {} A {} p_inf {} sf {} sq {} tf {} tq {} tp {} index_u {}",
         m(t.gram_eigvec.as_slice(), d.gram_eigvec.as_slice()),

@@ -189,14 +189,18 @@ fn finding_f3_validator_refuses_prior_beyond_f32() {
 
 /// **F4** (fixed in `src/tables/mod.rs`): `Tables::validate` did not check the stored matrices
 /// against the models they come from, and the long `tables_validate` run found three ways to
-/// break the filters with tables it accepted: an eigenvector entry set to 80 (basis not
-/// orthonormal: negative temporal covariance diagonal), the temporal `P∞` scaled by ~1,400
-/// (prior beyond f32, as F3), the spatial nominal `Q` halved on one entry (negative
-/// pseudo-measurement variance). `validate` now checks `VᵀV = I`, `K V = V Λ` and the nominal
+/// break the filters with tables it accepted: an eigenvector entry set to ~80 (basis not
+/// orthonormal: negative temporal covariance diagonal), an entry of the temporal `P∞` raised by
+/// ~1.4e3 (prior beyond f32, as F3), a symmetric pair of the spatial nominal `Q` rescaled
+/// (negative pseudo-measurement variance). `validate` now checks `VᵀV = I`, `K V = V Λ` and the nominal
 /// `F`, `Q`, `P∞` against their models (`TablesError::Inconsistent`).
 #[test]
 fn finding_f4_validator_refuses_tables_off_their_model() {
-    replay("regressions/tables_validate", "f4-", harness::tables_validate);
+    replay(
+        "regressions/tables_validate",
+        "f4-",
+        harness::tables_validate,
+    );
 }
 
 /// The findings' inputs still reproduce their faults (this test is not ignored: when a fix
