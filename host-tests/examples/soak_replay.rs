@@ -68,7 +68,8 @@ fn main() {
             .iter()
             .flat_map(|l| l.var.iter())
             .fold(f32::INFINITY, |m, v| m.min(*v));
-        let ok = !(h.min_eig_corr < -1e-3);
+        // NaN (no active lane) counts as healthy.
+        let ok = h.min_eig_corr.is_nan() || h.min_eig_corr >= -1e-3;
         if was_ok && !ok {
             breaks += 1;
             if worst < 0.0 {
