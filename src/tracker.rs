@@ -277,6 +277,12 @@ impl<
         self.frames
     }
 
+    /// The temporal stage (filter with its covariance, fixed-lag window), read-only: for
+    /// diagnostics and the reliability checks (covariance symmetry and PSD, soak).
+    pub fn temporal(&self) -> &Temporal<LANES, POINTS, RANK, NX, NA, LAG> {
+        &self.temporal
+    }
+
     /// One frame: BEV feature points `(u, x)` in metres at time `now`.
     ///
     /// # Errors

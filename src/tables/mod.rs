@@ -140,6 +140,15 @@ pub enum TablesError {
     NotPositiveDefinite,
     /// `gram_rank` is 0 or larger than `POINTS`, or eigenvalues are not decreasing.
     GramBasis,
+    /// A stored matrix disagrees with the model it is derived from: `gram_eigvec` not orthonormal
+    /// or not eigenvectors of `gram` with `gram_eigval`; the temporal `f`, `q`, `p_inf` not those
+    /// of `temporal.kernel` at `frame_step`; the spatial `f`, `q` not those of `spatial.model` at
+    /// `row_step`.
+    Inconsistent,
+    /// The largest prior variance of a temporal state (`max_k B_kk · λ₁ · σ_t²`) exceeds
+    /// [`MAX_PRIOR_OVER_NOISE`] times the pseudo-measurement noise floor `r₀²`: the f32 Kalman
+    /// update of a new lane would lose its posterior to rounding.
+    IllConditioned,
 }
 
 impl core::fmt::Display for TablesError {
@@ -154,6 +163,8 @@ impl core::fmt::Display for TablesError {
                 "a covariance or factor is not symmetric positive definite"
             }
             Self::GramBasis => "Gram eigenbasis is inconsistent",
+            Self::IllConditioned => "prior variance too large for f32 against the noise floor",
+            Self::Inconsistent => "a stored matrix disagrees with the model it is derived from",
         };
         f.write_str(s)
     }
@@ -163,6 +174,31 @@ impl core::error::Error for TablesError {}
 
 /// Relative tolerance of the consistency checks in [`Tables::validate`] (f32 storage of f64 values).
 const CHECK_TOL: f32 = 1e-4;
+
+/// Relative tolerance of [`TablesError::Inconsistent`]: stored f64-derived matrices against the
+/// same quantity recomputed in f32 (orthonormality, eigen-equation, discretisation); the
+/// generated tables agree to ~1e-5 (see the `nominal_tables_match_runtime_discretisation` test).
+const MODEL_TOL: f32 = 1e-3;
+
+fn max_abs_diff<const R: usize, const C: usize>(
+    a: &SMatrix<f32, R, C>,
+    b: &SMatrix<f32, R, C>,
+) -> f32 {
+    a.iter()
+        .zip(b.iter())
+        .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()))
+}
+
+/// Largest ratio of a temporal state's prior variance (`max_k B_kk · λ₁ · σ_t²`, m²) to the
+/// pseudo-measurement noise floor `r₀²` that [`Tables::validate`] accepts.
+///
+/// The first update of a new lane takes its covariance from the prior down to about the noise;
+/// in f32 the posterior is the difference of two numbers that large, so a ratio near `1/ε`
+/// leaves nothing of it. Measured with the fuzz target `tables_validate` (the default tables
+/// with the Gram matrix and its eigenvalues scaled by `2^k`, three clean lanes): the default
+/// ratio is 7.5e4; the temporal covariance stays PSD up to a ratio of 3.8e7 (×512) and loses
+/// it at 7.7e7 (×1024). 1e7 keeps a margin of ~4 below the failure and ~130 above the default.
+pub const MAX_PRIOR_OVER_NOISE: f32 = 1e7;
 
 fn all_finite<'a>(it: impl IntoIterator<Item = &'a f32>) -> bool {
     it.into_iter().all(|v| v.is_finite())
@@ -179,7 +215,7 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
     /// basis. Generated tables always pass; use it on tables loaded at run time.
     ///
     /// # Complexity
-    /// O(NT² + POINTS² + LANES³), no allocation.
+    /// O(NT³·log + POINTS³ + LANES³) (two discretisations, the eigen-equation), no allocation.
     ///
     /// # Errors
     /// The first [`TablesError`] found.
@@ -271,6 +307,44 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
         if rank == 0 || rank > POINTS || !decreasing || !nonneg {
             return Err(TablesError::GramBasis);
         }
+        // The eigenbasis: orthonormal, and K V = V Λ.
+        let v = &self.gram_eigvec;
+        let vtv = v.transpose() * v;
+        let kv = self.gram * v;
+        let vl = SMatrix::<f32, POINTS, POINTS>::from_fn(|i, j| {
+            v.get((i, j)).copied().unwrap_or(0.0) * self.gram_eigval.get(j).copied().unwrap_or(0.0)
+        });
+        let k_scale = self.gram.abs().max();
+        if max_abs_diff(&vtv, &SMatrix::identity()) > MODEL_TOL
+            || max_abs_diff(&kv, &vl) > MODEL_TOL * k_scale
+        {
+            return Err(TablesError::Inconsistent);
+        }
+        // The nominal transitions and stationary covariance against their models.
+        let close =
+            |a: &Matrix2<f32>, b: &Matrix2<f32>| max_abs_diff(a, b) <= MODEL_TOL * b.abs().max();
+        let Some((tf, tq)) = tp.kernel.transition(h.frame_step) else {
+            return Err(TablesError::Inconsistent);
+        };
+        let Some((sf, sq)) = sp.model.transition(h.row_step) else {
+            return Err(TablesError::Inconsistent);
+        };
+        let sp_close = max_abs_diff(&sp.f, &sf) <= MODEL_TOL * sf.abs().max()
+            && max_abs_diff(&sp.q, &sq) <= MODEL_TOL * sq.abs().max();
+        if !(close(&tp.f, &tf)
+            && close(&tp.q, &tq)
+            && close(&tp.p_inf, &tp.kernel.p_inf())
+            && sp_close)
+        {
+            return Err(TablesError::Inconsistent);
+        }
+        let b_max = self.coreg.diagonal().iter().fold(0.0f32, |m, v| m.max(*v));
+        let lam1 = self.gram_eigval.get(0).copied().unwrap_or(0.0);
+        let prior = b_max * lam1 * self.temporal.kernel.variance;
+        // Finite positive factors (checked above): the product is finite or +inf, never NaN.
+        if prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise {
+            return Err(TablesError::IllConditioned);
+        }
         Ok(())
     }
 }
@@ -324,6 +398,35 @@ mod tests {
         let mut t = DEFAULT;
         t.gram_rank = 0;
         assert_eq!(t.validate(), Err(TablesError::GramBasis));
+        // A consistent rescale of the Gram matrix by 1218 (fuzz finding F3) is beyond f32.
+        let mut t = DEFAULT;
+        t.gram *= 1218.0;
+        t.gram_eigval *= 1218.0;
+        assert_eq!(t.validate(), Err(TablesError::IllConditioned));
+        let mut t = DEFAULT;
+        t.hyper.pseudo_noise = 1e-9;
+        assert_eq!(t.validate(), Err(TablesError::IllConditioned));
+        // Fuzz finding F4: stored matrices that disagree with their models.
+        let mut t = DEFAULT;
+        t.gram_eigvec[(3, 2)] = 80.0;
+        assert_eq!(t.validate(), Err(TablesError::Inconsistent));
+        let mut t = DEFAULT;
+        t.temporal.p_inf *= 860.0;
+        assert_eq!(t.validate(), Err(TablesError::Inconsistent));
+        let mut t = DEFAULT;
+        t.spatial.q *= 0.5;
+        assert_eq!(t.validate(), Err(TablesError::Inconsistent));
+    }
+
+    #[test]
+    fn default_prior_over_noise_has_margin() {
+        let b = DEFAULT.coreg.diagonal().max();
+        let ratio = b * DEFAULT.gram_eigval[0] * DEFAULT.temporal.kernel.variance
+            / DEFAULT.hyper.pseudo_noise;
+        assert!(
+            ratio > 1e4 && ratio < MAX_PRIOR_OVER_NOISE / 100.0,
+            "{ratio}"
+        );
     }
 
     #[test]

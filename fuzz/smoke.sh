@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Bounded fuzz smoke run for CI: builds the cargo-fuzz targets (libFuzzer, no sanitizer: stable
+# Rust), fuzzes each for SECS seconds from its committed seed corpus (fuzz/seeds/<target>/),
+# then replays every crash found and fails on any violation that is not an open, reported
+# finding listed in fuzz/known-findings.txt (or on any crash without an invariant message, e.g.
+# a panic inside the core). Usage: fuzz/smoke.sh [SECS] (default 20).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+secs="${1:-20}"
+cargo fuzz build --sanitizer none -O
+bin=fuzz/target/x86_64-unknown-linux-gnu/release
+known="$(grep -v '^#' fuzz/known-findings.txt | grep -v '^$' | paste -sd'|')"
+work="$(mktemp -d)"
+status=0
+for t in tracker_step temporal_ops tables_validate; do
+  mkdir -p "$work/$t/corpus" "$work/$t/crashes"
+  cp fuzz/seeds/$t/* "$work/$t/corpus/"
+  "$bin/$t" -fork=1 -ignore_crashes=1 -max_total_time="$secs" -rss_limit_mb=4096 \
+    -artifact_prefix="$work/$t/crashes/" "$work/$t/corpus" > "$work/$t/log" 2>&1 || true
+  execs="$(grep -o '^#[0-9]*' "$work/$t/log" | tail -1 | tr -d '#')"
+  n=0; unknown=0
+  for c in "$work/$t"/crashes/*; do
+    [ -e "$c" ] || continue
+    n=$((n + 1))
+    msg="$("$bin/$t" "$c" 2>&1 | grep -m1 'invariant violated' || true)"
+    echo "${msg:-no invariant message}" | sed -E 's/-?[0-9][0-9.]*(e-?[0-9]+)?/N/g' >> "$work/$t/messages"
+    if [ -z "$msg" ] || ! grep -Eq "$known" <<< "$msg"; then
+      unknown=$((unknown + 1))
+      echo "NEW FINDING in $t: ${msg:-no invariant message (panic in the core?)}: $c"
+      echo "input (base64): $(base64 -w0 "$c")"
+    fi
+  done
+  echo "fuzz smoke $t: ${execs:-0} executions in ${secs} s, $n crash inputs, $unknown not known findings"
+  if [ -e "$work/$t/messages" ]; then sort "$work/$t/messages" | uniq -c | sed 's/^/    /'; fi
+  [ "$unknown" -eq 0 ] || status=1
+done
+rm -rf "$work"
+exit "$status"
