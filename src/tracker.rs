@@ -146,6 +146,9 @@ pub struct StepReport {
     pub temporal_failures: u32,
     /// Frame step used, seconds (0 for the first frame).
     pub dt: f32,
+    /// Lane updates whose pseudo-measurement covariance was not positive definite and was
+    /// repaired (see [`crate::temporal::filter::TemporalFilter::update`]).
+    pub pseudo_cov_repairs: u32,
 }
 
 /// The output of one frame.
@@ -340,6 +343,7 @@ impl<
             over_budget_points: (points.len() - used) as u32,
             temporal_failures: 0,
             dt,
+            pseudo_cov_repairs: 0,
         };
         // 1. Spatial JPDACF.
         for o in &mut self.obs {
@@ -422,13 +426,13 @@ impl<
             let info = self.info.get_mut(s);
             match (o.and_then(|i| self.obs.get(i)), info) {
                 (Some(ob), Some(info)) => {
-                    if self.temporal.filter().is_active(s)
-                        && self
-                            .temporal
-                            .update_probed(self.tables, s, ob, probe)
-                            .is_err()
-                    {
-                        report.temporal_failures += 1;
+                    if self.temporal.filter().is_active(s) {
+                        match self.temporal.update_probed(self.tables, s, ob, probe) {
+                            Ok(u) => {
+                                report.pseudo_cov_repairs += u32::from(u.repaired_pivots > 0);
+                            }
+                            Err(_) => report.temporal_failures += 1,
+                        }
                     }
                     info.existence = ob.existence;
                     info.seen = true;

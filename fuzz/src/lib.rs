@@ -323,7 +323,7 @@ impl Op {
                     });
                 (
                     format!("update slot {s}, {n} points, variances {lo:e}..{hi:e}"),
-                    t.update(&DEFAULT, *s, obs),
+                    t.update(&DEFAULT, *s, obs).map(|_| ()),
                 )
             }
             Op::Remove(s) => {

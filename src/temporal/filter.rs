@@ -80,6 +80,18 @@ pub(crate) struct UpdateParts<const RANK: usize, const NX: usize> {
     pub m: SMatrix<f32, RANK, RANK>,
     /// `w = V_mᵀ S⁻¹ ν`.
     pub w: SVector<f32, RANK>,
+    /// Pivots of `R + r₀² I` raised because it was not positive definite there.
+    pub repaired: u8,
+}
+
+/// What a lane update did besides updating.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct UpdateInfo {
+    /// Pivots of the pseudo-measurement covariance `R + r₀² I` that were raised to `r₀²`
+    /// because it was not positive definite (0 for a valid covariance; see
+    /// [`TemporalFilter::update`]).
+    pub repaired_pivots: u8,
 }
 
 /// Disjoint, increasing index ranges, adjacent ones merged (at most `L`): the active parts of the
@@ -536,6 +548,11 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// present index points (`R` the observation's covariance block), as the rank-`r` correction
     /// of [`UpdateParts`]; the covariance keeps one computed triangle, mirrored (symmetric).
     ///
+    /// A pseudo-measurement covariance that is not positive semi-definite is repaired, not
+    /// trusted: its factorisation raises every pivot of `R + r₀² I` that falls below `r₀²/2` to
+    /// `r₀²` (a PSD `R` has all its pivots `≥ r₀²`), so the posterior stays PSD; the count is in
+    /// the returned [`UpdateInfo`].
+    ///
     /// # Errors
     /// [`TemporalError::BadSlot`], [`TemporalError::NoData`], [`TemporalError::Numerical`]; the
     /// state is unchanged.
@@ -548,11 +565,13 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         tables: &Tables<NT, LANES, POINTS>,
         s: usize,
         obs: &LaneObservation<POINTS>,
-    ) -> Result<(), TemporalError> {
+    ) -> Result<UpdateInfo, TemporalError> {
         let g = self.prepare_update(tables, s, obs)?;
         self.check_update(&g)?;
         self.apply_update(&g);
-        Ok(())
+        Ok(UpdateInfo {
+            repaired_pivots: g.repaired,
+        })
     }
 
     /// The gain parts of [`TemporalFilter::update`] (shared with the fixed-lag smoother).
@@ -605,14 +624,34 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        // S = T V_mᵀ + R + r₀² I on the leading m×m block (lower triangle, then factored).
+        // R̃ = sym(R) + r₀² I on the used points (lower triangle). With R PSD every pivot of its
+        // Cholesky factorisation is ≥ r₀²; a pivot below r₀²/2 means R is not PSD (the spatial
+        // pseudo-measurement covariance can be slightly indefinite: moment-matched mixtures make
+        // the per-lane RTS cross-covariances inconsistent). Such pivots are raised to r₀² (a
+        // modified Cholesky: R̃ + diag(e), e ≥ 0), so the noise used is PSD and the posterior
+        // stays PSD; they are counted.
         let r0 = tables.hyper.pseudo_noise;
         let mut l = SMatrix::<f32, POINTS, POINTS>::zeros();
         for b in 0..m {
             for a in b..m {
-                let mut acc = obs.cov.get((u(a), u(b))).copied().unwrap_or(0.0);
+                let acc = obs.cov.get((u(a), u(b))).copied().unwrap_or(0.0);
                 let acc2 = obs.cov.get((u(b), u(a))).copied().unwrap_or(0.0);
-                acc = 0.5 * (acc + acc2) + if a == b { r0 } else { 0.0 };
+                if let Some(e) = l.get_mut((a, b)) {
+                    *e = 0.5 * (acc + acc2) + if a == b { r0 } else { 0.0 };
+                }
+            }
+        }
+        let mut rt = l;
+        let mut load = [0.0f32; POINTS];
+        let repaired = cholesky_loaded(&mut rt, m, 0.5 * r0, r0, &mut load);
+        if repaired == u8::MAX {
+            return Err(TemporalError::Numerical);
+        }
+        // S = T V_mᵀ + R̃ + diag(e) on the leading m×m block (lower triangle, then factored).
+        for b in 0..m {
+            for a in b..m {
+                let mut acc = l.get((a, b)).copied().unwrap_or(0.0)
+                    + if a == b { get(&load, a) } else { 0.0 };
                 for k in 0..r {
                     acc += t.get((a, k)).copied().unwrap_or(0.0) * vg(u(b), k);
                 }
@@ -691,6 +730,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             g,
             m: M,
             w,
+            repaired,
         })
     }
 
@@ -909,6 +949,56 @@ fn cholesky_lower<const N: usize>(a: &mut SMatrix<f32, N, N>, n: usize) -> bool 
         }
     }
     true
+}
+
+/// Modified Cholesky of the leading `n×n` block of `a` (lower triangle read and replaced by `L`):
+/// a pivot `d` below `floor` becomes `max(|d|, target)` and the amount added is written to `load`, so
+/// `L Lᵀ = A + diag(load)`. Returns the number of raised pivots, or `u8::MAX` when a pivot or an
+/// entry is not finite (or `target` is not positive).
+fn cholesky_loaded<const N: usize>(
+    a: &mut SMatrix<f32, N, N>,
+    n: usize,
+    floor: f32,
+    target: f32,
+    load: &mut [f32; N],
+) -> u8 {
+    if !(target.is_finite() && target > 0.0) {
+        return u8::MAX;
+    }
+    let mut raised = 0u8;
+    for j in 0..n.min(N) {
+        let mut d = a.get((j, j)).copied().unwrap_or(0.0);
+        for k in 0..j {
+            let v = a.get((j, k)).copied().unwrap_or(0.0);
+            d -= v * v;
+        }
+        if !d.is_finite() {
+            return u8::MAX;
+        }
+        if d < floor {
+            // Reflected and floored (|d| keeps the scale of a badly indefinite matrix, so the
+            // repaired noise is not spuriously informative along the directions it was wrong).
+            let new = d.abs().max(target);
+            set(load, j, new - d);
+            d = new;
+            raised = raised.saturating_add(1);
+        }
+        let d = math::sqrt(d);
+        if let Some(e) = a.get_mut((j, j)) {
+            *e = d;
+        }
+        for i in j + 1..n.min(N) {
+            let mut acc = a.get((i, j)).copied().unwrap_or(0.0);
+            for k in 0..j {
+                acc -=
+                    a.get((i, k)).copied().unwrap_or(0.0) * a.get((j, k)).copied().unwrap_or(0.0);
+            }
+            if let Some(e) = a.get_mut((i, j)) {
+                *e = acc / d;
+            }
+        }
+    }
+    raised.min(u8::MAX - 1)
 }
 
 /// Solves `L y = b` in place, `L` the lower factor of [`cholesky_lower`], `b.len()` its order.

@@ -30,7 +30,9 @@
 
 use nalgebra::{Matrix2, SMatrix, SVector};
 
-use super::filter::{dot, project, times_sym, Spans, TemporalError, TemporalFilter, UpdateParts};
+use super::filter::{
+    dot, project, times_sym, Spans, TemporalError, TemporalFilter, UpdateInfo, UpdateParts,
+};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::LaneObservation;
 use crate::spatial::{get, set};
@@ -314,7 +316,7 @@ impl<
         tables: &Tables<NT, LANES, POINTS>,
         s: usize,
         obs: &LaneObservation<POINTS>,
-    ) -> Result<(), TemporalError> {
+    ) -> Result<UpdateInfo, TemporalError> {
         self.update_probed(tables, s, obs, &mut NoProbe)
     }
 
@@ -330,7 +332,7 @@ impl<
         s: usize,
         obs: &LaneObservation<POINTS>,
         probe: &mut P,
-    ) -> Result<(), TemporalError> {
+    ) -> Result<UpdateInfo, TemporalError> {
         probe.enter(Stage::Temporal);
         let g = self.filter.prepare_update(tables, s, obs)?;
         self.filter.check_update(&g)?;
@@ -364,7 +366,9 @@ impl<
         }
         probe.enter(Stage::Temporal);
         self.filter.apply_update(&g);
-        Ok(())
+        Ok(UpdateInfo {
+            repaired_pivots: g.repaired,
+        })
     }
 
     /// The smoothed lane in slot `s` `lag` frames back (`1..=LAG`): positions at the index points
