@@ -8,7 +8,7 @@
 //! ```
 //!
 //! counts exactly the instructions of the measured calls (divide by `N`, and by the frame count
-//! for the `seq_*` inputs). `bench/icount.sh` runs every input and prints the table of
+//! for the `seq_*` inputs). `bench/icount.py` runs every input (and the per-stage split, `--stages`) and prints the table of
 //! `docs/benchmarks.md`. Without valgrind it just runs (and prints the row/frame counters, which
 //! tie each input to the bench's: events, patterns, approximated rows).
 //!
@@ -28,6 +28,7 @@ use std::hint::black_box;
 use nalgebra::{SMatrix, SVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use stjpdacf::probe::{Probe, Stage};
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialReport, Status};
 use stjpdacf::spatial::row::{self, RowOutcome, RowParams};
 use stjpdacf::spatial::Stacked;
@@ -319,11 +320,58 @@ fn measure_spatial_frames(
     reps
 }
 
+macro_rules! marks {
+    ($($name:ident = $stage:ident),* $(,)?) => {
+        $(
+            /// Marks the entry of a stage (callgrind `--dump-before` target).
+            #[inline(never)]
+            fn $name() {
+                black_box(Stage::$stage as u8);
+            }
+        )*
+        /// Calls the stage's marker on every transition, so that callgrind with
+        /// `--dump-before='*stage_mark_*'` splits the counts by stage.
+        struct Marks;
+        impl Probe for Marks {
+            fn enter(&mut self, stage: Stage) {
+                match stage {
+                    $(Stage::$stage => $name(),)*
+                    _ => {}
+                }
+            }
+        }
+    };
+}
+
+marks! {
+    stage_mark_binning = Binning,
+    stage_mark_row_predict = RowPredict,
+    stage_mark_gating = Gating,
+    stage_mark_events = Events,
+    stage_mark_update = Update,
+    stage_mark_management = Management,
+    stage_mark_backward = Backward,
+    stage_mark_done = Done,
+}
+
+/// The frames again with stage markers (`--stages`): one pass, then [`Stage::Done`].
+#[inline(never)]
+fn measure_spatial_stages(f: &mut Filter, frames: &[Vec<[f32; 2]>], out: &mut Obs) {
+    let mut marks = Marks;
+    for fr in frames {
+        black_box(f.run_probed(&DEFAULT, &Config::DEFAULT, black_box(fr), out, &mut marks));
+        marks.enter(Stage::Done);
+    }
+}
+
 fn dump_state(s: &State) {
     for i in 0..s.len() {
         println!("  x[{i}] = {:?}", s.mean(i).expect("track").as_slice());
         for j in 0..s.len() {
-            println!("  P[{i}][{j}] = {:?}", s.cov(i, j).expect("track").as_slice());
+            println!(
+                "  P[{i}][{j}] = {:?}",
+                s.cov(i, j).expect("track").as_slice()
+            );
         }
     }
 }
@@ -352,6 +400,21 @@ fn main() {
         return;
     }
     let dump = args.first().map(String::as_str) == Some("--dump");
+    if args.first().map(String::as_str) == Some("--stages") {
+        let name = args
+            .get(1)
+            .cloned()
+            .unwrap_or_else(|| "frame_typical".into());
+        let Some(frames) = frame_inputs(&name) else {
+            eprintln!("--stages takes a frame input (frame_*, seq_*)");
+            std::process::exit(2);
+        };
+        let mut f = Box::new(Filter::new());
+        let mut out = empty_out();
+        measure_spatial_stages(&mut f, &frames, &mut out);
+        println!("{name}: frames {}", frames.len());
+        return;
+    }
     let names: Vec<String> = if dump {
         rows.iter()
             .map(|(n, _)| (*n).to_string())

@@ -447,6 +447,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
 
     /// Stores each track's current marginal as its predicted or filtered moments for row `r`
     /// (§3.6); filtered moments are not recorded for ended tracks, and mark the last recorded row.
+    #[inline(never)]
     fn record(&mut self, r: usize, which: Moment) {
         for (t, meta) in self.meta.iter_mut().enumerate().take(self.state.len()) {
             if which == Moment::Filtered {
@@ -486,6 +487,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
     /// §3.2: start tentative tracks from consistent free points; returns the mask of the row's
     /// points that started a track.
     #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
     fn initiate<const NT: usize, const POINTS: usize>(
         &mut self,
         r: usize,
@@ -674,6 +676,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
     }
 
     /// §3.4–3.5: hits and misses, confirm / delete / end, merge.
+    #[inline(never)]
     fn manage(
         &mut self,
         r: usize,
@@ -767,6 +770,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
 
     /// §4: backward RTS pass per confirmed track and pseudo-measurements at the index points.
     #[allow(non_snake_case, clippy::too_many_arguments)]
+    #[inline(never)]
     fn smooth<const NT: usize, const POINTS: usize>(
         &self,
         tables: &Tables<NT, LANES, POINTS>,

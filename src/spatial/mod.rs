@@ -161,6 +161,7 @@ impl<const NS: usize, const LANES: usize> Stacked<NS, LANES> {
     /// # Complexity
     /// `len()² · 2 NS³` multiply-adds, no allocation.
     #[allow(non_snake_case)]
+    #[inline(never)]
     pub fn predict<const D: usize>(
         &mut self,
         F: &SMatrix<f32, NS, NS>,

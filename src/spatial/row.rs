@@ -279,6 +279,323 @@ pub fn update_masked<const NS: usize, const LANES: usize>(
     update_probed(state, h, points, params, max_events, skip, &mut NoProbe)
 }
 
+/// Local and global weights are kept relative to a reference log-weight that is raised only when
+/// a new weight exceeds it by more than this (natural log units): rescaling is rare, and the
+/// accumulated sums stay far from f32 overflow (`e^{2·16}` times at most `E` events).
+const RESCALE: f32 = 16.0;
+
+/// One member of the current detection pattern (the tracks of a pattern in increasing order):
+/// its row of the `LDLᵀ` factor of `S_δ` and of `L⁻¹`. A pattern's factor is its parent's (the
+/// pattern without its highest track) plus one row, so a pattern costs `O(k²)`, not `O(k³)`.
+#[derive(Clone, Copy)]
+struct Member<const L: usize> {
+    /// Track index.
+    tr: u8,
+    /// Position in the list of eligible tracks.
+    pos: u8,
+    /// Gate mask.
+    mask: u32,
+    /// Predicted measurement `ẑ_t`.
+    zh: f32,
+    /// `1 / d_a`.
+    invd: f32,
+    /// `ln det` of the leading `a + 1` members' `S`.
+    logdet: f32,
+    /// Row `a` of the unit lower factor `L` (entries `b < a`, the rest 0).
+    l: [f32; L],
+    /// Row `a` of `L⁻¹` (entries `b ≤ a`, diagonal 1, the rest 0).
+    li: [f32; L],
+}
+
+/// One level of the event enumeration: the candidates left, the pick, and the running forward
+/// substitution (`u = L⁻¹ ν`, `q = Σ u_b² / d_b`, `r = Σ_b (u_b / d_b) (L⁻¹)_bᵀ = S⁻¹ ν` over the
+/// members picked so far).
+#[derive(Clone, Copy)]
+struct Level<const L: usize> {
+    rem: u32,
+    pick: u32,
+    u: f32,
+    q: f32,
+    r: [f32; L],
+}
+
+/// The working memory of the event stage: the pattern's members, the enumeration stack, and the
+/// pattern's sums, in units of `e^{−q/2 − shift}`: `wd = Σ w`, `y = Σ w r`,
+/// `c = wd S⁻¹ − Σ w r rᵀ` (lower triangle), in pattern coordinates, and
+/// `bl[a][j] = Σ_{A: a→j} w`. RAM: `4·(L·(2L + 6) + L·(L + 4) + L² + 32·L + 4)` bytes
+/// (1.8 KiB of stack at `L = 6`).
+struct Work<const L: usize> {
+    mem: [Member<L>; L],
+    lev: [Level<L>; L],
+    k: usize,
+    wd: f32,
+    y: [f32; L],
+    c: [[f32; L]; L],
+    bl: [[f32; MAX_ROW_POINTS]; L],
+    shift: f32,
+    started: bool,
+    events: u32,
+}
+
+impl<const L: usize> Work<L> {
+    const fn new() -> Self {
+        Self {
+            mem: [Member {
+                tr: 0,
+                pos: 0,
+                mask: 0,
+                zh: 0.0,
+                invd: 0.0,
+                logdet: 0.0,
+                l: [0.0; L],
+                li: [0.0; L],
+            }; L],
+            lev: [Level {
+                rem: 0,
+                pick: 0,
+                u: 0.0,
+                q: 0.0,
+                r: [0.0; L],
+            }; L],
+            k: 0,
+            wd: 0.0,
+            y: [0.0; L],
+            c: [[0.0; L]; L],
+            bl: [[0.0; MAX_ROW_POINTS]; L],
+            shift: 0.0,
+            started: false,
+            events: 0,
+        }
+    }
+
+    /// The current pattern's members.
+    fn members(&self) -> &[Member<L>] {
+        self.mem.get(..self.k).unwrap_or(&[])
+    }
+
+    /// `ln det S_δ` of the current pattern.
+    fn logdet(&self) -> f32 {
+        self.members().last().map_or(0.0, |m| m.logdet)
+    }
+
+    /// Appends track `t` (eligible position `pos`, row `srow` of `S̄`) to the pattern and
+    /// computes its factor row (`f_b = S_tb − Σ_{c<b} l_bc f_c`, `l_kb = f_b / d_b`,
+    /// `d_k = S_tt − Σ_b l_kb f_b`) and its row of `L⁻¹` (`−Σ_b l_kb (L⁻¹)_b`, 1 on the
+    /// diagonal). Returns `false` (nothing appended) when `d_k` is not positive and finite, i.e.
+    /// `S_δ` is not positive definite.
+    fn push(&mut self, pos: usize, t: usize, srow: &[f32; L], mask: u32, zhat: f32) -> bool {
+        let k = self.k;
+        let (done, rest) = self.mem.split_at_mut(k.min(L));
+        let Some(new) = rest.first_mut() else {
+            return false;
+        };
+        let mut f = [0.0f32; L];
+        let mut l = [0.0f32; L];
+        let mut dk = get(srow, t);
+        for (b, mb) in done.iter().enumerate() {
+            let mut fb = get(srow, usize::from(mb.tr));
+            for (lbc, fc) in mb.l.iter().zip(f.iter()).take(b) {
+                fb -= lbc * fc;
+            }
+            set(&mut f, b, fb);
+            let lkb = fb * mb.invd;
+            set(&mut l, b, lkb);
+            dk -= lkb * fb;
+        }
+        if !(dk.is_finite() && dk > 0.0) {
+            return false;
+        }
+        let mut li = [0.0f32; L];
+        for (lkb, mb) in l.iter().zip(done.iter()) {
+            for (v, w) in li.iter_mut().zip(mb.li.iter()) {
+                *v -= lkb * w;
+            }
+        }
+        set(&mut li, k, 1.0);
+        *new = Member {
+            tr: t as u8,
+            pos: pos as u8,
+            mask,
+            zh: zhat,
+            invd: 1.0 / dk,
+            logdet: done.last().map_or(0.0, |m| m.logdet) + math::ln(dk),
+            l,
+            li,
+        };
+        self.k = k + 1;
+        true
+    }
+
+    /// Enumerates the current pattern's events (injective assignments of its members to points
+    /// of their masks; explicit stack, depth ≤ `k`) and, when `weighted`, accumulates their sums.
+    /// A member's pick extends `u`, `q` and `r` by one term (`O(L)`); an event adds the `O(k²)`
+    /// outer product `r rᵀ`; the pattern then adds `wd S⁻¹ = Σ_b (wd / d_b) (L⁻¹)_bᵀ (L⁻¹)_b`
+    /// (`O(k³)`).
+    fn score(&mut self, points: &[f32], weighted: bool) {
+        let k = self.k.min(L);
+        self.wd = 0.0;
+        self.shift = 0.0;
+        self.started = false;
+        self.events = 0;
+        for (a, (((y, c), bl), mb)) in self
+            .y
+            .iter_mut()
+            .zip(self.c.iter_mut())
+            .zip(self.bl.iter_mut())
+            .zip(self.mem.iter())
+            .enumerate()
+            .take(k)
+        {
+            *y = 0.0;
+            for v in c.iter_mut().take(a + 1) {
+                *v = 0.0;
+            }
+            let mut mask = mb.mask;
+            while mask != 0 {
+                set(bl, mask.trailing_zeros() as usize, 0.0);
+                mask &= mask - 1;
+            }
+        }
+        if k == 0 {
+            self.events = 1;
+            if weighted {
+                self.started = true;
+                self.wd = 1.0;
+            }
+            return;
+        }
+        let mems = self.mem.get(..k).unwrap_or(&[]);
+        let levs = self.lev.get_mut(..k).unwrap_or(&mut []);
+        if let (Some(l0), Some(m0)) = (levs.first_mut(), mems.first()) {
+            l0.rem = m0.mask;
+        }
+        let mut used = 0u32;
+        let mut depth = 0usize;
+        // Each pass descends (≤ k), takes a candidate or ascends: bounded by the event tree.
+        loop {
+            let (prev, cur) = levs.split_at_mut(depth);
+            let (Some(lv), Some(mb)) = (cur.first_mut(), mems.get(depth)) else {
+                break;
+            };
+            if lv.rem == 0 {
+                let Some(p) = prev.last() else {
+                    break;
+                };
+                used &= !(1u32.wrapping_shl(p.pick));
+                depth -= 1;
+                continue;
+            }
+            let j = lv.rem.trailing_zeros();
+            lv.rem &= lv.rem.wrapping_sub(1);
+            lv.pick = j;
+            let mut ua = points.get(j as usize).copied().unwrap_or(0.0) - mb.zh;
+            for (lb, pl) in mb.l.iter().zip(prev.iter()) {
+                ua -= lb * pl.u;
+            }
+            let ea = ua * mb.invd;
+            lv.u = ua;
+            match prev.last() {
+                Some(p) => {
+                    lv.q = p.q + ua * ea;
+                    for ((v, pv), w) in lv.r.iter_mut().zip(p.r.iter()).zip(mb.li.iter()) {
+                        *v = pv + ea * w;
+                    }
+                }
+                None => {
+                    lv.q = ua * ea;
+                    for (v, w) in lv.r.iter_mut().zip(mb.li.iter()) {
+                        *v = ea * w;
+                    }
+                }
+            }
+            if depth + 1 < k {
+                used |= 1u32.wrapping_shl(j);
+                depth += 1;
+                if let (Some(nl), Some(nm)) = (cur.get_mut(1), mems.get(depth)) {
+                    nl.rem = nm.mask & !used;
+                }
+                continue;
+            }
+            // A leaf: one joint event.
+            self.events += 1;
+            let qa = lv.q;
+            if !(weighted && qa.is_finite()) {
+                continue; // weight 0 (e.g. ln 0 of a zero miss factor): contributes nothing
+            }
+            let lw = -0.5 * qa;
+            if !self.started {
+                self.started = true;
+                self.shift = lw;
+            } else if lw - self.shift > RESCALE {
+                // Rare: rescale the pattern's sums (inline: `self.scale` would alias `levs`).
+                let s = math::exp(self.shift - lw);
+                self.wd *= s;
+                for (a, (((y, c), bl), m)) in self
+                    .y
+                    .iter_mut()
+                    .zip(self.c.iter_mut())
+                    .zip(self.bl.iter_mut())
+                    .zip(mems.iter())
+                    .enumerate()
+                {
+                    *y *= s;
+                    for v in c.iter_mut().take(a + 1) {
+                        *v *= s;
+                    }
+                    let mut mask = m.mask;
+                    while mask != 0 {
+                        if let Some(v) = bl.get_mut(mask.trailing_zeros() as usize) {
+                            *v *= s;
+                        }
+                        mask &= mask - 1;
+                    }
+                }
+                self.shift = lw;
+            }
+            let w = math::exp(lw - self.shift);
+            self.wd += w;
+            let r = &lv.r;
+            for (a, ((y, crow), ra)) in self
+                .y
+                .iter_mut()
+                .zip(self.c.iter_mut())
+                .zip(r.iter())
+                .enumerate()
+                .take(k)
+            {
+                let wr = w * ra;
+                *y += wr;
+                for (cv, rc) in crow.iter_mut().zip(r.iter()).take(a + 1) {
+                    *cv -= wr * rc;
+                }
+            }
+            for (p, brow) in prev
+                .iter()
+                .map(|p| p.pick)
+                .chain(core::iter::once(j))
+                .zip(self.bl.iter_mut())
+            {
+                if let Some(b) = brow.get_mut(p as usize) {
+                    *b += w;
+                }
+            }
+        }
+        if self.wd > 0.0 {
+            // wd S⁻¹ = Σ_b (wd / d_b) (L⁻¹)_bᵀ (L⁻¹)_b: row b of L⁻¹ has entries 0..=b.
+            for (b, mb) in mems.iter().enumerate() {
+                let coef = self.wd * mb.invd;
+                for (a, (crow, lia)) in self.c.iter_mut().zip(mb.li.iter()).enumerate().take(b + 1)
+                {
+                    let s = coef * lia;
+                    for (cv, lic) in crow.iter_mut().zip(mb.li.iter()).take(a + 1) {
+                        *cv += s * lic;
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// [`update_masked`] reporting its stages ([`Stage::Gating`], [`Stage::Events`],
 /// [`Stage::Update`]) to `probe`.
 ///
@@ -297,64 +614,70 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     probe.enter(Stage::Gating);
     let mut out = RowOutcome::<LANES>::default();
     let (xs, ps, n) = state.parts_mut();
+    let n = n.min(LANES);
     let m = points.len().min(MAX_ROW_POINTS);
     out.ignored_points = (points.len() - m) as u32;
+    let points = points.get(..m).unwrap_or(&[]);
     if n == 0 {
-        out.ignored_points += points.iter().take(m).filter(|z| !z.is_finite()).count() as u32;
-        out.clutter_points = points.iter().take(m).filter(|z| z.is_finite()).count() as u32;
+        out.ignored_points += points.iter().filter(|z| !z.is_finite()).count() as u32;
+        out.clutter_points = points.iter().filter(|z| z.is_finite()).count() as u32;
         return out;
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
 
-    // Gating on each track's marginal (step 2), and G = P̄ H̄ᵀ, S̄ = H̄ P̄ H̄ᵀ + r I.
+    // Gating on each track's marginal (step 2), and G = P̄ H̄ᵀ, S̄ = H̄ P̄ H̄ᵀ + r I, on plain
+    // arrays (`[f32; NS]` vectors, column-major blocks) so the small products unroll.
+    let [hv] = h.data.0;
     let mut zhat = [0.0f32; LANES];
-    let mut g = [[SVector::<f32, NS>::zeros(); LANES]; LANES]; // g[i][t] = P_it h
-    let mut sbar = SMatrix::<f32, LANES, LANES>::zeros();
-    for (i, grow) in g.iter_mut().enumerate().take(n) {
-        set(&mut zhat, i, xs.get(i).map_or(0.0, |x| h.dot(x)));
-        for (t, gi) in grow.iter_mut().enumerate().take(n) {
-            if let Some(p) = ps.get(i).and_then(|r| r.get(t)) {
-                *gi = p * h;
-            }
+    let mut g = [[[0.0f32; NS]; LANES]; LANES]; // g[i][t] = P_it h
+    for ((grow, prow), (x, zh)) in g
+        .iter_mut()
+        .zip(ps.iter())
+        .zip(xs.iter().zip(zhat.iter_mut()))
+        .take(n)
+    {
+        let [xv] = x.data.0;
+        *zh = dot(&hv, &xv);
+        for (gi, p) in grow.iter_mut().zip(prow.iter()).take(n) {
+            *gi = mat_vec(p, &hv);
         }
     }
-    for i in 0..n {
-        for t in 0..n {
-            let v = g.get(i).and_then(|r| r.get(t)).map_or(0.0, |gi| h.dot(gi))
-                + if i == t { params.r } else { 0.0 };
-            if let Some(s) = sbar.get_mut((i, t)) {
-                *s = v;
-            }
+    // S̄ is symmetric: its upper triangle, mirrored.
+    let mut sbar = [[0.0f32; LANES]; LANES];
+    for (i, grow) in g.iter().enumerate().take(n) {
+        for (t, gi) in grow.iter().enumerate().take(n).skip(i) {
+            let v = dot(&hv, gi) + if i == t { params.r } else { 0.0 };
+            put(&mut sbar, i, t, v);
+            put(&mut sbar, t, i, v);
         }
     }
-    let sbar = (sbar + sbar.transpose()) * 0.5;
-    let mut d2 = [[f32::INFINITY; MAX_ROW_POINTS]; LANES];
     let mut any_valid = 0u32;
-    for t in 0..n {
-        let st = sbar.get((t, t)).copied().unwrap_or(0.0);
+    for (t, (srow, (zt, valid))) in sbar
+        .iter()
+        .zip(zhat.iter().zip(out.valid.iter_mut()))
+        .enumerate()
+        .take(n)
+    {
+        let st = get(srow, t);
         if !(st.is_finite() && st > 0.0) {
             out.failed = true;
             return out;
         }
-        let zt = get(&zhat, t);
+        if skip & (1 << t) != 0 {
+            continue;
+        }
         let mut mask = 0u32;
-        for (j, z) in points.iter().take(m).enumerate() {
-            if !z.is_finite() {
-                continue;
-            }
+        for (j, z) in points.iter().enumerate() {
             let e = z - zt;
-            let dj = e * e / st;
-            if let Some(v) = d2.get_mut(t).and_then(|r| r.get_mut(j)) {
-                *v = dj;
-            }
-            if dj <= params.gamma && skip & (1 << t) == 0 {
+            // Inclusive gate; a non-finite point gives NaN or inf and never passes.
+            if e * e / st <= params.gamma {
                 mask |= 1 << j;
             }
         }
-        set(&mut out.valid, t, mask);
+        *valid = mask;
         any_valid |= mask;
     }
-    for (j, z) in points.iter().take(m).enumerate() {
+    for (j, z) in points.iter().enumerate() {
         if !z.is_finite() {
             out.ignored_points += 1;
         } else if any_valid & (1 << j) == 0 {
@@ -376,287 +699,370 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     // single-track PDA probability `p_tj = L_tj / (1 − P_D P_G + Σ_j' L_tj')`,
     // `L_tj = P_D N(z_j; ẑ_t, S_t) / λ_c` — the least likely first, whatever track they belong to,
     // so a track keeps its plausible points — until the bound Π (1 + n_t) fits the budget.
+    // The bound is an upper bound of the event count, so the exact count is only needed when it
+    // exceeds the budget.
     let budget = max_events.max(1) as u64;
-    if count_events(&out.valid, n, budget) > budget {
+    let bound = |valid: &[u32; LANES]| -> u64 {
+        valid
+            .iter()
+            .take(n)
+            .map(|v| 1 + u64::from(v.count_ones()))
+            .product()
+    };
+    if bound(&out.valid) > budget && count_events(&out.valid, n, budget) > budget {
         out.approximated = true;
-        let mut cand = [(0.0f32, 0u8, 0u8); CANDIDATES];
-        let mut nc = 0usize;
-        for t in 0..n {
-            let st = sbar.get((t, t)).copied().unwrap_or(1.0);
-            let ln_norm = ln_pd - ln_lambda - 0.5 * (ln_2pi + math::ln(st));
-            let mask = get(&out.valid, t);
-            let first = nc;
-            let mut lmax = ln_miss;
-            for j in 0..m {
-                if mask & (1 << j) != 0 {
-                    let dj = d2
-                        .get(t)
-                        .and_then(|r| r.get(j))
-                        .copied()
-                        .unwrap_or(f32::INFINITY);
-                    let l = ln_norm - 0.5 * dj;
-                    lmax = lmax.max(l);
-                    set(&mut cand, nc, (l, t as u8, j as u8));
-                    nc += 1;
-                }
-            }
-            // log-sum-exp over the miss and the candidates, then normalise in place.
-            let mut sum = math::exp(ln_miss - lmax);
-            for c in cand.iter().take(nc).skip(first) {
-                sum += math::exp(c.0 - lmax);
-            }
-            let ln_total = lmax + math::ln(sum);
-            for c in cand.iter_mut().take(nc).skip(first) {
-                c.0 -= ln_total;
-            }
-        }
-        if let Some(c) = cand.get_mut(..nc) {
-            c.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        }
-        for &(_, t, j) in cand.iter().take(nc) {
-            let bound: u64 = out
-                .valid
-                .iter()
-                .take(n)
-                .map(|v| 1 + u64::from(v.count_ones()))
-                .product();
-            if bound <= budget {
-                break;
-            }
-            let t = usize::from(t);
-            let mask = get(&out.valid, t) & !(1u32 << j);
-            set(&mut out.valid, t, mask);
-            out.dropped_candidates += 1;
-        }
+        prune(
+            &mut out,
+            &sbar,
+            &zhat,
+            points,
+            n,
+            budget,
+            ln_pd - ln_lambda,
+            ln_miss,
+            ln_2pi,
+        );
     }
 
-    // Event weights (step 3) and the mixture moments (step 4), streamed with a running maximum.
-    let mut run_max = f32::NEG_INFINITY;
+    // Event weights (step 3) and the mixture moments (step 4). The detection patterns are the
+    // subsets of the eligible tracks (not skipped, at least one candidate), visited depth first
+    // so that each extends its parent's factor by one row; a pattern without events has no
+    // descendant with events, so its subtree is skipped. Weights are relative to a reference
+    // raised only by more than `RESCALE` at a time (per pattern and over the patterns).
+    let mut elig = [0u8; LANES];
+    let mut na = 0usize;
+    for (t, v) in out.valid.iter().enumerate().take(n) {
+        if skip & (1 << t) == 0 && *v != 0 {
+            set(&mut elig, na, t as u8);
+            na += 1;
+        }
+    }
+    let active = (n - n_skipped) as f32;
+    let mut gstarted = false;
+    let mut gmax = 0.0f32;
     let mut wtot = 0.0f32;
-    let mut y = SVector::<f32, LANES>::zeros();
-    let mut c = SMatrix::<f32, LANES, LANES>::zeros();
+    let mut y = [0.0f32; LANES];
+    let mut c = [[0.0f32; LANES]; LANES]; // lower triangle
     let mut bmiss = [0.0f32; LANES];
-    let mut beta = [[0.0f32; MAX_ROW_POINTS]; LANES];
-    for pattern in 0..(1u32 << n) {
-        if pattern & skip != 0 {
-            continue;
-        }
-        let (idx, masks, k) = pattern_tracks(pattern, &out.valid, n);
-        if masks.iter().take(k).any(|v| *v == 0) {
-            continue;
-        }
-        let s = SMatrix::<f32, LANES, LANES>::from_fn(|a, b| {
-            if a < k && b < k {
-                sbar.get((usize::from(get(&idx, a)), usize::from(get(&idx, b))))
-                    .copied()
-                    .unwrap_or(0.0)
-            } else if a == b {
-                1.0
-            } else {
-                0.0
+    let mut wk = Work::<LANES>::new();
+    let mut next = 0usize;
+    let mut descend = true;
+    let mut first = true;
+    loop {
+        if first {
+            first = false; // the empty pattern (every track missed)
+        } else if descend && next < na {
+            let t = usize::from(get(&elig, next));
+            let srow = sbar.get(t).copied().unwrap_or([0.0; LANES]);
+            if !wk.push(next, t, &srow, get(&out.valid, t), get(&zhat, t)) {
+                return failed(out);
             }
-        });
-        let Some(chol) = s.cholesky() else {
-            out.failed = true;
-            return out;
-        };
+        } else {
+            let Some(last) = wk.members().last() else {
+                break;
+            };
+            next = usize::from(last.pos) + 1;
+            wk.k -= 1;
+            descend = true;
+            continue;
+        }
+        let k = wk.k;
         out.patterns += 1;
-        let logdet: f32 = chol
-            .l_dirty()
-            .diagonal()
-            .iter()
-            .take(k)
-            .map(|v| 2.0 * math::ln(*v))
-            .sum();
         let kf = k as f32;
-        let base = -0.5 * logdet - 0.5 * kf * ln_2pi
+        let base = -0.5 * wk.logdet() - 0.5 * kf * ln_2pi
             + kf * (ln_pd - ln_lambda)
-            + (n - n_skipped - k) as f32 * ln_miss;
-        let mut wd = 0.0f32;
-        let mut m1 = SVector::<f32, LANES>::zeros();
-        let mut m2 = SMatrix::<f32, LANES, LANES>::zeros();
-        let mut it = Assignments::<LANES>::new(masks, k);
-        while let Some(pick) = it.next() {
-            out.events += 1;
-            let nu = SVector::<f32, LANES>::from_fn(|a, _| {
-                if a < k {
-                    let j = usize::from(get(&pick, a));
-                    points.get(j).copied().unwrap_or(0.0) - get(&zhat, usize::from(get(&idx, a)))
-                } else {
-                    0.0
+            + (active - kf) * ln_miss;
+        wk.score(points, base.is_finite());
+        out.events += wk.events;
+        descend = wk.events > 0;
+        next = wk.members().last().map_or(0, |m| usize::from(m.pos) + 1);
+        if !(wk.wd > 0.0 && wk.wd.is_finite()) {
+            continue;
+        }
+        let eff = base + wk.shift;
+        if !gstarted {
+            gstarted = true;
+            gmax = eff;
+        } else if eff - gmax > RESCALE {
+            let s = math::exp(gmax - eff);
+            wtot *= s;
+            for (t, (((yv, bm), crow), brow)) in y
+                .iter_mut()
+                .zip(bmiss.iter_mut())
+                .zip(c.iter_mut())
+                .zip(out.beta.iter_mut())
+                .enumerate()
+                .take(n)
+            {
+                *yv *= s;
+                *bm *= s;
+                for v in crow.iter_mut().take(t + 1) {
+                    *v *= s;
                 }
-            });
-            let maha = nu.dot(&chol.solve(&nu));
-            let lw = base - 0.5 * maha;
-            if !lw.is_finite() {
-                continue; // weight 0 (e.g. ln 0 of a zero miss factor): contributes nothing
+                for v in brow.iter_mut().take(m) {
+                    *v *= s;
+                }
             }
-            if lw > run_max {
-                let sc = math::exp(run_max - lw);
-                wtot *= sc;
-                wd *= sc;
-                y *= sc;
-                c *= sc;
-                m1 *= sc;
-                m2 *= sc;
-                for v in bmiss.iter_mut() {
-                    *v *= sc;
-                }
-                for r in beta.iter_mut() {
-                    for v in r.iter_mut() {
-                        *v *= sc;
+            gmax = eff;
+        }
+        let f = math::exp(eff - gmax);
+        let wd = wk.wd * f;
+        wtot += wd;
+        let mut missed = !skip;
+        for (a, mb) in wk.members().iter().enumerate() {
+            let ta = usize::from(mb.tr);
+            missed &= !(1 << ta);
+            if let Some(v) = y.get_mut(ta) {
+                *v += f * get(&wk.y, a);
+            }
+            if let (Some(crow), Some(src)) = (c.get_mut(ta), wk.c.get(a)) {
+                for (mb2, s) in wk.mem.iter().zip(src.iter()).take(a + 1) {
+                    if let Some(v) = crow.get_mut(usize::from(mb2.tr)) {
+                        *v += f * s;
                     }
                 }
-                run_max = lw;
             }
-            let w = math::exp(lw - run_max);
-            wd += w;
-            m1 += nu * w;
-            m2 += nu * nu.transpose() * w;
-            for a in 0..k {
-                let t = usize::from(get(&idx, a));
-                let j = usize::from(get(&pick, a));
-                if let Some(b) = beta.get_mut(t).and_then(|r| r.get_mut(j)) {
-                    *b += w;
+            if let (Some(brow), Some(src)) = (out.beta.get_mut(ta), wk.bl.get(a)) {
+                let mut mask = mb.mask;
+                while mask != 0 {
+                    let j = mask.trailing_zeros() as usize;
+                    if let (Some(d), Some(s)) = (brow.get_mut(j), src.get(j)) {
+                        *d += f * s;
+                    }
+                    mask &= mask - 1;
                 }
             }
         }
-        if wd == 0.0 {
-            continue;
-        }
-        wtot += wd;
-        for t in 0..n {
-            if pattern & (1 << t) == 0 && skip & (1 << t) == 0 {
-                if let Some(b) = bmiss.get_mut(t) {
-                    *b += wd;
-                }
-            }
-        }
-        let sinv = chol.inverse();
-        let yd = sinv * m1;
-        let cd = sinv * wd - sinv * m2 * sinv;
-        for a in 0..k {
-            let ta = usize::from(get(&idx, a));
-            if let (Some(dst), Some(src)) = (y.get_mut(ta), yd.get(a)) {
-                *dst += *src;
-            }
-            for b in 0..k {
-                let tb = usize::from(get(&idx, b));
-                if let (Some(dst), Some(src)) = (c.get_mut((ta, tb)), cd.get((a, b))) {
-                    *dst += *src;
-                }
+        for (t, b) in bmiss.iter_mut().enumerate().take(n) {
+            if missed & (1 << t) != 0 {
+                *b += wd;
             }
         }
     }
     probe.enter(Stage::Update);
     if !(wtot.is_finite() && wtot > 0.0) {
-        out.failed = true;
-        return out;
+        return failed(out);
     }
-    let y = y / wtot;
-    let c = c / wtot;
-
-    // x⁺ = x̄ + G y;  P⁺ = P̄ − G C Gᵀ − (G y)(G y)ᵀ, computed into copies and committed if finite.
-    let mut dx = [SVector::<f32, NS>::zeros(); LANES];
-    let mut u = [[SVector::<f32, NS>::zeros(); LANES]; LANES]; // u[i][t'] = Σ_t g[i][t] C[t][t']
-    for i in 0..n {
-        let gi = g.get(i).copied().unwrap_or([SVector::zeros(); LANES]);
-        let mut d = SVector::<f32, NS>::zeros();
-        for (t, git) in gi.iter().enumerate().take(n) {
-            d += git * y.get(t).copied().unwrap_or(0.0);
-        }
-        set(&mut dx, i, d);
-        for tp in 0..n {
-            let mut acc = SVector::<f32, NS>::zeros();
-            for (t, git) in gi.iter().enumerate().take(n) {
-                acc += git * c.get((t, tp)).copied().unwrap_or(0.0);
-            }
-            if let Some(v) = u.get_mut(i).and_then(|r| r.get_mut(tp)) {
-                *v = acc;
-            }
-        }
-    }
-    let mut newp = *ps;
-    for i in 0..n {
-        for j in i..n {
-            let mut red = SMatrix::<f32, NS, NS>::zeros();
-            for tp in 0..n {
-                let uit = u
-                    .get(i)
-                    .and_then(|r| r.get(tp))
-                    .copied()
-                    .unwrap_or_else(SVector::zeros);
-                let gjt = g
-                    .get(j)
-                    .and_then(|r| r.get(tp))
-                    .copied()
-                    .unwrap_or_else(SVector::zeros);
-                red += uit * gjt.transpose();
-            }
-            let di = dx.get(i).copied().unwrap_or_else(SVector::zeros);
-            let dj = dx.get(j).copied().unwrap_or_else(SVector::zeros);
-            red += di * dj.transpose();
-            let pij = ps
-                .get(i)
-                .and_then(|r| r.get(j))
-                .copied()
-                .unwrap_or_else(SMatrix::zeros);
-            let pji = ps
-                .get(j)
-                .and_then(|r| r.get(i))
-                .copied()
-                .unwrap_or_else(SMatrix::zeros);
-            // Symmetrise: the (i, j) block and the transpose of the (j, i) block.
-            let blk = (pij + pji.transpose()) * 0.5
-                - (red + red.transpose_if(i == j)) * if i == j { 0.5 } else { 1.0 };
-            if let Some(b) = newp.get_mut(i).and_then(|r| r.get_mut(j)) {
-                *b = blk;
-            }
-            if let Some(b) = newp.get_mut(j).and_then(|r| r.get_mut(i)) {
-                *b = blk.transpose();
-            }
-        }
-    }
-    let finite = newp
-        .iter()
-        .take(n)
-        .all(|r| r.iter().take(n).all(|b| b.iter().all(|v| v.is_finite())))
-        && dx.iter().take(n).all(|d| d.iter().all(|v| v.is_finite()));
-    if !finite {
-        out.failed = true;
-        return out;
-    }
-    *ps = newp;
-    for (x, d) in xs.iter_mut().zip(dx.iter()).take(n) {
-        *x += d;
+    let inv = 1.0 / wtot;
+    // C' = C + y yᵀ (full, symmetric), so that P⁺ = P̄ − G C' Gᵀ and x⁺ = x̄ + G y.
+    for v in y.iter_mut().take(n) {
+        *v *= inv;
     }
     for t in 0..n {
-        let miss = if skip & (1 << t) != 0 {
+        let yt = get(&y, t);
+        for tp in 0..=t {
+            let v = at(&c, t, tp) * inv + yt * get(&y, tp);
+            put(&mut c, t, tp, v);
+            put(&mut c, tp, t, v);
+        }
+    }
+    // u[i][t'] = Σ_t g[i][t] C'[t][t'], dx[i] = Σ_t g[i][t] y[t].
+    let gn = g.get(..n).unwrap_or(&[]);
+    let yn = y.get(..n).unwrap_or(&[]);
+    let cn = c.get(..n).unwrap_or(&[]);
+    let mut dx = [[0.0f32; NS]; LANES];
+    let mut u = [[[0.0f32; NS]; LANES]; LANES];
+    for ((gi, d), ui) in gn.iter().zip(dx.iter_mut()).zip(u.iter_mut()) {
+        let ui = ui.get_mut(..n).unwrap_or(&mut []);
+        for ((git, yt), crow) in gi.iter().zip(yn.iter()).zip(cn.iter()) {
+            axpy(d, *yt, git);
+            for (uit, ctt) in ui.iter_mut().zip(crow.iter()) {
+                axpy(uit, *ctt, git);
+            }
+        }
+    }
+    // P⁺_ij = P̄_ij − Σ_t' u[i][t'] g[j][t']ᵀ for the upper blocks (diagonal blocks symmetrised),
+    // staged and committed (with the mirrored lower blocks) only if everything is finite.
+    let mut newp = [[[[0.0f32; NS]; NS]; LANES]; LANES];
+    let mut bad = dx.iter().take(n).any(|d| d.iter().any(|v| !v.is_finite()));
+    for (i, ((ui, prow), nrow)) in u
+        .iter()
+        .zip(ps.iter())
+        .zip(newp.iter_mut())
+        .enumerate()
+        .take(n)
+    {
+        let ui = ui.get(..n).unwrap_or(&[]);
+        for (j, ((gj, pij), blk)) in gn
+            .iter()
+            .zip(prow.iter())
+            .zip(nrow.iter_mut())
+            .enumerate()
+            .skip(i)
+        {
+            *blk = pij.data.0;
+            // Column b of the block: P_·b − Σ_t u_t g_t[b].
+            for (uv, gv) in ui.iter().zip(gj.iter()) {
+                for (col, gb) in blk.iter_mut().zip(gv.iter()) {
+                    for (e, ua) in col.iter_mut().zip(uv.iter()) {
+                        *e -= ua * gb;
+                    }
+                }
+            }
+            if i == j {
+                for a in 0..NS {
+                    for b in 0..a {
+                        let v = 0.5 * (at(blk, a, b) + at(blk, b, a));
+                        put(blk, a, b, v);
+                        put(blk, b, a, v);
+                    }
+                }
+            }
+            bad |= blk.iter().any(|col| col.iter().any(|v| !v.is_finite()));
+        }
+    }
+    if bad {
+        return failed(out);
+    }
+    for (i, nrow) in newp.iter().enumerate().take(n) {
+        for (j, blk) in nrow.iter().enumerate().take(n).skip(i) {
+            let m = SMatrix::<f32, NS, NS>::from_data(nalgebra::ArrayStorage(*blk));
+            if let Some(b) = ps.get_mut(i).and_then(|r| r.get_mut(j)) {
+                *b = m;
+            }
+            if i != j {
+                if let Some(b) = ps.get_mut(j).and_then(|r| r.get_mut(i)) {
+                    *b = m.transpose();
+                }
+            }
+        }
+    }
+    for (x, d) in xs.iter_mut().zip(dx.iter()).take(n) {
+        for (xv, dv) in x.iter_mut().zip(d.iter()) {
+            *xv += dv;
+        }
+    }
+    for (t, (bm, brow)) in out
+        .beta_miss
+        .iter_mut()
+        .zip(out.beta.iter_mut())
+        .enumerate()
+        .take(n)
+    {
+        *bm = if skip & (1 << t) != 0 {
             1.0
         } else {
-            get(&bmiss, t) / wtot
+            get(&bmiss, t) * inv
         };
-        set(&mut out.beta_miss, t, miss);
-        if let (Some(dst), Some(src)) = (out.beta.get_mut(t), beta.get(t)) {
-            for (d, s) in dst.iter_mut().zip(src.iter()) {
-                *d = s / wtot;
-            }
+        for v in brow.iter_mut().take(m) {
+            *v *= inv;
         }
     }
     out
 }
 
-trait TransposeIf {
-    fn transpose_if(&self, cond: bool) -> Self;
+/// Drops (track, point) candidates in order of increasing single-track PDA probability until
+/// the bound `Π (1 + n_t)` on the event count fits `budget` (step 5); `ln_pd_lambda` is
+/// `ln P_D − ln λ_c`.
+///
+/// # Complexity
+/// `O(C log C)` for the `C ≤ n·m` candidates; 4 KiB of stack for the candidate list.
+#[allow(clippy::too_many_arguments)]
+fn prune<const LANES: usize>(
+    out: &mut RowOutcome<LANES>,
+    sbar: &[[f32; LANES]; LANES],
+    zhat: &[f32; LANES],
+    points: &[f32],
+    n: usize,
+    budget: u64,
+    ln_pd_lambda: f32,
+    ln_miss: f32,
+    ln_2pi: f32,
+) {
+    let mut cand = [(0.0f32, 0u8, 0u8); CANDIDATES];
+    let mut nc = 0usize;
+    for t in 0..n {
+        let st = at(sbar, t, t);
+        let zt = get(zhat, t);
+        let ln_norm = ln_pd_lambda - 0.5 * (ln_2pi + math::ln(st));
+        let mask = get(&out.valid, t);
+        let first = nc;
+        let mut lmax = ln_miss;
+        for (j, z) in points.iter().enumerate() {
+            if mask & (1 << j) != 0 {
+                let e = z - zt;
+                let l = ln_norm - 0.5 * (e * e / st);
+                lmax = lmax.max(l);
+                set(&mut cand, nc, (l, t as u8, j as u8));
+                nc += 1;
+            }
+        }
+        // log-sum-exp over the miss and the candidates, then normalise in place.
+        let mut sum = math::exp(ln_miss - lmax);
+        for c in cand.iter().take(nc).skip(first) {
+            sum += math::exp(c.0 - lmax);
+        }
+        let ln_total = lmax + math::ln(sum);
+        for c in cand.iter_mut().take(nc).skip(first) {
+            c.0 -= ln_total;
+        }
+    }
+    if let Some(c) = cand.get_mut(..nc) {
+        c.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    for &(_, t, j) in cand.iter().take(nc) {
+        let bound: u64 = out
+            .valid
+            .iter()
+            .take(n)
+            .map(|v| 1 + u64::from(v.count_ones()))
+            .product();
+        if bound <= budget {
+            break;
+        }
+        let t = usize::from(t);
+        let mask = get(&out.valid, t) & !(1u32 << j);
+        set(&mut out.valid, t, mask);
+        out.dropped_candidates += 1;
+    }
 }
 
-impl<const N: usize> TransposeIf for SMatrix<f32, N, N> {
-    fn transpose_if(&self, cond: bool) -> Self {
-        if cond {
-            self.transpose()
-        } else {
-            SMatrix::zeros()
+/// Marks `out` failed, with the weights of an untouched row (β cleared, every track missed).
+fn failed<const LANES: usize>(mut out: RowOutcome<LANES>) -> RowOutcome<LANES> {
+    out.failed = true;
+    out.beta = [[0.0; MAX_ROW_POINTS]; LANES];
+    out.beta_miss = [1.0; LANES];
+    out
+}
+
+/// Element `(i, j)` of a fixed 2-D array, or 0 past its end.
+#[inline]
+fn at<const R: usize, const C: usize>(a: &[[f32; C]; R], i: usize, j: usize) -> f32 {
+    a.get(i).and_then(|r| r.get(j)).copied().unwrap_or(0.0)
+}
+
+/// `a · b`.
+#[inline(always)]
+fn dot<const N: usize>(a: &[f32; N], b: &[f32; N]) -> f32 {
+    a.iter().zip(b.iter()).map(|(x, y)| x * y).sum()
+}
+
+/// `P h` for a column-major block `P` (columns where `h` is zero are skipped: `h = [1, 1, 0, …]`
+/// has zeros).
+#[inline(always)]
+fn mat_vec<const N: usize>(p: &SMatrix<f32, N, N>, h: &[f32; N]) -> [f32; N] {
+    let mut out = [0.0f32; N];
+    for (col, hb) in p.data.0.iter().zip(h.iter()) {
+        if *hb != 0.0 {
+            axpy(&mut out, *hb, col);
         }
+    }
+    out
+}
+
+/// `y += a x`.
+#[inline(always)]
+fn axpy<const N: usize>(y: &mut [f32; N], a: f32, x: &[f32; N]) {
+    for (yv, xv) in y.iter_mut().zip(x.iter()) {
+        *yv += a * xv;
+    }
+}
+
+/// Sets element `(i, j)` of a fixed 2-D array (no-op past its end).
+#[inline]
+fn put<const R: usize, const C: usize>(a: &mut [[f32; C]; R], i: usize, j: usize, v: f32) {
+    if let Some(e) = a.get_mut(i).and_then(|r| r.get_mut(j)) {
+        *e = v;
     }
 }
 
