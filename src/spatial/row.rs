@@ -279,14 +279,16 @@ pub fn update_masked<const NS: usize, const LANES: usize>(
     update_probed(state, h, points, params, max_events, skip, &mut NoProbe)
 }
 
-/// Local and global weights are kept relative to a reference log-weight that is raised only when
-/// a new weight exceeds it by more than this (natural log units): rescaling is rare, and the
-/// accumulated sums stay far from f32 overflow (`e^{2·16}` times at most `E` events).
-const RESCALE: f32 = 16.0;
+/// A pass weighs events by `e^{lw − ref}`; when its largest log-weight `lw` ends up more than
+/// this (natural-log units) away from `ref`, the pass is redone with `ref` at that maximum. The
+/// first pass takes `ref` = the all-missed event's log-weight, which no event undercuts by more
+/// than the sum of the per-track detection gains (≈ 6.5 per track with the defaults), so the
+/// redo only happens with extreme parameters.
+const WINDOW: f32 = 60.0;
 
-/// One member of the current detection pattern (the tracks of a pattern in increasing order):
-/// its row of the `LDLᵀ` factor of `S_δ` and of `L⁻¹`. A pattern's factor is its parent's (the
-/// pattern without its highest track) plus one row, so a pattern costs `O(k²)`, not `O(k³)`.
+/// One member of the current detection pattern (its tracks in increasing order): its row of the
+/// `LDLᵀ` factor of `S_δ` and of `L⁻¹`. A pattern's factor is its parent's (the pattern without
+/// its highest track) plus one row, so a pattern costs `O(k²)`, not `O(k³)`.
 #[derive(Clone, Copy)]
 struct Member<const L: usize> {
     /// Track index.
@@ -301,92 +303,171 @@ struct Member<const L: usize> {
     invd: f32,
     /// `ln det` of the leading `a + 1` members' `S`.
     logdet: f32,
-    /// Row `a` of the unit lower factor `L` (entries `b < a`, the rest 0).
+    /// Row `a` of the unit lower factor `L`, in member coordinates (entries `b < a`).
     l: [f32; L],
-    /// Row `a` of `L⁻¹` (entries `b ≤ a`, diagonal 1, the rest 0).
+    /// Row `a` of `L⁻¹` in track coordinates (`li[tr_b] = (L⁻¹)_ab`, `li[tr] = 1`, the rest 0).
     li: [f32; L],
+    /// Total event weight of the patterns in this member's subtree of the pattern tree (the
+    /// pattern ending with this member and its descendants), for `Σ_δ wd_δ S_δ⁻¹`.
+    wsub: f32,
 }
 
-/// One level of the event enumeration: the candidates left, the pick, and the running forward
-/// substitution (`u = L⁻¹ ν`, `q = Σ u_b² / d_b`, `r = Σ_b (u_b / d_b) (L⁻¹)_bᵀ = S⁻¹ ν` over the
-/// members picked so far).
+impl<const L: usize> Member<L> {
+    const EMPTY: Self = Self {
+        tr: 0,
+        pos: 0,
+        mask: 0,
+        zh: 0.0,
+        invd: 0.0,
+        logdet: 0.0,
+        l: [0.0; L],
+        li: [0.0; L],
+        wsub: 0.0,
+    };
+}
+
+/// One node of a pattern's event tree (members `0..=a` assigned): the candidates left at this
+/// level, the pick, the running forward substitution (`u_a`, `e_a = u_a / d_a`,
+/// `q = Σ u_b e_b`, `r = Σ_b e_b (L⁻¹)_bᵀ`, i.e. `S⁻¹ ν` of the members so far, in track
+/// coordinates) and the weight of the node's finished subtree.
 #[derive(Clone, Copy)]
 struct Level<const L: usize> {
     rem: u32,
     pick: u32,
     u: f32,
+    e: f32,
     q: f32,
+    w: f32,
     r: [f32; L],
 }
 
-/// The working memory of the event stage: the pattern's members, the enumeration stack, and the
-/// pattern's sums, in units of `e^{−q/2 − shift}`: `wd = Σ w`, `y = Σ w r`,
-/// `c = wd S⁻¹ − Σ w r rᵀ` (lower triangle), in pattern coordinates, and
-/// `bl[a][j] = Σ_{A: a→j} w`. RAM: `4·(L·(2L + 6) + L·(L + 4) + L² + 32·L + 4)` bytes
-/// (1.8 KiB of stack at `L = 6`).
-struct Work<const L: usize> {
-    mem: [Member<L>; L],
-    lev: [Level<L>; L],
-    k: usize,
-    wd: f32,
-    y: [f32; L],
-    c: [[f32; L]; L],
-    bl: [[f32; MAX_ROW_POINTS]; L],
-    shift: f32,
-    started: bool,
-    events: u32,
+impl<const L: usize> Level<L> {
+    const EMPTY: Self = Self {
+        rem: 0,
+        pick: 0,
+        u: 0.0,
+        e: 0.0,
+        q: 0.0,
+        w: 0.0,
+        r: [0.0; L],
+    };
 }
 
-impl<const L: usize> Work<L> {
+/// The mixture sums of a row, in track coordinates and units of `e^{−ref}`:
+/// `wtot = Σ w`, `y = Σ w S_δ⁻¹ ν`, `c = Σ w (S_δ⁻¹ − S_δ⁻¹ ν νᵀ S_δ⁻¹)` (lower triangle, padded
+/// with zeros outside the pattern), `bmiss[t] = Σ_{t missed} w`, `beta[t][j] = Σ_{t→j} w`.
+struct Acc<const L: usize> {
+    wtot: f32,
+    y: [f32; L],
+    c: [[f32; L]; L],
+    bmiss: [f32; L],
+    beta: [[f32; MAX_ROW_POINTS]; L],
+    lwmax: f32,
+    events: u32,
+    patterns: u32,
+}
+
+impl<const L: usize> Acc<L> {
     const fn new() -> Self {
         Self {
-            mem: [Member {
-                tr: 0,
-                pos: 0,
-                mask: 0,
-                zh: 0.0,
-                invd: 0.0,
-                logdet: 0.0,
-                l: [0.0; L],
-                li: [0.0; L],
-            }; L],
-            lev: [Level {
-                rem: 0,
-                pick: 0,
-                u: 0.0,
-                q: 0.0,
-                r: [0.0; L],
-            }; L],
-            k: 0,
-            wd: 0.0,
+            wtot: 0.0,
             y: [0.0; L],
             c: [[0.0; L]; L],
-            bl: [[0.0; MAX_ROW_POINTS]; L],
-            shift: 0.0,
-            started: false,
+            bmiss: [0.0; L],
+            beta: [[0.0; MAX_ROW_POINTS]; L],
+            lwmax: f32::NEG_INFINITY,
             events: 0,
+            patterns: 0,
         }
     }
 
-    /// The current pattern's members.
-    fn members(&self) -> &[Member<L>] {
-        self.mem.get(..self.k).unwrap_or(&[])
+    /// `β[t][j] += w` for member `mb` picking point `j` in events of total weight `w`.
+    #[inline(always)]
+    fn pick(&mut self, mb: &Member<L>, j: u32, w: f32) {
+        if let Some(b) = self
+            .beta
+            .get_mut(usize::from(mb.tr))
+            .and_then(|r| r.get_mut(j as usize))
+        {
+            *b += w;
+        }
     }
 
-    /// `ln det S_δ` of the current pattern.
-    fn logdet(&self) -> f32 {
-        self.members().last().map_or(0.0, |m| m.logdet)
+    /// Adds an event of weight `w` with `r = S_δ⁻¹ ν`: `y += w r`, `c −= w r rᵀ` over the
+    /// tracks `0..hi` (`r` is zero past the pattern's highest track).
+    #[inline(always)]
+    fn event(&mut self, r: &[f32; L], hi: usize, w: f32) {
+        let r = r.get(..hi).unwrap_or(&[]);
+        for (p, ((yp, crow), rp)) in self
+            .y
+            .iter_mut()
+            .zip(self.c.iter_mut())
+            .zip(r.iter())
+            .enumerate()
+        {
+            let wr = w * rp;
+            *yp += wr;
+            for (cv, rq) in crow.iter_mut().zip(r.iter()).take(p + 1) {
+                *cv -= wr * rq;
+            }
+        }
     }
 
-    /// Appends track `t` (eligible position `pos`, row `srow` of `S̄`) to the pattern and
-    /// computes its factor row (`f_b = S_tb − Σ_{c<b} l_bc f_c`, `l_kb = f_b / d_b`,
-    /// `d_k = S_tt − Σ_b l_kb f_b`) and its row of `L⁻¹` (`−Σ_b l_kb (L⁻¹)_b`, 1 on the
-    /// diagonal). Returns `false` (nothing appended) when `d_k` is not positive and finite, i.e.
-    /// `S_δ` is not positive definite.
-    fn push(&mut self, pos: usize, t: usize, srow: &[f32; L], mask: u32, zhat: f32) -> bool {
-        let k = self.k;
-        let (done, rest) = self.mem.split_at_mut(k.min(L));
-        let Some(new) = rest.first_mut() else {
+    /// Adds `w (L⁻¹)_aᵀ (1/d_a) (L⁻¹)_a` for member `mb` (`w` the weight of the patterns
+    /// containing the member's prefix): summed over the pattern tree, `Σ_δ wd_δ S_δ⁻¹`, at one
+    /// `O(t²)` outer product per pattern instead of `O(k³)`.
+    #[inline(always)]
+    fn inverse_term(&mut self, mb: &Member<L>, w: f32) {
+        if w == 0.0 {
+            return;
+        }
+        let hi = (usize::from(mb.tr) + 1).min(L);
+        let li = mb.li.get(..hi).unwrap_or(&[]);
+        let s = w * mb.invd;
+        for (p, (crow, lip)) in self.c.iter_mut().zip(li.iter()).enumerate() {
+            let a = s * lip;
+            for (cv, liq) in crow.iter_mut().zip(li.iter()).take(p + 1) {
+                *cv += a * liq;
+            }
+        }
+    }
+}
+
+/// What a row's event pass needs: the tracks, their predicted measurements and joint
+/// innovation covariance, gate masks, points and the log-weight constants.
+struct Ctx<'a, const L: usize> {
+    n: usize,
+    skip: u32,
+    elig: [u8; L],
+    na: usize,
+    sbar: &'a [[f32; L]; L],
+    zhat: &'a [f32; L],
+    valid: &'a [u32; L],
+    points: &'a [f32],
+    ln_2pi: f32,
+    ln_pd_lambda: f32,
+    ln_miss: f32,
+    active: f32,
+}
+
+impl<const L: usize> Ctx<'_, L> {
+    /// Log-weight of a pattern with `k` detected tracks and `ln det S_δ = logdet`, before the
+    /// events' Mahalanobis terms (DESIGN 4.1 step 3).
+    fn base(&self, k: usize, logdet: f32) -> f32 {
+        let kf = k as f32;
+        -0.5 * logdet - 0.5 * kf * self.ln_2pi
+            + kf * self.ln_pd_lambda
+            + (self.active - kf) * self.ln_miss
+    }
+
+    /// Appends eligible track `pos` to the pattern `mems[..k]` as member `k` and computes its
+    /// factor row (`f_b = S_tb − Σ_{c<b} l_bc f_c`, `l_kb = f_b / d_b`,
+    /// `d_k = S_tt − Σ_b l_kb f_b`) and its row of `L⁻¹` (`e_t − Σ_b l_kb (L⁻¹)_b`). `false` when
+    /// `d_k` is not positive and finite (`S_δ` not positive definite).
+    fn push(&self, mems: &mut [Member<L>; L], k: usize, pos: usize) -> bool {
+        let t = usize::from(get(&self.elig, pos));
+        let (done, rest) = mems.split_at_mut(k.min(L));
+        let (Some(new), Some(srow)) = (rest.first_mut(), self.sbar.get(t)) else {
             return false;
         };
         let mut f = [0.0f32; L];
@@ -407,93 +488,90 @@ impl<const L: usize> Work<L> {
         }
         let mut li = [0.0f32; L];
         for (lkb, mb) in l.iter().zip(done.iter()) {
-            for (v, w) in li.iter_mut().zip(mb.li.iter()) {
+            let hi = usize::from(mb.tr) + 1;
+            for (v, w) in li.iter_mut().zip(mb.li.iter()).take(hi) {
                 *v -= lkb * w;
             }
         }
-        set(&mut li, k, 1.0);
+        set(&mut li, t, 1.0);
         *new = Member {
             tr: t as u8,
             pos: pos as u8,
-            mask,
-            zh: zhat,
+            mask: get(self.valid, t),
+            zh: get(self.zhat, t),
             invd: 1.0 / dk,
             logdet: done.last().map_or(0.0, |m| m.logdet) + math::ln(dk),
             l,
             li,
+            wsub: 0.0,
         };
-        self.k = k + 1;
         true
     }
 
-    /// Enumerates the current pattern's events (injective assignments of its members to points
-    /// of their masks; explicit stack, depth ≤ `k`) and, when `weighted`, accumulates their sums.
-    /// A member's pick extends `u`, `q` and `r` by one term (`O(L)`); an event adds the `O(k²)`
-    /// outer product `r rᵀ`; the pattern then adds `wd S⁻¹ = Σ_b (wd / d_b) (L⁻¹)_bᵀ (L⁻¹)_b`
-    /// (`O(k³)`).
-    fn score(&mut self, points: &[f32], weighted: bool) {
-        let k = self.k.min(L);
-        self.wd = 0.0;
-        self.shift = 0.0;
-        self.started = false;
-        self.events = 0;
-        for (a, (((y, c), bl), mb)) in self
-            .y
-            .iter_mut()
-            .zip(self.c.iter_mut())
-            .zip(self.bl.iter_mut())
-            .zip(self.mem.iter())
-            .enumerate()
-            .take(k)
-        {
-            *y = 0.0;
-            for v in c.iter_mut().take(a + 1) {
-                *v = 0.0;
+    /// Scores the events of the pattern `mems` (injective assignments of its members to points
+    /// of their masks; explicit stack, depth ≤ k) into `acc`; returns the number of events and
+    /// their total weight. A member's pick extends `u`, `e`, `q` and `r` by one term; a node's
+    /// sums are added once its subtree is finished ([`Acc::finish`]).
+    fn score(
+        &self,
+        mems: &[Member<L>],
+        base: f32,
+        reference: f32,
+        lev: &mut [Level<L>; L],
+        acc: &mut Acc<L>,
+    ) -> (u32, f32) {
+        let weighted = base.is_finite();
+        let k = mems.len().min(L);
+        let Some(m0) = mems.first() else {
+            // The all-missed event.
+            if !weighted {
+                return (1, 0.0);
             }
-            let mut mask = mb.mask;
-            while mask != 0 {
-                set(bl, mask.trailing_zeros() as usize, 0.0);
-                mask &= mask - 1;
-            }
-        }
-        if k == 0 {
-            self.events = 1;
-            if weighted {
-                self.started = true;
-                self.wd = 1.0;
-            }
-            return;
-        }
-        let mems = self.mem.get(..k).unwrap_or(&[]);
-        let levs = self.lev.get_mut(..k).unwrap_or(&mut []);
-        if let (Some(l0), Some(m0)) = (levs.first_mut(), mems.first()) {
+            acc.lwmax = acc.lwmax.max(base);
+            return (1, math::exp(base - reference));
+        };
+        let levs = lev.get_mut(..k).unwrap_or(&mut []);
+        if let Some(l0) = levs.first_mut() {
             l0.rem = m0.mask;
         }
+        let mut events = 0u32;
+        let mut wd = 0.0f32;
         let mut used = 0u32;
         let mut depth = 0usize;
         // Each pass descends (≤ k), takes a candidate or ascends: bounded by the event tree.
         loop {
             let (prev, cur) = levs.split_at_mut(depth);
-            let (Some(lv), Some(mb)) = (cur.first_mut(), mems.get(depth)) else {
+            let (Some((lv, below)), Some(mb)) = (cur.split_first_mut(), mems.get(depth)) else {
                 break;
             };
             if lv.rem == 0 {
-                let Some(p) = prev.last() else {
+                // Every child of the node one level up is done: finish it.
+                let Some((pl, upper)) = prev.split_last_mut() else {
                     break;
                 };
-                used &= !(1u32.wrapping_shl(p.pick));
+                if let Some(pm) = mems.get(depth - 1) {
+                    acc.pick(pm, pl.pick, pl.w);
+                }
+                match upper.last_mut() {
+                    Some(gp) => gp.w += pl.w,
+                    None => wd += pl.w,
+                }
+                used &= !(1u32.wrapping_shl(pl.pick));
                 depth -= 1;
                 continue;
             }
             let j = lv.rem.trailing_zeros();
             lv.rem &= lv.rem.wrapping_sub(1);
             lv.pick = j;
-            let mut ua = points.get(j as usize).copied().unwrap_or(0.0) - mb.zh;
+            let mut ua = self.points.get(j as usize).copied().unwrap_or(0.0) - mb.zh;
             for (lb, pl) in mb.l.iter().zip(prev.iter()) {
                 ua -= lb * pl.u;
             }
             let ea = ua * mb.invd;
             lv.u = ua;
+            lv.e = ea;
+            let hi = (usize::from(mb.tr) + 1).min(L);
+            // All L entries, so that r stays zero past the highest member's track.
             match prev.last() {
                 Some(p) => {
                     lv.q = p.q + ua * ea;
@@ -508,91 +586,93 @@ impl<const L: usize> Work<L> {
                     }
                 }
             }
-            if depth + 1 < k {
+            if let Some(next) = below.first_mut() {
+                lv.w = 0.0;
                 used |= 1u32.wrapping_shl(j);
                 depth += 1;
-                if let (Some(nl), Some(nm)) = (cur.get_mut(1), mems.get(depth)) {
-                    nl.rem = nm.mask & !used;
-                }
+                next.rem = mems.get(depth).map_or(0, |m| m.mask) & !used;
                 continue;
             }
             // A leaf: one joint event.
-            self.events += 1;
-            let qa = lv.q;
-            if !(weighted && qa.is_finite()) {
+            events += 1;
+            let q = lv.q;
+            if !(weighted && q.is_finite()) {
                 continue; // weight 0 (e.g. ln 0 of a zero miss factor): contributes nothing
             }
-            let lw = -0.5 * qa;
-            if !self.started {
-                self.started = true;
-                self.shift = lw;
-            } else if lw - self.shift > RESCALE {
-                // Rare: rescale the pattern's sums (inline: `self.scale` would alias `levs`).
-                let s = math::exp(self.shift - lw);
-                self.wd *= s;
-                for (a, (((y, c), bl), m)) in self
-                    .y
-                    .iter_mut()
-                    .zip(self.c.iter_mut())
-                    .zip(self.bl.iter_mut())
-                    .zip(mems.iter())
-                    .enumerate()
-                {
-                    *y *= s;
-                    for v in c.iter_mut().take(a + 1) {
-                        *v *= s;
-                    }
-                    let mut mask = m.mask;
-                    while mask != 0 {
-                        if let Some(v) = bl.get_mut(mask.trailing_zeros() as usize) {
-                            *v *= s;
-                        }
-                        mask &= mask - 1;
-                    }
-                }
-                self.shift = lw;
+            let lw = base - 0.5 * q;
+            acc.lwmax = acc.lwmax.max(lw);
+            let w = math::exp(lw - reference);
+            acc.pick(mb, j, w);
+            acc.event(&lv.r, hi, w);
+            match prev.last_mut() {
+                Some(p) => p.w += w,
+                None => wd += w,
             }
-            let w = math::exp(lw - self.shift);
-            self.wd += w;
-            let r = &lv.r;
-            for (a, ((y, crow), ra)) in self
-                .y
-                .iter_mut()
-                .zip(self.c.iter_mut())
-                .zip(r.iter())
-                .enumerate()
-                .take(k)
-            {
-                let wr = w * ra;
-                *y += wr;
-                for (cv, rc) in crow.iter_mut().zip(r.iter()).take(a + 1) {
-                    *cv -= wr * rc;
+        }
+        (events, wd)
+    }
+
+    /// One pass over the detection patterns (the subsets of the eligible tracks, depth first, so
+    /// that each extends its parent's factor by one row; a pattern without events has no
+    /// descendant with events, so its subtree is skipped), weights `e^{lw − reference}`.
+    /// `false` when some `S_δ` is not positive definite.
+    fn pass(&self, reference: f32, acc: &mut Acc<L>) -> bool {
+        let mut mems = [Member::<L>::EMPTY; L];
+        let mut lev = [Level::<L>::EMPTY; L];
+        let mut k = 0usize;
+        let mut next = 0usize;
+        let mut descend = true;
+        let mut first = true;
+        loop {
+            if first {
+                first = false; // the empty pattern (every track missed)
+            } else if descend && next < self.na {
+                if !self.push(&mut mems, k, next) {
+                    return false;
                 }
+                k += 1;
+            } else {
+                // Pattern tree: the member's subtree is done; add its S⁻¹ term, pass its weight up.
+                let Some(a) = k.checked_sub(1) else {
+                    break;
+                };
+                let (head, tail) = mems.split_at_mut(a);
+                let Some(last) = tail.first() else {
+                    break;
+                };
+                acc.inverse_term(last, last.wsub);
+                if let Some(parent) = head.last_mut() {
+                    parent.wsub += last.wsub;
+                }
+                next = usize::from(last.pos) + 1;
+                k = a;
+                descend = true;
+                continue;
             }
-            for (p, brow) in prev
-                .iter()
-                .map(|p| p.pick)
-                .chain(core::iter::once(j))
-                .zip(self.bl.iter_mut())
-            {
-                if let Some(b) = brow.get_mut(p as usize) {
-                    *b += w;
+            acc.patterns += 1;
+            let pattern = mems.get(..k).unwrap_or(&[]);
+            let base = self.base(k, pattern.last().map_or(0.0, |m| m.logdet));
+            let (events, wd) = self.score(pattern, base, reference, &mut lev, acc);
+            acc.events += events;
+            descend = events > 0;
+            next = pattern.last().map_or(0, |m| usize::from(m.pos) + 1);
+            let mut missed = !self.skip;
+            for mb in pattern {
+                missed &= !(1u32 << mb.tr);
+            }
+            if wd > 0.0 {
+                if let Some(last) = k.checked_sub(1).and_then(|a| mems.get_mut(a)) {
+                    last.wsub += wd;
+                }
+                acc.wtot += wd;
+                for (t, b) in acc.bmiss.iter_mut().enumerate().take(self.n) {
+                    if missed & (1 << t) != 0 {
+                        *b += wd;
+                    }
                 }
             }
         }
-        if self.wd > 0.0 {
-            // wd S⁻¹ = Σ_b (wd / d_b) (L⁻¹)_bᵀ (L⁻¹)_b: row b of L⁻¹ has entries 0..=b.
-            for (b, mb) in mems.iter().enumerate() {
-                let coef = self.wd * mb.invd;
-                for (a, (crow, lia)) in self.c.iter_mut().zip(mb.li.iter()).enumerate().take(b + 1)
-                {
-                    let s = coef * lia;
-                    for (cv, lic) in crow.iter_mut().zip(mb.li.iter()).take(a + 1) {
-                        *cv += s * lic;
-                    }
-                }
-            }
-        }
+        true
     }
 }
 
@@ -724,11 +804,8 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         );
     }
 
-    // Event weights (step 3) and the mixture moments (step 4). The detection patterns are the
-    // subsets of the eligible tracks (not skipped, at least one candidate), visited depth first
-    // so that each extends its parent's factor by one row; a pattern without events has no
-    // descendant with events, so its subtree is skipped. Weights are relative to a reference
-    // raised only by more than `RESCALE` at a time (per pattern and over the patterns).
+    // Event weights (step 3) and the mixture moments (step 4), in one pass over the detection
+    // patterns and their events (`Ctx::pass`), redone once if the weights' scale was off.
     let mut elig = [0u8; LANES];
     let mut na = 0usize;
     for (t, v) in out.valid.iter().enumerate().take(n) {
@@ -737,205 +814,169 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
             na += 1;
         }
     }
-    let active = (n - n_skipped) as f32;
-    let mut gstarted = false;
-    let mut gmax = 0.0f32;
-    let mut wtot = 0.0f32;
-    let mut y = [0.0f32; LANES];
-    let mut c = [[0.0f32; LANES]; LANES]; // lower triangle
-    let mut bmiss = [0.0f32; LANES];
-    let mut wk = Work::<LANES>::new();
-    let mut next = 0usize;
-    let mut descend = true;
-    let mut first = true;
-    loop {
-        if first {
-            first = false; // the empty pattern (every track missed)
-        } else if descend && next < na {
-            let t = usize::from(get(&elig, next));
-            let srow = sbar.get(t).copied().unwrap_or([0.0; LANES]);
-            if !wk.push(next, t, &srow, get(&out.valid, t), get(&zhat, t)) {
-                return failed(out);
-            }
-        } else {
-            let Some(last) = wk.members().last() else {
-                break;
-            };
-            next = usize::from(last.pos) + 1;
-            wk.k -= 1;
-            descend = true;
-            continue;
-        }
-        let k = wk.k;
-        out.patterns += 1;
-        let kf = k as f32;
-        let base = -0.5 * wk.logdet() - 0.5 * kf * ln_2pi
-            + kf * (ln_pd - ln_lambda)
-            + (active - kf) * ln_miss;
-        wk.score(points, base.is_finite());
-        out.events += wk.events;
-        descend = wk.events > 0;
-        next = wk.members().last().map_or(0, |m| usize::from(m.pos) + 1);
-        if !(wk.wd > 0.0 && wk.wd.is_finite()) {
-            continue;
-        }
-        let eff = base + wk.shift;
-        if !gstarted {
-            gstarted = true;
-            gmax = eff;
-        } else if eff - gmax > RESCALE {
-            let s = math::exp(gmax - eff);
-            wtot *= s;
-            for (t, (((yv, bm), crow), brow)) in y
-                .iter_mut()
-                .zip(bmiss.iter_mut())
-                .zip(c.iter_mut())
-                .zip(out.beta.iter_mut())
-                .enumerate()
-                .take(n)
-            {
-                *yv *= s;
-                *bm *= s;
-                for v in crow.iter_mut().take(t + 1) {
-                    *v *= s;
-                }
-                for v in brow.iter_mut().take(m) {
-                    *v *= s;
-                }
-            }
-            gmax = eff;
-        }
-        let f = math::exp(eff - gmax);
-        let wd = wk.wd * f;
-        wtot += wd;
-        let mut missed = !skip;
-        for (a, mb) in wk.members().iter().enumerate() {
-            let ta = usize::from(mb.tr);
-            missed &= !(1 << ta);
-            if let Some(v) = y.get_mut(ta) {
-                *v += f * get(&wk.y, a);
-            }
-            if let (Some(crow), Some(src)) = (c.get_mut(ta), wk.c.get(a)) {
-                for (mb2, s) in wk.mem.iter().zip(src.iter()).take(a + 1) {
-                    if let Some(v) = crow.get_mut(usize::from(mb2.tr)) {
-                        *v += f * s;
-                    }
-                }
-            }
-            if let (Some(brow), Some(src)) = (out.beta.get_mut(ta), wk.bl.get(a)) {
-                let mut mask = mb.mask;
-                while mask != 0 {
-                    let j = mask.trailing_zeros() as usize;
-                    if let (Some(d), Some(s)) = (brow.get_mut(j), src.get(j)) {
-                        *d += f * s;
-                    }
-                    mask &= mask - 1;
-                }
-            }
-        }
-        for (t, b) in bmiss.iter_mut().enumerate().take(n) {
-            if missed & (1 << t) != 0 {
-                *b += wd;
-            }
+    let ctx = Ctx {
+        n,
+        skip,
+        elig,
+        na,
+        sbar: &sbar,
+        zhat: &zhat,
+        valid: &out.valid,
+        points,
+        ln_2pi,
+        ln_pd_lambda: ln_pd - ln_lambda,
+        ln_miss,
+        active: (n - n_skipped) as f32,
+    };
+    let empty = ctx.base(0, 0.0);
+    let mut reference = if empty.is_finite() { empty } else { 0.0 };
+    let mut acc = Acc::<LANES>::new();
+    if !ctx.pass(reference, &mut acc) {
+        return failed(out);
+    }
+    if acc.lwmax.is_finite()
+        && ((acc.lwmax - reference).abs() > WINDOW || !(acc.wtot.is_finite() && acc.wtot > 0.0))
+    {
+        reference = acc.lwmax;
+        acc = Acc::new();
+        if !ctx.pass(reference, &mut acc) {
+            return failed(out);
         }
     }
+    out.events = acc.events;
+    out.patterns = acc.patterns;
+    let Acc {
+        wtot,
+        y,
+        c,
+        bmiss,
+        beta,
+        ..
+    } = acc;
     probe.enter(Stage::Update);
     if !(wtot.is_finite() && wtot > 0.0) {
         return failed(out);
     }
     let inv = 1.0 / wtot;
-    // C' = C + y yᵀ (full, symmetric), so that P⁺ = P̄ − G C' Gᵀ and x⁺ = x̄ + G y.
-    for v in y.iter_mut().take(n) {
-        *v *= inv;
+    // Only the eligible tracks (those in some detection pattern) have rows in y and C, so
+    // C' = C + y yᵀ is compacted to them: P⁺ = P̄ − G_e C'_e G_eᵀ, x⁺ = x̄ + G_e y_e. With none
+    // (every track missed for sure), the state does not move.
+    let el = ctx.elig.get(..ctx.na).unwrap_or(&[]);
+    let na = el.len();
+    let mut ye = [0.0f32; LANES];
+    for (ys, &ts) in ye.iter_mut().zip(el.iter()) {
+        *ys = get(&y, usize::from(ts)) * inv;
     }
-    for t in 0..n {
-        let yt = get(&y, t);
-        for tp in 0..=t {
-            let v = at(&c, t, tp) * inv + yt * get(&y, tp);
-            put(&mut c, t, tp, v);
-            put(&mut c, tp, t, v);
+    let mut ce = [[0.0f32; LANES]; LANES];
+    for (s1, &t1) in el.iter().enumerate() {
+        let y1 = get(&ye, s1);
+        for (s2, &t2) in el.iter().enumerate().take(s1 + 1) {
+            let v = at(&c, usize::from(t1), usize::from(t2)) * inv + y1 * get(&ye, s2);
+            put(&mut ce, s1, s2, v);
+            put(&mut ce, s2, s1, v);
         }
     }
-    // u[i][t'] = Σ_t g[i][t] C'[t][t'], dx[i] = Σ_t g[i][t] y[t].
-    let gn = g.get(..n).unwrap_or(&[]);
-    let yn = y.get(..n).unwrap_or(&[]);
-    let cn = c.get(..n).unwrap_or(&[]);
+    let mut ge = [[[0.0f32; NS]; LANES]; LANES]; // ge[i][s] = g[i][el[s]]
+    for (gi, gei) in g.iter().zip(ge.iter_mut()).take(if na > 0 { n } else { 0 }) {
+        for (gs, &ts) in gei.iter_mut().zip(el.iter()) {
+            *gs = gi.get(usize::from(ts)).copied().unwrap_or([0.0; NS]);
+        }
+    }
+    let g = ge;
+    let gn = g.get(..if na > 0 { n } else { 0 }).unwrap_or(&[]);
+    let yn = ye.get(..na).unwrap_or(&[]);
+    let cn = ce.get(..na).unwrap_or(&[]);
+    // u[i][s'] = Σ_s g[i][s] C'[s][s'], dx[i] = Σ_s g[i][s] y[s].
     let mut dx = [[0.0f32; NS]; LANES];
     let mut u = [[[0.0f32; NS]; LANES]; LANES];
+    // (Sums go to locals, not through references into the arrays, so they stay in registers.)
     for ((gi, d), ui) in gn.iter().zip(dx.iter_mut()).zip(u.iter_mut()) {
-        let ui = ui.get_mut(..n).unwrap_or(&mut []);
-        for ((git, yt), crow) in gi.iter().zip(yn.iter()).zip(cn.iter()) {
-            axpy(d, *yt, git);
-            for (uit, ctt) in ui.iter_mut().zip(crow.iter()) {
-                axpy(uit, *ctt, git);
+        let gi = gi.get(..na).unwrap_or(&[]);
+        let mut acc = [0.0f32; NS];
+        for (git, yt) in gi.iter().zip(yn.iter()) {
+            axpy(&mut acc, *yt, git);
+        }
+        *d = acc;
+        for (s2, uis) in ui.iter_mut().enumerate().take(na) {
+            let mut acc = [0.0f32; NS];
+            for (git, crow) in gi.iter().zip(cn.iter()) {
+                axpy(&mut acc, get(crow, s2), git);
             }
+            *uis = acc;
         }
     }
-    // P⁺_ij = P̄_ij − Σ_t' u[i][t'] g[j][t']ᵀ for the upper blocks (diagonal blocks symmetrised),
-    // staged and committed (with the mirrored lower blocks) only if everything is finite.
-    let mut newp = [[[[0.0f32; NS]; NS]; LANES]; LANES];
-    let mut bad = dx.iter().take(n).any(|d| d.iter().any(|v| !v.is_finite()));
-    for (i, ((ui, prow), nrow)) in u
-        .iter()
-        .zip(ps.iter())
-        .zip(newp.iter_mut())
-        .enumerate()
-        .take(n)
-    {
-        let ui = ui.get(..n).unwrap_or(&[]);
-        for (j, ((gj, pij), blk)) in gn
+    if na > 0 {
+        // P⁺_ij = P̄_ij − Σ_t' u[i][s] g[j][s]ᵀ for the upper blocks (diagonal blocks symmetrised),
+        // staged and committed (with the mirrored lower blocks) only if everything is finite.
+        let mut newp = [[[[0.0f32; NS]; NS]; LANES]; LANES];
+        let mut bad = dx.iter().take(n).any(|d| d.iter().any(|v| !v.is_finite()));
+        for (i, ((ui, prow), nrow)) in u
             .iter()
-            .zip(prow.iter())
-            .zip(nrow.iter_mut())
+            .zip(ps.iter())
+            .zip(newp.iter_mut())
             .enumerate()
-            .skip(i)
+            .take(n)
         {
-            *blk = pij.data.0;
-            // Column b of the block: P_·b − Σ_t u_t g_t[b].
-            for (uv, gv) in ui.iter().zip(gj.iter()) {
-                for (col, gb) in blk.iter_mut().zip(gv.iter()) {
-                    for (e, ua) in col.iter_mut().zip(uv.iter()) {
-                        *e -= ua * gb;
+            let ui = ui.get(..na).unwrap_or(&[]);
+            for (j, ((gj, pij), blk)) in gn
+                .iter()
+                .zip(prow.iter())
+                .zip(nrow.iter_mut())
+                .enumerate()
+                .skip(i)
+            {
+                // Column b of the block: P_·b − Σ_s u_s g_s[b].
+                let mut red = [[0.0f32; NS]; NS];
+                for (uv, gv) in ui.iter().zip(gj.iter()) {
+                    for (col, gb) in red.iter_mut().zip(gv.iter()) {
+                        axpy(col, *gb, uv);
+                    }
+                }
+                *blk = pij.data.0;
+                for (col, rcol) in blk.iter_mut().zip(red.iter()) {
+                    for (e, r) in col.iter_mut().zip(rcol.iter()) {
+                        *e -= r;
+                    }
+                }
+                if i == j {
+                    for a in 0..NS {
+                        for b in 0..a {
+                            let v = 0.5 * (at(blk, a, b) + at(blk, b, a));
+                            put(blk, a, b, v);
+                            put(blk, b, a, v);
+                        }
+                    }
+                }
+                bad |= blk.iter().any(|col| col.iter().any(|v| !v.is_finite()));
+            }
+        }
+        if bad {
+            return failed(out);
+        }
+        for (i, nrow) in newp.iter().enumerate().take(n) {
+            for (j, blk) in nrow.iter().enumerate().take(n).skip(i) {
+                let m = SMatrix::<f32, NS, NS>::from_data(nalgebra::ArrayStorage(*blk));
+                if let Some(b) = ps.get_mut(i).and_then(|r| r.get_mut(j)) {
+                    *b = m;
+                }
+                if i != j {
+                    if let Some(b) = ps.get_mut(j).and_then(|r| r.get_mut(i)) {
+                        *b = m.transpose();
                     }
                 }
             }
-            if i == j {
-                for a in 0..NS {
-                    for b in 0..a {
-                        let v = 0.5 * (at(blk, a, b) + at(blk, b, a));
-                        put(blk, a, b, v);
-                        put(blk, b, a, v);
-                    }
-                }
-            }
-            bad |= blk.iter().any(|col| col.iter().any(|v| !v.is_finite()));
         }
-    }
-    if bad {
-        return failed(out);
-    }
-    for (i, nrow) in newp.iter().enumerate().take(n) {
-        for (j, blk) in nrow.iter().enumerate().take(n).skip(i) {
-            let m = SMatrix::<f32, NS, NS>::from_data(nalgebra::ArrayStorage(*blk));
-            if let Some(b) = ps.get_mut(i).and_then(|r| r.get_mut(j)) {
-                *b = m;
-            }
-            if i != j {
-                if let Some(b) = ps.get_mut(j).and_then(|r| r.get_mut(i)) {
-                    *b = m.transpose();
-                }
+        for (x, d) in xs.iter_mut().zip(dx.iter()).take(n) {
+            for (xv, dv) in x.iter_mut().zip(d.iter()) {
+                *xv += dv;
             }
         }
     }
-    for (x, d) in xs.iter_mut().zip(dx.iter()).take(n) {
-        for (xv, dv) in x.iter_mut().zip(d.iter()) {
-            *xv += dv;
-        }
-    }
-    for (t, (bm, brow)) in out
+    for (t, ((bm, brow), src)) in out
         .beta_miss
         .iter_mut()
         .zip(out.beta.iter_mut())
+        .zip(beta.iter())
         .enumerate()
         .take(n)
     {
@@ -944,8 +985,8 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         } else {
             get(&bmiss, t) * inv
         };
-        for v in brow.iter_mut().take(m) {
-            *v *= inv;
+        for (v, s) in brow.iter_mut().zip(src.iter()).take(m) {
+            *v = s * inv;
         }
     }
     out
