@@ -11,10 +11,12 @@
 //! LANES = 6, ROWS = 64); the row bins `ROWS · (PER_ROW · 4 + 1)` bytes.
 //!
 //! # Cost per frame
-//! `R` rows, each: one prediction (`n² · 2 NS³`), at most `max_tentative` initiations
-//! (`O(n² NS²)` plus two triangular solves of order `n`), one row update (see [`super::row`]), and
-//! O(n · PER_ROW) bookkeeping; then `R · n` RTS steps (`O(NS³)` each) and `POINTS²` products per
-//! confirmed track. No recursion, no allocation.
+//! `R` rows, each: one prediction (`n(n+1)/2` blocks, `2 NS³` each at most), at most
+//! `max_tentative` initiations (`O(n² NS²)` plus two triangular solves of order `n`), one row
+//! update (see [`super::row`]), and O(n · PER_ROW) bookkeeping; then per confirmed track `R` RTS
+//! steps (one `NS×NS` `LDLᵀ` solve and `O(NS³)` products each) and, per index interval, `NS²`
+//! per index point already passed (`O(POINTS² NS² / 2)` per track). No recursion, no allocation.
+//! Instruction counts per stage: `python3 bench/icount.py` (`docs/benchmarks.md`).
 
 use nalgebra::{SMatrix, SVector};
 

@@ -7,30 +7,50 @@
 //! measurement), a pattern `δ` (set of detected tracks) has gain `K_δ = G_δ S_δ⁻¹`. Summing the event
 //! mixture `x̄_A = x̄ + K_δ ν_A`, `P_δ = P̄ − K_δ S_δ K_δᵀ` in closed form gives
 //!
-//! `x̄⁺ = x̄ + G y`, `P̄⁺ = P̄ − G C Gᵀ − (G y)(G y)ᵀ`, with
-//! `y = Σ_δ E_δ S_δ⁻¹ m_δ`, `C = Σ_δ E_δ (W_δ S_δ⁻¹ − S_δ⁻¹ M_δ S_δ⁻¹) E_δᵀ`,
+//! `x̄⁺ = x̄ + G y`, `P̄⁺ = P̄ − G (C + y yᵀ) Gᵀ`, with
+//! `y = Σ_A β_A E_δ S_δ⁻¹ ν_A`, `C = Σ_A β_A E_δ (S_δ⁻¹ − S_δ⁻¹ ν_A ν_Aᵀ S_δ⁻¹) E_δᵀ`,
 //!
-//! where `W_δ = Σ_{A∈δ} β_A`, `m_δ = Σ β_A ν_A`, `M_δ = Σ β_A ν_A ν_Aᵀ`, and `E_δ` embeds the
-//! pattern's `k` tracks among all `D`. So the state-sized work (`O(D² NS² · D)`) happens once per
-//! row; per pattern there is one `D×D` Cholesky factorisation, per event one triangular solve.
-//! This is algebraically identical to DESIGN's `Σ_A β_A (P_δ + x̄_A x̄_Aᵀ) − x̄⁺ x̄⁺ᵀ`.
+//! where `E_δ` embeds the pattern's `k` tracks among all `D`. This is algebraically identical to
+//! DESIGN's `Σ_A β_A (P_δ + x̄_A x̄_Aᵀ) − x̄⁺ x̄⁺ᵀ`; the state-sized work happens once per row and
+//! only for the tracks that appear in some pattern (`C` and `y` are zero elsewhere).
+//!
+//! # How the events are scored
+//! * The detection patterns are the subsets of the *eligible* tracks (not masked, at least one
+//!   candidate), visited depth first: a pattern is its parent (the pattern without its highest
+//!   track) plus one track, so its `S_δ = L D Lᵀ` factor is the parent's plus one row (`O(k²)`,
+//!   no square root) and `ln det S_δ` the parent's plus `ln d_k`. A pattern without events has no
+//!   descendant with events; its subtree is skipped.
+//! * A pattern's events are enumerated depth first over its tracks; each pick extends the forward
+//!   substitution `u = L⁻¹ ν` by one entry and `r = S_δ⁻¹ ν = Σ_a (u_a / d_a) (L⁻¹)_aᵀ` by one
+//!   term, so an event costs `O(k)` plus its `O(k²)` share `β_A r rᵀ` of `C`.
+//!   `Σ_δ W_δ S_δ⁻¹ = Σ_a (W / d_a) (L⁻¹)_aᵀ (L⁻¹)_a` is summed once per pattern-tree node with
+//!   `W` the weight of its subtree, and `β[t][j]` once per event-tree node.
+//! * Weights are `e^{lw − ref}` with `ref` the all-missed event's log-weight: nothing is rescaled
+//!   during the pass; should the largest `lw` end up more than 60 (natural-log units) from `ref`
+//!   (extreme parameters), the pass is redone with `ref` at that maximum.
 //!
 //! # Bounds and cost
 //! * at most [`MAX_ROW_POINTS`] points per row (the rest are counted in `ignored_points`);
-//! * at most `max_events` joint events are scored. The events are counted first (at most
-//!   `max_events + 1` leaves visited); when there are more, (track, point) candidates are dropped
-//!   in order of increasing single-track PDA probability (each track's candidates and its miss
-//!   normalised among themselves, so no track loses its plausible points first), until
-//!   `Π_t (1 + n_t) ≤ max_events` (a bound on the event count), and the row is flagged
-//!   `approximated` (DESIGN 4.1 step 5: "drop the least likely candidates until it fits"). The
-//!   coupled likelihood does not factor over clusters, so all tracks stay in one enumeration;
-//!   the sort costs O(C log C) for C ≤ D·m candidates;
-//! * at most `2^D` detection patterns, each factorised once (`D³/3` flops, padded to `D×D`);
-//! * worst case per row: `2^D · (D³ + D²)` + `max_events · (D² + D)` + `D² · NS² · D` multiply-adds
-//!   and no recursion (the enumeration is an explicit-stack backtracking of depth ≤ D).
+//! * at most `max_events` joint events are scored. When `Π_t (1 + n_t)` (a bound on the event
+//!   count) exceeds the budget, the events are counted (at most `max_events + 1` leaves visited);
+//!   when there are more, (track, point) candidates are dropped in order of increasing
+//!   single-track PDA probability (each track's candidates and its miss normalised among
+//!   themselves, so no track loses its plausible points first), until `Π_t (1 + n_t) ≤
+//!   max_events`, and the row is flagged `approximated` (DESIGN 4.1 step 5: "drop the least
+//!   likely candidates until it fits"). The coupled likelihood does not factor over clusters, so
+//!   all tracks stay in one enumeration; the sort costs O(C log C) for C ≤ D·m candidates;
+//! * at most `2^D` detection patterns, `O(D²)` each; at most `max_events` events, `O(D²)` each;
+//!   the covariance update `n(n+1)/2 · k_e · NS²` multiply-adds for `n` tracks of which `k_e`
+//!   are eligible; no recursion (explicit stacks of depth ≤ D), no allocation. A second pass
+//!   (same cost) only with extreme parameters (see above).
 //!
-//! A numerical failure (a non-positive-definite `S_δ`, all event weights zero, a non-finite
-//! result) leaves the state untouched and sets `failed`.
+//! Stages reported to a probe: [`Stage::Gating`] computes `ẑ_t`, `S̄_tt` and the gates;
+//! [`Stage::Events`] the event count and pruning, `G` and `S̄` on the eligible tracks, the
+//! patterns and events; [`Stage::Update`] the state update.
+//!
+//! A numerical failure (a non-positive-definite `S_δ`, all event weights zero, a value that could
+//! overflow: any input of the covariance update beyond `1e18` in magnitude) leaves the state
+//! untouched and sets `failed`.
 
 use nalgebra::{SMatrix, SVector};
 
@@ -100,7 +120,8 @@ pub struct RowOutcome<const LANES: usize> {
     pub valid: [u32; LANES],
     /// Joint events scored.
     pub events: u32,
-    /// Detection patterns factorised.
+    /// Detection patterns scored (the all-missed one included; patterns under one without
+    /// events are skipped).
     pub patterns: u32,
     /// Candidates dropped to fit the event budget.
     pub dropped_candidates: u32,
@@ -705,30 +726,23 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
 
-    // Gating on each track's marginal (step 2), and G = P̄ H̄ᵀ, S̄ = H̄ P̄ H̄ᵀ + r I, on plain
-    // arrays (`[f32; NS]` vectors, column-major blocks) so the small products unroll.
+    // Gating on each track's marginal (step 2): ẑ_t = h·x_t and S̄_tt = hᵀ P_tt h + r, on plain
+    // arrays (`[f32; NS]` vectors, column-major blocks) so the small products unroll. The rest
+    // of G = P̄ H̄ᵀ and S̄ = H̄ P̄ H̄ᵀ + r I is only needed for the eligible tracks (below).
     let [hv] = h.data.0;
     let mut zhat = [0.0f32; LANES];
-    let mut g = [[[0.0f32; NS]; LANES]; LANES]; // g[i][t] = P_it h
-    for ((grow, prow), (x, zh)) in g
-        .iter_mut()
-        .zip(ps.iter())
-        .zip(xs.iter().zip(zhat.iter_mut()))
+    let mut sbar = [[0.0f32; LANES]; LANES];
+    for (t, ((prow, x), (zh, srow))) in ps
+        .iter()
+        .zip(xs.iter())
+        .zip(zhat.iter_mut().zip(sbar.iter_mut()))
+        .enumerate()
         .take(n)
     {
         let [xv] = x.data.0;
         *zh = dot(&hv, &xv);
-        for (gi, p) in grow.iter_mut().zip(prow.iter()).take(n) {
-            *gi = mat_vec(p, &hv);
-        }
-    }
-    // S̄ is symmetric: its upper triangle, mirrored.
-    let mut sbar = [[0.0f32; LANES]; LANES];
-    for (i, grow) in g.iter().enumerate().take(n) {
-        for (t, gi) in grow.iter().enumerate().take(n).skip(i) {
-            let v = dot(&hv, gi) + if i == t { params.r } else { 0.0 };
-            put(&mut sbar, i, t, v);
-            put(&mut sbar, t, i, v);
+        if let Some(ptt) = prow.get(t) {
+            set(srow, t, dot(&hv, &mat_vec(ptt, &hv)) + params.r);
         }
     }
     let mut any_valid = 0u32;
@@ -814,6 +828,30 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
             na += 1;
         }
     }
+    // G restricted to the eligible columns, g[i][s] = P_{i,e_s} h, and S̄ among the eligible
+    // tracks (symmetric: the upper triangle, mirrored).
+    let el = elig.get(..na).unwrap_or(&[]);
+    let mut g = [[[0.0f32; NS]; LANES]; LANES];
+    if na > 0 {
+        for (gi, prow) in g.iter_mut().zip(ps.iter()).take(n) {
+            for (gs, &ts) in gi.iter_mut().zip(el.iter()) {
+                if let Some(p) = prow.get(usize::from(ts)) {
+                    *gs = mat_vec(p, &hv);
+                }
+            }
+        }
+    }
+    for (s1, &t1) in el.iter().enumerate() {
+        let g1 = g
+            .get(usize::from(t1))
+            .copied()
+            .unwrap_or([[0.0; NS]; LANES]);
+        for (&t2, g12) in el.iter().zip(g1.iter()).skip(s1 + 1) {
+            let v = dot(&hv, g12);
+            put(&mut sbar, usize::from(t1), usize::from(t2), v);
+            put(&mut sbar, usize::from(t2), usize::from(t1), v);
+        }
+    }
     let ctx = Ctx {
         n,
         skip,
@@ -861,8 +899,6 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     // Only the eligible tracks (those in some detection pattern) have rows in y and C, so
     // C' = C + y yᵀ is compacted to them: P⁺ = P̄ − G_e C'_e G_eᵀ, x⁺ = x̄ + G_e y_e. With none
     // (every track missed for sure), the state does not move.
-    let el = ctx.elig.get(..ctx.na).unwrap_or(&[]);
-    let na = el.len();
     let mut ye = [0.0f32; LANES];
     for (ys, &ts) in ye.iter_mut().zip(el.iter()) {
         *ys = get(&y, usize::from(ts)) * inv;
@@ -876,13 +912,6 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
             put(&mut ce, s2, s1, v);
         }
     }
-    let mut ge = [[[0.0f32; NS]; LANES]; LANES]; // ge[i][s] = g[i][el[s]]
-    for (gi, gei) in g.iter().zip(ge.iter_mut()).take(if na > 0 { n } else { 0 }) {
-        for (gs, &ts) in gei.iter_mut().zip(el.iter()) {
-            *gs = gi.get(usize::from(ts)).copied().unwrap_or([0.0; NS]);
-        }
-    }
-    let g = ge;
     let gn = g.get(..if na > 0 { n } else { 0 }).unwrap_or(&[]);
     let yn = ye.get(..na).unwrap_or(&[]);
     let cn = ce.get(..na).unwrap_or(&[]);
