@@ -48,8 +48,8 @@
 //! [`Stage::Events`] the event count and pruning, `G` and `S̄` on the eligible tracks, the
 //! patterns and events; [`Stage::Update`] the state update.
 //!
-//! A numerical failure (a non-positive-definite `S_δ`, all event weights zero, a value that could
-//! overflow: any input of the covariance update beyond `1e18` in magnitude) leaves the state
+//! A numerical failure (a non-positive-definite `S_δ`, all event weights zero, a correction that
+//! could overflow: any entry of `G`, `G C'` or `G y` beyond `3e14` in magnitude) leaves the state
 //! untouched and sets `failed`.
 
 use nalgebra::{SMatrix, SVector};
@@ -318,6 +318,8 @@ struct Member<const L: usize> {
     pos: u8,
     /// Gate mask.
     mask: u32,
+    /// The tracks of the pattern ending with this member (bit `t` = track `t`).
+    set: u32,
     /// Predicted measurement `ẑ_t`.
     zh: f32,
     /// `1 / d_a`.
@@ -338,6 +340,7 @@ impl<const L: usize> Member<L> {
         tr: 0,
         pos: 0,
         mask: 0,
+        set: 0,
         zh: 0.0,
         invd: 0.0,
         logdet: 0.0,
@@ -457,8 +460,6 @@ impl<const L: usize> Acc<L> {
 /// What a row's event pass needs: the tracks, their predicted measurements and joint
 /// innovation covariance, gate masks, points and the log-weight constants.
 struct Ctx<'a, const L: usize> {
-    n: usize,
-    skip: u32,
     elig: [u8; L],
     na: usize,
     sbar: &'a [[f32; L]; L],
@@ -469,6 +470,8 @@ struct Ctx<'a, const L: usize> {
     ln_pd_lambda: f32,
     ln_miss: f32,
     active: f32,
+    /// The tracks that can be missed (bit `t`): the first `n`, not masked.
+    active_set: u32,
 }
 
 impl<const L: usize> Ctx<'_, L> {
@@ -519,6 +522,7 @@ impl<const L: usize> Ctx<'_, L> {
             tr: t as u8,
             pos: pos as u8,
             mask: get(self.valid, t),
+            set: done.last().map_or(0, |m| m.set) | (1 << t),
             zh: get(self.zhat, t),
             invd: 1.0 / dk,
             logdet: done.last().map_or(0.0, |m| m.logdet) + math::ln(dk),
@@ -677,19 +681,18 @@ impl<const L: usize> Ctx<'_, L> {
             acc.events += events;
             descend = events > 0;
             next = pattern.last().map_or(0, |m| usize::from(m.pos) + 1);
-            let mut missed = !self.skip;
-            for mb in pattern {
-                missed &= !(1u32 << mb.tr);
-            }
             if wd > 0.0 {
+                let mut missed = self.active_set;
                 if let Some(last) = k.checked_sub(1).and_then(|a| mems.get_mut(a)) {
                     last.wsub += wd;
+                    missed &= !last.set;
                 }
                 acc.wtot += wd;
-                for (t, b) in acc.bmiss.iter_mut().enumerate().take(self.n) {
-                    if missed & (1 << t) != 0 {
+                while missed != 0 {
+                    if let Some(b) = acc.bmiss.get_mut(missed.trailing_zeros() as usize) {
                         *b += wd;
                     }
+                    missed &= missed - 1;
                 }
             }
         }
@@ -853,8 +856,6 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         }
     }
     let ctx = Ctx {
-        n,
-        skip,
         elig,
         na,
         sbar: &sbar,
@@ -865,6 +866,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         ln_pd_lambda: ln_pd - ln_lambda,
         ln_miss,
         active: (n - n_skipped) as f32,
+        active_set: !skip & (u32::MAX >> (32 - n.clamp(1, 32))),
     };
     let empty = ctx.base(0, 0.0);
     let mut reference = if empty.is_finite() { empty } else { 0.0 };
@@ -938,15 +940,16 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         // P⁺_ij = P̄_ij − Σ_s u[i][s] g[j][s]ᵀ for the upper blocks (diagonal blocks symmetrised),
         // written in place with the mirrored lower blocks. A row must leave the state untouched
         // when it fails, so the update is only done when it cannot produce a non-finite value:
-        // every input finite and below `LIMIT` in magnitude bounds every result by
-        // `LIMIT + na·LIMIT²` (< 1e38); beyond that (absurd magnitudes) the row fails.
-        const LIMIT: f32 = 1e18;
+        // with every u, g and dx entry finite and at most `LIMIT` in magnitude, each correction is
+        // below `16·LIMIT² < 2^103` (half an ulp of f32::MAX), so subtracting it from a finite
+        // entry cannot overflow, whatever the state's magnitude; beyond (absurd values) the row
+        // fails.
+        const LIMIT: f32 = 3e14;
         let small = |v: &f32| v.abs() <= LIMIT; // false for NaN and ±inf
         let mut ok = dx.iter().take(n).all(|d| d.iter().all(small));
-        for (i, (ui, (gi, prow))) in u.iter().zip(gn.iter().zip(ps.iter())).enumerate() {
+        for (ui, gi) in u.iter().zip(gn.iter()) {
             ok &= ui.iter().take(na).all(|v| v.iter().all(small));
             ok &= gi.iter().take(na).all(|v| v.iter().all(small));
-            ok &= prow.iter().take(n).skip(i).all(|blk| blk.iter().all(small));
         }
         if !ok {
             return failed(out);
@@ -973,7 +976,8 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
                 if i == j {
                     for a in 0..NS {
                         for b in 0..a {
-                            let v = 0.5 * (at(&blk, a, b) + at(&blk, b, a));
+                            // (Halves first: cannot overflow.)
+                            let v = 0.5 * at(&blk, a, b) + 0.5 * at(&blk, b, a);
                             put(&mut blk, a, b, v);
                             put(&mut blk, b, a, v);
                         }
