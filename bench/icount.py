@@ -4,11 +4,15 @@ and per stage, on the inputs of bench/benches/spatial.rs and bench/benches/track
 (bench/examples/spatial_icount.rs builds them). Deterministic, unlike wall-clock time on a shared
 machine; host x86-64 instructions, not Cortex-M ones.
 
-    python3 bench/icount.py [--iters N] [--no-stages] [INPUT ...]
+    python3 bench/icount.py [--iters N] [--no-stages] [--scalar] [INPUT ...]
 
 Prints, per input, instructions per call (a row step or a frame; setup excluded: only the calls
 inside `measure_spatial_*` are counted) and, for frame inputs, the split by stage of the core's
 probes (the work between two `Probe::enter` calls is charged to the stage entered first).
+
+`--scalar` builds with LLVM's loop and SLP vectorisers off (in `target/icount-scalar`): x86-64
+then does one float operation per instruction, as a Cortex-M4F does (no SIMD), so the counts are
+a closer proxy for the microcontroller than the default build's.
 """
 import argparse
 import glob
@@ -20,6 +24,8 @@ import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXE = os.path.join(ROOT, "target", "release", "examples", "spatial_icount")
+SCALAR_DIR = os.path.join(ROOT, "target", "icount-scalar")
+SCALAR_FLAGS = "-C llvm-args=-vectorize-loops=false -C llvm-args=-vectorize-slp=false"
 STAGES = ["binning", "row_predict", "gating", "events", "update", "management", "backward"]
 
 
@@ -62,10 +68,17 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--iters", type=int, default=3, help="calls per input (counts are divided)")
     ap.add_argument("--no-stages", action="store_true", help="skip the per-stage split")
+    ap.add_argument("--scalar", action="store_true", help="build without SIMD vectorisation")
     ap.add_argument("inputs", nargs="*")
     a = ap.parse_args()
+    global EXE
+    env = dict(os.environ)
+    if a.scalar:
+        env["CARGO_TARGET_DIR"] = SCALAR_DIR
+        env["RUSTFLAGS"] = (env.get("RUSTFLAGS", "") + " " + SCALAR_FLAGS).strip()
+        EXE = os.path.join(SCALAR_DIR, "release", "examples", "spatial_icount")
     subprocess.run(["cargo", "build", "--release", "-q", "-p", "stjpdacf-bench",
-                    "--example", "spatial_icount"], cwd=ROOT, check=True)
+                    "--example", "spatial_icount"], cwd=ROOT, check=True, env=env)
     inputs = a.inputs or subprocess.run([EXE, "--list"], capture_output=True, text=True,
                                         check=True).stdout.split()
     with tempfile.TemporaryDirectory() as tmp:

@@ -152,119 +152,53 @@ impl<const LANES: usize> Default for RowOutcome<LANES> {
     }
 }
 
-/// Explicit-stack enumeration of the injective assignments of `k` tracks (in order) to points,
-/// each track choosing among the bits of its mask. Depth ≤ `L`; no recursion.
-struct Assignments<const L: usize> {
-    masks: [u32; L],
-    k: usize,
-    rem: [u32; L],
-    pick: [u8; L],
-    used: u32,
-    depth: usize,
-    started: bool,
-    done: bool,
-}
-
-impl<const L: usize> Assignments<L> {
-    fn new(masks: [u32; L], k: usize) -> Self {
-        Self {
-            masks,
-            k: k.min(L),
-            rem: [0; L],
-            pick: [0; L],
-            used: 0,
-            depth: 0,
-            started: false,
-            done: false,
-        }
-    }
-
-    fn release(&mut self, d: usize) {
-        self.used &= !(1u32.wrapping_shl(u32::from(get(&self.pick, d))));
-    }
-
-    /// The next assignment: `pick[a]` is the point of the `a`-th track.
-    fn next(&mut self) -> Option<[u8; L]> {
-        if self.done {
-            return None;
-        }
-        if self.k == 0 {
-            self.done = true;
-            return Some(self.pick);
-        }
-        if self.started {
-            self.depth = self.k - 1;
-            self.release(self.depth);
+/// Counts the joint events (each of the first `n` tracks missed or assigned one point of its
+/// mask, no point twice) up to `limit + 1`: an explicit-stack walk over the tracks (depth ≤ n)
+/// whose last level is counted in one step (`1 + |mask ∖ used|`), stopping once past `limit`.
+///
+/// # Complexity
+/// `O(min(events, limit) / (1 + m_last))` steps, no recursion.
+fn count_events<const L: usize>(valid: &[u32; L], n: usize, limit: u64) -> u64 {
+    const MISS: u64 = 1 << 32;
+    let n = n.min(L);
+    let Some(last) = n.checked_sub(1) else {
+        return 1;
+    };
+    let last_mask = get(valid, last);
+    let mut opt = [0u64; L]; // options left per level: bit 32 = missed, bits 0..32 = points
+    let mut pick = [0u32; L];
+    let mut used = 0u32;
+    let mut depth = 0usize;
+    let mut total = 0u64;
+    set(&mut opt, 0, MISS | u64::from(get(valid, 0)));
+    loop {
+        if depth == last {
+            total += 1 + u64::from((last_mask & !used).count_ones());
+            if total > limit {
+                return limit + 1;
+            }
         } else {
-            self.started = true;
-            self.depth = 0;
-            set(&mut self.rem, 0, get(&self.masks, 0));
-        }
-        // Each pass either descends (≤ k), advances a candidate, or ascends: bounded by the tree.
-        loop {
-            let r = get(&self.rem, self.depth);
-            if r == 0 {
-                if self.depth == 0 {
-                    self.done = true;
-                    return None;
-                }
-                self.depth -= 1;
-                self.release(self.depth);
+            let o = get(&opt, depth);
+            if o != 0 {
+                set(&mut opt, depth, o & o.wrapping_sub(1));
+                let bit = match o.trailing_zeros() {
+                    32 => 0,
+                    b => 1u32.wrapping_shl(b),
+                };
+                set(&mut pick, depth, bit);
+                used |= bit;
+                depth += 1;
+                set(&mut opt, depth, MISS | u64::from(get(valid, depth) & !used));
                 continue;
             }
-            let j = r.trailing_zeros();
-            set(&mut self.rem, self.depth, r & r.wrapping_sub(1));
-            set(&mut self.pick, self.depth, j as u8);
-            self.used |= 1u32.wrapping_shl(j);
-            if self.depth + 1 >= self.k {
-                return Some(self.pick);
-            }
-            self.depth += 1;
-            set(
-                &mut self.rem,
-                self.depth,
-                get(&self.masks, self.depth) & !self.used,
-            );
         }
+        // This level is done: back to the previous one.
+        let Some(up) = depth.checked_sub(1) else {
+            return total;
+        };
+        depth = up;
+        used &= !get(&pick, depth);
     }
-}
-
-/// Tracks of pattern `pattern` (bit `t` = track `t` detected), in order, and their masks.
-fn pattern_tracks<const L: usize>(
-    pattern: u32,
-    valid: &[u32; L],
-    n: usize,
-) -> ([u8; L], [u32; L], usize) {
-    let mut idx = [0u8; L];
-    let mut masks = [0u32; L];
-    let mut k = 0;
-    for t in 0..n {
-        if pattern & (1 << t) != 0 {
-            set(&mut idx, k, t as u8);
-            set(&mut masks, k, get(valid, t));
-            k += 1;
-        }
-    }
-    (idx, masks, k)
-}
-
-/// Counts joint events up to `limit + 1` (stops early).
-fn count_events<const L: usize>(valid: &[u32; L], n: usize, limit: u64) -> u64 {
-    let mut total = 0u64;
-    for pattern in 0..(1u32 << n) {
-        let (_, masks, k) = pattern_tracks(pattern, valid, n);
-        if masks.iter().take(k).any(|m| *m == 0) {
-            continue;
-        }
-        let mut it = Assignments::<L>::new(masks, k);
-        while it.next().is_some() {
-            total += 1;
-            if total > limit {
-                return total;
-            }
-        }
-    }
-    total
 }
 
 /// One row step on `state` with measurement row `h` (`z = hᵀ x_t + noise`, e.g. `[1, 1, 0, …]` for
@@ -359,7 +293,6 @@ struct Level<const L: usize> {
     rem: u32,
     pick: u32,
     u: f32,
-    e: f32,
     q: f32,
     w: f32,
     r: [f32; L],
@@ -370,7 +303,6 @@ impl<const L: usize> Level<L> {
         rem: 0,
         pick: 0,
         u: 0.0,
-        e: 0.0,
         q: 0.0,
         w: 0.0,
         r: [0.0; L],
@@ -585,6 +517,44 @@ impl<const L: usize> Ctx<'_, L> {
                 depth -= 1;
                 continue;
             }
+            let hi = (usize::from(mb.tr) + 1).min(L);
+            if below.is_empty() {
+                // The last member: every remaining candidate is a leaf (one joint event) and the
+                // forward substitution's prefix `ẑ + Σ_b l_b u_b` is shared by all of them.
+                let mut c = mb.zh;
+                for (lb, pl) in mb.l.iter().zip(prev.iter()) {
+                    c += lb * pl.u;
+                }
+                let (q0, r0) = prev.last().map_or((0.0, [0.0; L]), |p| (p.q, p.r));
+                let mut rem = lv.rem;
+                lv.rem = 0;
+                let mut wsum = 0.0f32;
+                while rem != 0 {
+                    let j = rem.trailing_zeros();
+                    rem &= rem.wrapping_sub(1);
+                    events += 1;
+                    let ua = self.points.get(j as usize).copied().unwrap_or(0.0) - c;
+                    let ea = ua * mb.invd;
+                    let q = q0 + ua * ea;
+                    if !(weighted && q.is_finite()) {
+                        continue; // weight 0 (e.g. ln 0 of a zero miss factor): no contribution
+                    }
+                    let lw = base - 0.5 * q;
+                    acc.lwmax = acc.lwmax.max(lw);
+                    let w = math::exp(lw - reference);
+                    for ((v, pv), li) in lv.r.iter_mut().zip(r0.iter()).zip(mb.li.iter()) {
+                        *v = pv + ea * li;
+                    }
+                    acc.pick(mb, j, w);
+                    acc.event(&lv.r, hi, w);
+                    wsum += w;
+                }
+                match prev.last_mut() {
+                    Some(p) => p.w += wsum,
+                    None => wd += wsum,
+                }
+                continue;
+            }
             let j = lv.rem.trailing_zeros();
             lv.rem &= lv.rem.wrapping_sub(1);
             lv.pick = j;
@@ -594,8 +564,6 @@ impl<const L: usize> Ctx<'_, L> {
             }
             let ea = ua * mb.invd;
             lv.u = ua;
-            lv.e = ea;
-            let hi = (usize::from(mb.tr) + 1).min(L);
             // All L entries, so that r stays zero past the highest member's track.
             match prev.last() {
                 Some(p) => {
@@ -616,22 +584,6 @@ impl<const L: usize> Ctx<'_, L> {
                 used |= 1u32.wrapping_shl(j);
                 depth += 1;
                 next.rem = mems.get(depth).map_or(0, |m| m.mask) & !used;
-                continue;
-            }
-            // A leaf: one joint event.
-            events += 1;
-            let q = lv.q;
-            if !(weighted && q.is_finite()) {
-                continue; // weight 0 (e.g. ln 0 of a zero miss factor): contributes nothing
-            }
-            let lw = base - 0.5 * q;
-            acc.lwmax = acc.lwmax.max(lw);
-            let w = math::exp(lw - reference);
-            acc.pick(mb, j, w);
-            acc.event(&lv.r, hi, w);
-            match prev.last_mut() {
-                Some(p) => p.w += w,
-                None => wd += w,
             }
         }
         (events, wd)
@@ -1138,25 +1090,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn assignments_enumerate_injective_maps() {
-        // Two tracks, both valid for points 0 and 1: (0,1) and (1,0).
-        let mut it = Assignments::<3>::new([0b11, 0b11, 0], 2);
-        let mut got = heapless::Vec::<[u8; 2], 8>::new();
-        while let Some(p) = it.next() {
-            got.push([p[0], p[1]]).unwrap();
-        }
-        assert_eq!(got.as_slice(), &[[0, 1], [1, 0]]);
-        let mut it = Assignments::<3>::new([0b1, 0b1, 0], 2);
-        assert!(it.next().is_none());
-        let mut it = Assignments::<3>::new([0; 3], 0);
-        assert!(it.next().is_some() && it.next().is_none());
-    }
-
-    #[test]
     fn event_count_matches_formula_for_full_gating() {
         // Σ_k C(D,k) C(m,k) k!: D = 3, m = 4 → 1 + 12 + 36 + 24 = 73.
         assert_eq!(count_events(&[0b1111u32; 3], 3, 1000), 73);
         assert_eq!(count_events(&[0b1111u32; 3], 3, 10), 11);
+        assert_eq!(count_events(&[0b1111u32; 3], 3, 73), 73);
+        // Shared single candidates: {}, {0→0}, {1→0}, {2→1}, {0→0, 2→1}, {1→0, 2→1}.
+        assert_eq!(count_events(&[0b01u32, 0b01, 0b10], 3, 100), 6);
+        assert_eq!(count_events(&[0u32; 3], 3, 100), 1);
+        assert_eq!(count_events(&[0b111u32; 3], 0, 100), 1);
+        assert_eq!(count_events(&[0b111u32; 3], 1, 100), 4);
     }
     /// Brute-force f64 oracle of a row step: every joint event, its weight from the joint
     /// Gaussian, and the moment-matched mixture (DESIGN 4.1), for `NS = 2` tracks.
