@@ -818,6 +818,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             let mut v = [[0.0f32; NS]; POINTS];
             let mut registered = 0u64;
             let mut gam = ident::<NS>();
+            let mut compose = false;
             let mut xs = [0.0f32; NS];
             let mut ps = [[0.0f32; NS]; NS];
             let mut ok = true;
@@ -868,7 +869,17 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                             m_set(&mut ps, c, rr, s);
                         }
                     }
-                    gam = mat_mul(&g, &gam);
+                    if compose {
+                        gam = mat_mul(&g, &gam);
+                    } else {
+                        let mut m = registered;
+                        while m != 0 {
+                            if let Some(vj) = v.get_mut(m.trailing_zeros() as usize) {
+                                *vj = mat_vec(&g, vj);
+                            }
+                            m &= m - 1;
+                        }
+                    }
                 }
                 if r % k_rows == 0 {
                     let i = r / k_rows;
@@ -877,7 +888,9 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                         // Bring the registered vectors to this row, then add this point.
                         for (j, vj) in v.iter_mut().enumerate() {
                             if registered & (1 << j) != 0 {
-                                *vj = mat_vec(&gam, vj);
+                                if compose {
+                                    *vj = mat_vec(&gam, vj);
+                                }
                                 let e = dot(&h, vj);
                                 if let Some(c) = obs.cov.get_mut((i, j)) {
                                     *c = e;
@@ -888,6 +901,8 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                             }
                         }
                         gam = ident::<NS>();
+                        // Composing the gains costs NS³ per row, propagating NS² per vector.
+                        compose = (registered | 1 << i).count_ones() as usize >= NS;
                         let vi = mat_vec(&ps, &h);
                         if let Some(c) = obs.cov.get_mut((i, i)) {
                             *c = dot(&h, &vi);
