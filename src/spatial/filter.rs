@@ -11,10 +11,12 @@
 //! LANES = 6, ROWS = 64); the row bins `ROWS · (PER_ROW · 4 + 1)` bytes.
 //!
 //! # Cost per frame
-//! `R` rows, each: one prediction (`n² · 2 NS³`), at most `max_tentative` initiations
-//! (`O(n² NS²)` plus two triangular solves of order `n`), one row update (see [`super::row`]), and
-//! O(n · PER_ROW) bookkeeping; then `R · n` RTS steps (`O(NS³)` each) and `POINTS²` products per
-//! confirmed track. No recursion, no allocation.
+//! `R` rows, each: one prediction (`n(n+1)/2` blocks, `2 NS³` each at most), at most
+//! `max_tentative` initiations (`O(n² NS²)` plus two triangular solves of order `n`), one row
+//! update (see [`super::row`]), and O(n · PER_ROW) bookkeeping; then per confirmed track `R` RTS
+//! steps (one `NS×NS` `LDLᵀ` solve and `O(NS³)` products each) and, per index interval, `NS²`
+//! per index point already passed (`O(POINTS² NS² / 2)` per track). No recursion, no allocation.
+//! Instruction counts per stage: `python3 bench/icount.py` (`docs/benchmarks.md`).
 
 use nalgebra::{SMatrix, SVector};
 
@@ -449,6 +451,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
 
     /// Stores each track's current marginal as its predicted or filtered moments for row `r`
     /// (§3.6); filtered moments are not recorded for ended tracks, and mark the last recorded row.
+    #[inline(never)]
     fn record(&mut self, r: usize, which: Moment) {
         for (t, meta) in self.meta.iter_mut().enumerate().take(self.state.len()) {
             if which == Moment::Filtered {
@@ -488,6 +491,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
     /// §3.2: start tentative tracks from consistent free points; returns the mask of the row's
     /// points that started a track.
     #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
     fn initiate<const NT: usize, const POINTS: usize>(
         &mut self,
         r: usize,
@@ -500,19 +504,21 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         tables: &Tables<NT, LANES, POINTS>,
         rep: &mut SpatialReport,
     ) -> u32 {
-        // Free points (valid for no active track), sorted by x.
+        // Free points (valid for no active track), sorted by x. Each active track's predicted
+        // measurement and its variance, once.
+        let mut pred = [(0.0f32, f32::INFINITY); LANES];
+        let mut np = 0usize;
+        for (t, mt) in self.meta.iter().enumerate().take(self.state.len()) {
+            if mt.status != Status::Ended {
+                set(&mut pred, np, self.predicted_z(t, hv, params.r));
+                np += 1;
+            }
+        }
+        let pred = pred.get(..np).unwrap_or(&[]);
         let mut free = [(0.0f32, 0u8); PER_ROW];
         let mut nf = 0usize;
         for (j, x) in pts.iter().enumerate().take(m) {
-            let valid_for_some = (0..self.state.len()).any(|t| {
-                if self
-                    .meta
-                    .get(t)
-                    .is_some_and(|mt| mt.status == Status::Ended)
-                {
-                    return false;
-                }
-                let (z, s) = self.predicted_z(t, hv, params.r);
+            let valid_for_some = pred.iter().any(|(z, s)| {
                 let e = x - z;
                 e * e / s <= params.gamma
             });
@@ -676,6 +682,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
     }
 
     /// §3.4–3.5: hits and misses, confirm / delete / end, merge.
+    #[inline(never)]
     fn manage(
         &mut self,
         r: usize,
@@ -768,7 +775,14 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
     }
 
     /// §4: backward RTS pass per confirmed track and pseudo-measurements at the index points.
+    ///
+    /// Per row one `NS×NS` `LDLᵀ` solve for the gain `G_r = P_{r|r} Fᵀ P_{r+1|r}⁻¹`. The
+    /// cross-covariances with the index points already passed are only needed through `h`, so
+    /// each is kept as the vector `Cov(x_r, x_b) h` and the gains of an index interval are
+    /// composed once (`Γ = G_r Γ`) and applied to those vectors at the next index row:
+    /// `O(NS³)` per row plus `O(NS²)` per (index point, index interval).
     #[allow(non_snake_case, clippy::too_many_arguments)]
+    #[inline(never)]
     fn smooth<const NT: usize, const POINTS: usize>(
         &self,
         tables: &Tables<NT, LANES, POINTS>,
@@ -779,6 +793,8 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         out: &mut [LaneObservation<POINTS>; LANES],
         rep: &mut SpatialReport,
     ) -> usize {
+        let f = F.data.0;
+        let [h] = hv.data.0;
         let mut n_out = 0usize;
         for (rank, mt) in self.meta.iter().enumerate().take(self.state.len()) {
             if mt.status == Status::Tentative || mt.first_row == NO_ROW {
@@ -788,6 +804,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 continue;
             };
             let (a, b) = (usize::from(mt.start_row), usize::from(mt.last_rec));
+            let (first, last) = (usize::from(mt.first_row), usize::from(mt.last_row));
             let mut obs = LaneObservation {
                 status: mt.status,
                 present: [false; POINTS],
@@ -798,62 +815,113 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 existence: f32::from(mt.hits) / f32::from(mt.hits.saturating_add(mt.misses).max(1)),
                 rank: rank as u8,
             };
-            // C[i] = Cov(x_r, x_{iK}) for registered index points i.
-            let mut cc = [SMatrix::<f32, NS, NS>::zeros(); POINTS];
+            // v[i] = Cov(x_{r'}, x_{iK}) h for the registered index points, at the last index row
+            // r' passed; gam = G_r ⋯ G_{r'−1} since then.
+            let mut v = [[0.0f32; NS]; POINTS];
             let mut registered = 0u64;
-            let mut xs = SVector::<f32, NS>::zeros();
-            let mut ps = SMatrix::<f32, NS, NS>::zeros();
+            let mut gam = ident::<NS>();
+            let mut compose = false;
+            let mut xs = [0.0f32; NS];
+            let mut ps = [[0.0f32; NS]; NS];
             let mut ok = true;
             for r in (a..=b).rev() {
                 let Some(rec) = hist.get(r) else { continue };
+                let [xf] = rec.xf.data.0;
+                let pf = rec.pf.data.0;
                 if r == b {
-                    xs = rec.xf;
-                    ps = rec.pf;
+                    xs = xf;
+                    ps = pf;
                 } else {
                     let Some(next) = hist.get(r + 1) else {
                         continue;
                     };
-                    let fp = F * rec.pf;
-                    let gain_t = next.pp.cholesky().map(|c| c.solve(&fp));
-                    let Some(gt) = gain_t else {
+                    // Gᵀ = P_{r+1|r}⁻¹ F P_{r|r}.
+                    let Some(gt) = spd_solve(&next.pp.data.0, &mat_mul(&f, &pf)) else {
                         ok = false;
                         break;
                     };
-                    let g = gt.transpose();
-                    xs = rec.xf + g * (xs - next.xp);
-                    ps = rec.pf + g * (ps - next.pp) * g.transpose();
-                    ps = (ps + ps.transpose()) * 0.5;
-                    for (i, c) in cc.iter_mut().enumerate() {
-                        if registered & (1 << i) != 0 {
-                            *c = g * *c;
+                    let g = transpose(&gt);
+                    let [xp] = next.xp.data.0;
+                    // xs ← x_f + G (xs − x_p);  ps ← P_f + G (ps − P_p) Gᵀ (symmetric).
+                    let mut dxs = xs;
+                    for (d, p) in dxs.iter_mut().zip(xp.iter()) {
+                        *d -= p;
+                    }
+                    let gd = mat_vec(&g, &dxs);
+                    for ((x, f0), d) in xs.iter_mut().zip(xf.iter()).zip(gd.iter()) {
+                        *x = f0 + d;
+                    }
+                    let mut dp = ps;
+                    for (dc, pc) in dp.iter_mut().zip(next.pp.data.0.iter()) {
+                        for (dv, pv) in dc.iter_mut().zip(pc.iter()) {
+                            *dv -= pv;
+                        }
+                    }
+                    let t = mat_mul(&g, &dp);
+                    ps = pf;
+                    for c in 0..NS {
+                        for rr in 0..=c {
+                            // (T Gᵀ)[rr][c] = Σ_k T[rr][k] G[c][k]
+                            let mut acc = 0.0f32;
+                            for k in 0..NS {
+                                acc += m_at(&t, rr, k) * m_at(&g, c, k);
+                            }
+                            let s = 0.5 * (m_at(&ps, rr, c) + m_at(&ps, c, rr)) + acc;
+                            m_set(&mut ps, rr, c, s);
+                            m_set(&mut ps, c, rr, s);
+                        }
+                    }
+                    if compose {
+                        gam = mat_mul(&g, &gam);
+                    } else {
+                        let mut m = registered;
+                        while m != 0 {
+                            if let Some(vj) = v.get_mut(m.trailing_zeros() as usize) {
+                                *vj = mat_vec(&g, vj);
+                            }
+                            m &= m - 1;
                         }
                     }
                 }
                 if r % k_rows == 0 {
                     let i = r / k_rows;
-                    let inside = r >= usize::from(mt.first_row) && r <= usize::from(mt.last_row);
+                    let inside = r >= first && r <= last;
                     if i < POINTS && i < 64 && inside {
-                        set(&mut cc, i, ps);
+                        // Bring the registered vectors to this row, then add this point.
+                        for (j, vj) in v.iter_mut().enumerate() {
+                            if registered & (1 << j) != 0 {
+                                if compose {
+                                    *vj = mat_vec(&gam, vj);
+                                }
+                                let e = dot(&h, vj);
+                                if let Some(c) = obs.cov.get_mut((i, j)) {
+                                    *c = e;
+                                }
+                                if let Some(c) = obs.cov.get_mut((j, i)) {
+                                    *c = e;
+                                }
+                            }
+                        }
+                        gam = ident::<NS>();
+                        // Composing the gains costs NS³ per row, propagating NS² per vector.
+                        compose = (registered | 1 << i).count_ones() as usize >= NS;
+                        let vi = mat_vec(&ps, &h);
+                        if let Some(c) = obs.cov.get_mut((i, i)) {
+                            *c = dot(&h, &vi);
+                        }
+                        set(&mut v, i, vi);
                         registered |= 1 << i;
                         set(&mut obs.present, i, true);
                         if let Some(z) = obs.z.get_mut(i) {
-                            *z = hv.dot(&xs);
-                        }
-                        for (j, c) in cc.iter().enumerate() {
-                            if registered & (1 << j) != 0 {
-                                let v = hv.dot(&(c * hv));
-                                if let Some(e) = obs.cov.get_mut((i, j)) {
-                                    *e = v;
-                                }
-                                if let Some(e) = obs.cov.get_mut((j, i)) {
-                                    *e = v;
-                                }
-                            }
+                            *z = dot(&h, &xs);
                         }
                     }
                 }
             }
-            let finite = obs.z.iter().chain(obs.cov.iter()).all(|v| v.is_finite());
+            // NaN-propagating sum: 0 exactly when every entry is finite.
+            let probe = obs.z.iter().fold(0.0f32, |acc, v| acc + v * 0.0)
+                + obs.cov.iter().fold(0.0f32, |acc, v| acc + v * 0.0);
+            let finite = probe == 0.0;
             if !(ok && finite) {
                 rep.smoother_failed += 1;
                 continue;
@@ -865,6 +933,124 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         }
         n_out
     }
+}
+
+/// Entry `(r, c)` of a column-major `N×N` array (`m[c][r]`), 0 past its end.
+#[inline(always)]
+fn m_at<const N: usize>(m: &[[f32; N]; N], r: usize, c: usize) -> f32 {
+    m.get(c).and_then(|col| col.get(r)).copied().unwrap_or(0.0)
+}
+
+/// Sets entry `(r, c)` of a column-major `N×N` array (no-op past its end).
+#[inline(always)]
+fn m_set<const N: usize>(m: &mut [[f32; N]; N], r: usize, c: usize, v: f32) {
+    if let Some(e) = m.get_mut(c).and_then(|col| col.get_mut(r)) {
+        *e = v;
+    }
+}
+
+/// The `N×N` identity (column-major).
+#[inline(always)]
+fn ident<const N: usize>() -> [[f32; N]; N] {
+    let mut m = [[0.0f32; N]; N];
+    for (c, col) in m.iter_mut().enumerate() {
+        set(col, c, 1.0);
+    }
+    m
+}
+
+/// `a · b`.
+#[inline(always)]
+fn dot<const N: usize>(a: &[f32; N], b: &[f32; N]) -> f32 {
+    a.iter().zip(b.iter()).map(|(x, y)| x * y).sum()
+}
+
+/// `M v` (column-major `M`).
+#[inline(always)]
+fn mat_vec<const N: usize>(m: &[[f32; N]; N], v: &[f32; N]) -> [f32; N] {
+    let mut out = [0.0f32; N];
+    for (col, vc) in m.iter().zip(v.iter()) {
+        for (o, e) in out.iter_mut().zip(col.iter()) {
+            *o += e * vc;
+        }
+    }
+    out
+}
+
+/// `A B` (column-major): column `c` of the product is `A` times column `c` of `B`.
+#[inline(always)]
+fn mat_mul<const N: usize>(a: &[[f32; N]; N], b: &[[f32; N]; N]) -> [[f32; N]; N] {
+    let mut out = [[0.0f32; N]; N];
+    for (oc, bc) in out.iter_mut().zip(b.iter()) {
+        *oc = mat_vec(a, bc);
+    }
+    out
+}
+
+/// `Mᵀ` (column-major).
+#[inline(always)]
+fn transpose<const N: usize>(m: &[[f32; N]; N]) -> [[f32; N]; N] {
+    let mut out = [[0.0f32; N]; N];
+    for (c, col) in m.iter().enumerate() {
+        for (r, v) in col.iter().enumerate() {
+            m_set(&mut out, c, r, *v);
+        }
+    }
+    out
+}
+
+/// Solves `A X = B` for a symmetric positive definite `A` (column-major `N×N` arrays) by
+/// `A = L D Lᵀ`; `None` when a pivot is not positive and finite (`A` not positive definite).
+///
+/// # Complexity
+/// `N³/6` for the factor and `N³` for the `N` right-hand sides; no square root.
+#[inline(always)]
+fn spd_solve<const N: usize>(a: &[[f32; N]; N], b: &[[f32; N]; N]) -> Option<[[f32; N]; N]> {
+    let mut l = [[0.0f32; N]; N]; // l[c][r] = L_rc, unit diagonal implied
+    let mut d = [0.0f32; N];
+    let mut invd = [0.0f32; N];
+    for j in 0..N {
+        let mut dj = m_at(a, j, j);
+        for k in 0..j {
+            let ljk = m_at(&l, j, k);
+            dj -= ljk * ljk * get(&d, k);
+        }
+        if !(dj.is_finite() && dj > 0.0) {
+            return None;
+        }
+        let ij = 1.0 / dj;
+        set(&mut d, j, dj);
+        set(&mut invd, j, ij);
+        for i in j + 1..N {
+            // L_ij d_j = A_ij − Σ_{k<j} L_ik L_jk d_k
+            let mut s = m_at(a, i, j);
+            for k in 0..j {
+                s -= m_at(&l, i, k) * m_at(&l, j, k) * get(&d, k);
+            }
+            m_set(&mut l, i, j, s * ij);
+        }
+    }
+    let mut x = *b;
+    for col in x.iter_mut() {
+        for i in 0..N {
+            let mut s = get(col, i);
+            for k in 0..i {
+                s -= m_at(&l, i, k) * get(col, k);
+            }
+            set(col, i, s);
+        }
+        for (v, id) in col.iter_mut().zip(invd.iter()) {
+            *v *= id;
+        }
+        for i in (0..N).rev() {
+            let mut s = get(col, i);
+            for k in i + 1..N {
+                s -= m_at(&l, k, i) * get(col, k);
+            }
+            set(col, i, s);
+        }
+    }
+    Some(x)
 }
 
 impl Default for Meta {

@@ -52,6 +52,26 @@ pub(crate) fn set<T, const N: usize>(a: &mut [T; N], i: usize, v: T) {
     }
 }
 
+/// Entry `(r, c)` of a column-major `N×N` array (`m[c][r]`), 0 past its end.
+#[inline(always)]
+fn mat_at<const N: usize>(m: &[[f32; N]; N], r: usize, c: usize) -> f32 {
+    m.get(c).and_then(|col| col.get(r)).copied().unwrap_or(0.0)
+}
+
+/// Sets entry `(r, c)` of a column-major `N×N` array (no-op past its end).
+#[inline(always)]
+fn mat_set<const N: usize>(m: &mut [[f32; N]; N], r: usize, c: usize, v: f32) {
+    if let Some(e) = m.get_mut(c).and_then(|col| col.get_mut(r)) {
+        *e = v;
+    }
+}
+
+/// Entry `r` of a column, 0 past its end.
+#[inline(always)]
+fn mat_col<const N: usize>(col: &[f32; N], r: usize) -> f32 {
+    col.get(r).copied().unwrap_or(0.0)
+}
+
 /// Per-track means.
 pub(crate) type Means<const NS: usize, const LANES: usize> = [SVector<f32, NS>; LANES];
 /// Covariance blocks `p[i][j] = Cov(x_i, x_j)`.
@@ -157,25 +177,110 @@ impl<const NS: usize, const LANES: usize> Stacked<NS, LANES> {
 
     /// Prediction along `u` (DESIGN 4.1 step 1): `x_i ← F x_i`,
     /// `P_ij ← F P_ij Fᵀ + B_ij Q` for the active tracks, `B_ij` from the leading block of `b`.
+    /// Only the upper blocks are computed (the lower ones are their transposes, so the stacked
+    /// covariance stays exactly symmetric), and when `F = blockdiag(1, F_u)`,
+    /// `Q = blockdiag(0, Q_u)` (the lane offset has no dynamics) its first row and column are
+    /// copied instead of multiplied.
     ///
     /// # Complexity
-    /// `len()² · 2 NS³` multiply-adds, no allocation.
+    /// `len()·(len() + 1)/2 · 2 NS³` multiply-adds at most (`2 (NS − 1)² NS` with the offset
+    /// structure), no allocation.
     #[allow(non_snake_case)]
+    #[inline(never)]
     pub fn predict<const D: usize>(
         &mut self,
         F: &SMatrix<f32, NS, NS>,
         Q: &SMatrix<f32, NS, NS>,
         b: &SMatrix<f32, D, D>,
     ) {
+        let f = F.data.0; // f[c][r] = F_rc (column-major)
+        let q = Q.data.0;
+        let static_offset = (0..NS).all(|k| {
+            let (f0k, fk0) = (mat_at(&f, 0, k), mat_at(&f, k, 0));
+            let (q0k, qk0) = (mat_at(&q, 0, k), mat_at(&q, k, 0));
+            q0k == 0.0
+                && qk0 == 0.0
+                && if k == 0 {
+                    f0k == 1.0
+                } else {
+                    f0k == 0.0 && fk0 == 0.0
+                }
+        });
+        if static_offset {
+            self.predict_from::<1, D>(&f, &q, b);
+        } else {
+            self.predict_from::<0, D>(&f, &q, b);
+        }
+    }
+
+    /// [`Stacked::predict`] with rows and columns `0..S` of `F` and `Q` known to be those of the
+    /// identity and of zero (`S` a constant, so the small products unroll).
+    #[inline(always)]
+    fn predict_from<const S: usize, const D: usize>(
+        &mut self,
+        f: &[[f32; NS]; NS],
+        q: &[[f32; NS]; NS],
+        b: &SMatrix<f32, D, D>,
+    ) {
         let n = self.len();
         for x in self.x.iter_mut().take(n) {
-            *x = F * *x;
+            let [old] = x.data.0;
+            let [xv] = &mut x.data.0;
+            for (r, xr) in xv.iter_mut().enumerate().skip(S) {
+                let mut acc = 0.0f32;
+                for (fc, oc) in f.iter().zip(old.iter()).skip(S) {
+                    acc += mat_col(fc, r) * oc;
+                }
+                *xr = acc;
+            }
         }
-        let ft = F.transpose();
-        for (i, row) in self.p.iter_mut().take(n).enumerate() {
-            for (j, blk) in row.iter_mut().take(n).enumerate() {
+        for i in 0..n {
+            for j in i..n {
+                let Some(m) = self.p.get(i).and_then(|r| r.get(j)).map(|m| m.data.0) else {
+                    continue;
+                };
+                // T = M Fᵀ: column c of T is Σ_k F_ck (column k of M).
+                let mut t = m;
+                for (c, tc) in t.iter_mut().enumerate().skip(S) {
+                    let mut acc = [0.0f32; NS];
+                    for (k, mk) in m.iter().enumerate().skip(S) {
+                        let fck = mat_at(f, c, k);
+                        for (a, v) in acc.iter_mut().zip(mk.iter()) {
+                            *a += fck * v;
+                        }
+                    }
+                    *tc = acc;
+                }
+                // R = F T + B_ij Q: rows r ≥ S are Σ_k F_rk (row k of T).
                 let bij = b.get((i, j)).copied().unwrap_or(0.0);
-                *blk = F * *blk * ft + Q * bij;
+                let mut out = t;
+                for (rc, (tc, qc)) in out.iter_mut().zip(t.iter().zip(q.iter())) {
+                    for (r, v) in rc.iter_mut().enumerate().skip(S) {
+                        let mut acc = 0.0f32;
+                        for (fk, tk) in f.iter().zip(tc.iter()).skip(S) {
+                            acc += mat_col(fk, r) * tk;
+                        }
+                        *v = acc + bij * mat_col(qc, r);
+                    }
+                }
+                if i == j {
+                    // Exactly symmetric diagonal blocks: the upper triangle, mirrored.
+                    for c in 0..NS {
+                        for r in c + 1..NS {
+                            let v = mat_at(&out, c, r);
+                            mat_set(&mut out, r, c, v);
+                        }
+                    }
+                }
+                let blk = SMatrix::<f32, NS, NS>::from_data(ArrayStorage(out));
+                if let Some(p) = self.p.get_mut(i).and_then(|r| r.get_mut(j)) {
+                    *p = blk;
+                }
+                if i != j {
+                    if let Some(p) = self.p.get_mut(j).and_then(|r| r.get_mut(i)) {
+                        *p = blk.transpose();
+                    }
+                }
             }
         }
     }
