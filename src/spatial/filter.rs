@@ -528,8 +528,8 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             }
         }
         if let Some(f) = free.get_mut(..nf) {
-            // Ties keep input order (the index breaks them): a stable order without `alloc`.
-            f.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            // By x; ties keep input order (a stable sort).
+            super::sort_by(f, |a, b| a.0.total_cmp(&b.0).is_lt());
         }
         let mut used = 0u32;
         let slot = r % MAX_INIT_ROWS;

@@ -52,6 +52,24 @@ pub(crate) fn set<T, const N: usize>(a: &mut [T; N], i: usize, v: T) {
     }
 }
 
+/// Sorts `v` so that no element is `less` than the one before it: a stable insertion sort,
+/// `O(n²)` comparisons for the short lists of the core (a row's free points, at most `D·m`
+/// candidates when pruning). `sort_unstable_by` keeps a panic branch for inconsistent orders
+/// that the optimiser cannot remove, which the no-panic proof (the `panic-never` firmware)
+/// rejects.
+pub(crate) fn sort_by<T>(v: &mut [T], mut less: impl FnMut(&T, &T) -> bool) {
+    for i in 1..v.len() {
+        let mut k = i;
+        while k > 0 {
+            match v.get_mut(k - 1..=k) {
+                Some([a, b]) if less(b, a) => core::mem::swap(a, b),
+                _ => break,
+            }
+            k -= 1;
+        }
+    }
+}
+
 /// Entry `(r, c)` of a column-major `N×N` array (`m[c][r]`), 0 past its end.
 #[inline(always)]
 fn mat_at<const N: usize>(m: &[[f32; N]; N], r: usize, c: usize) -> f32 {

@@ -38,7 +38,7 @@
 //!   themselves, so no track loses its plausible points first), until `Π_t (1 + n_t) ≤
 //!   max_events`, and the row is flagged `approximated` (DESIGN 4.1 step 5: "drop the least
 //!   likely candidates until it fits"). The coupled likelihood does not factor over clusters, so
-//!   all tracks stay in one enumeration; the sort costs O(C log C) for C ≤ D·m candidates;
+//!   all tracks stay in one enumeration; the sort (a stable insertion sort, no panic branch) costs O(C²) compares for C ≤ D·m candidates;
 //! * at most `2^D` detection patterns, `O(D²)` each; at most `max_events` events, `O(D²)` each;
 //!   the covariance update `n(n+1)/2 · k_e · NS²` multiply-adds for `n` tracks of which `k_e`
 //!   are eligible; no recursion (explicit stacks of depth ≤ D), no allocation. A second pass
@@ -975,7 +975,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
 /// `ln P_D − ln λ_c`.
 ///
 /// # Complexity
-/// `O(C log C)` for the `C ≤ n·m` candidates; 4 KiB of stack for the candidate list.
+/// `O(C²)` compares (insertion sort) for the `C ≤ n·m` candidates; 4 KiB of stack for the candidate list.
 #[allow(clippy::too_many_arguments)]
 fn prune<const LANES: usize>(
     out: &mut RowOutcome<LANES>,
@@ -1017,7 +1017,7 @@ fn prune<const LANES: usize>(
         }
     }
     if let Some(c) = cand.get_mut(..nc) {
-        c.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        super::sort_by(c, |a, b| a.0.total_cmp(&b.0).is_lt());
     }
     for &(_, t, j) in cand.iter().take(nc) {
         let bound: u64 = out
