@@ -422,7 +422,9 @@ impl<const L: usize> Ctx<'_, L> {
     /// `d_k` is not positive and finite (`S_δ` not positive definite).
     fn push(&self, mems: &mut [Member<L>; L], k: usize, pos: usize) -> bool {
         let t = usize::from(get(&self.elig, pos));
-        let (done, rest) = mems.split_at_mut(k.min(L));
+        let Some((done, rest)) = mems.split_at_mut_checked(k) else {
+            return false;
+        };
         let (Some(new), Some(srow)) = (rest.first_mut(), self.sbar.get(t)) else {
             return false;
         };
@@ -497,7 +499,9 @@ impl<const L: usize> Ctx<'_, L> {
         let mut depth = 0usize;
         // Each pass descends (≤ k), takes a candidate or ascends: bounded by the event tree.
         loop {
-            let (prev, cur) = levs.split_at_mut(depth);
+            let Some((prev, cur)) = levs.split_at_mut_checked(depth) else {
+                break;
+            };
             let (Some((lv, below)), Some(mb)) = (cur.split_first_mut(), mems.get(depth)) else {
                 break;
             };
@@ -613,7 +617,9 @@ impl<const L: usize> Ctx<'_, L> {
                 let Some(a) = k.checked_sub(1) else {
                     break;
                 };
-                let (head, tail) = mems.split_at_mut(a);
+                let Some((head, tail)) = mems.split_at_mut_checked(a) else {
+                    break;
+                };
                 let Some(last) = tail.first() else {
                     break;
                 };
