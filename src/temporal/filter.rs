@@ -84,6 +84,18 @@ pub(crate) struct UpdateParts<const RANK: usize, const NX: usize> {
     pub repaired: u8,
 }
 
+impl<const RANK: usize, const NX: usize> UpdateParts<RANK, NX> {
+    /// Zeroed parts, to be filled by [`TemporalFilter::prepare_update`].
+    pub const EMPTY: Self = Self {
+        slot: 0,
+        r: 0,
+        g: [[0.0; RANK]; NX],
+        m: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; RANK])),
+        w: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; 1])),
+        repaired: 0,
+    };
+}
+
 /// What a lane update did besides updating.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -566,7 +578,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         s: usize,
         obs: &LaneObservation<POINTS>,
     ) -> Result<UpdateInfo, TemporalError> {
-        let g = self.prepare_update(tables, s, obs)?;
+        let mut g = UpdateParts::EMPTY;
+        self.prepare_update(tables, s, obs, &mut g)?;
         self.check_update(&g)?;
         self.apply_update(&g);
         Ok(UpdateInfo {
@@ -574,7 +587,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         })
     }
 
-    /// The gain parts of [`TemporalFilter::update`] (shared with the fixed-lag smoother).
+    /// The gain parts of [`TemporalFilter::update`] (shared with the fixed-lag smoother), written
+    /// into `parts`; on error `parts` holds nothing meaningful.
     #[allow(non_snake_case, clippy::too_many_lines)]
     // Not inlined: its stack frame must not add to its caller's (stack budget).
     #[inline(never)]
@@ -583,7 +597,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         tables: &Tables<NT, LANES, POINTS>,
         s: usize,
         obs: &LaneObservation<POINTS>,
-    ) -> Result<UpdateParts<RANK, NX>, TemporalError> {
+        parts: &mut UpdateParts<RANK, NX>,
+    ) -> Result<(), TemporalError> {
         if !self.is_active(s) {
             return Err(TemporalError::BadSlot);
         }
@@ -710,28 +725,22 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        // G = P[:, a_s] (only the active rows are non-zero), row-major.
-        let mut g = [[0.0f32; RANK]; NX];
-        for k in 0..r {
-            let src = self
-                .p
-                .as_slice()
-                .get((a0 + 2 * k) * NX..(a0 + 2 * k + 1) * NX);
-            for (row, v) in g.iter_mut().zip(src.unwrap_or(&[])) {
-                set(row, k, *v);
-            }
-        }
         if !(M.iter().chain(w.iter()).all(|v| v.is_finite())) {
             return Err(TemporalError::Numerical);
         }
-        Ok(UpdateParts {
-            slot: s,
-            r,
-            g,
-            m: M,
-            w,
-            repaired,
-        })
+        // G = P[:, a_s] (only the active rows are non-zero), row-major, written in place (the
+        // parts are 2.6 KiB: no copy on the stack).
+        for (i, row) in parts.g.iter_mut().enumerate() {
+            for (k, e) in row.iter_mut().enumerate() {
+                *e = if k < r { self.pg(i, a0 + 2 * k) } else { 0.0 };
+            }
+        }
+        parts.slot = s;
+        parts.r = r;
+        parts.m = M;
+        parts.w = w;
+        parts.repaired = repaired;
+        Ok(())
     }
 
     /// Checks that applying `g` keeps the state finite (bounds on the products, before anything

@@ -334,7 +334,8 @@ impl<
         probe: &mut P,
     ) -> Result<UpdateInfo, TemporalError> {
         probe.enter(Stage::Temporal);
-        let g = self.filter.prepare_update(tables, s, obs)?;
+        let mut g = UpdateParts::EMPTY;
+        self.filter.prepare_update(tables, s, obs, &mut g)?;
         self.filter.check_update(&g)?;
         probe.enter(Stage::Smoother);
         // Check every lag before writing anything.
