@@ -498,10 +498,7 @@ impl<const L: usize> Ctx<'_, L> {
         let mut used = 0u32;
         let mut depth = 0usize;
         // Each pass descends (≤ k), takes a candidate or ascends: bounded by the event tree.
-        loop {
-            let Some((prev, cur)) = levs.split_at_mut_checked(depth) else {
-                break;
-            };
+        while let Some((prev, cur)) = levs.split_at_mut_checked(depth) {
             let (Some((lv, below)), Some(mb)) = (cur.split_first_mut(), mems.get(depth)) else {
                 break;
             };

@@ -611,6 +611,24 @@ impl CoupledTemporalModel {
             );
             let mut block = r.view_mut((d * n, d * n), (n, n));
             block += &m.cov;
+            // A pseudo-measurement covariance that is not PSD over the present points is
+            // repaired as the core does (docs/spatial-filter.md, "Temporal update"): a modified
+            // Cholesky of `sym(R) + r₀² I` in index order raises every pivot below `r₀²/2` to
+            // `max(|d|, r₀²)`; the amounts are added to the diagonal.
+            let present: Vec<usize> = (0..n)
+                .filter(|&i| m.z[i].is_some_and(f64::is_finite))
+                .collect();
+            let sub = DMatrix::from_fn(present.len(), present.len(), |a, b| {
+                let (i, j) = (present[a], present[b]);
+                0.5 * (m.cov[(i, j)] + m.cov[(j, i)]) + if a == b { self.pseudo_noise } else { 0.0 }
+            });
+            for (a, load) in repair_loads(&sub, self.pseudo_noise)
+                .into_iter()
+                .enumerate()
+            {
+                let i = d * n + present[a];
+                r[(i, i)] += load;
+            }
             z[d * n..(d + 1) * n].copy_from_slice(&m.z);
         }
         Ok(StackedMeasurement { h, r, z })
@@ -642,4 +660,34 @@ impl CoupledTemporalModel {
             }
         }
     }
+}
+
+/// Diagonal loads that make `a` positive definite, by a modified Cholesky factorisation in index
+/// order: a pivot `d < r0/2` becomes `max(|d|, r0)` and the difference is its load (0 elsewhere).
+/// For a PSD `a − r0 I` every pivot is `≥ r0` and every load is 0.
+pub fn repair_loads(a: &DMatrix<f64>, r0: f64) -> Vec<f64> {
+    let n = a.nrows();
+    let mut l = DMatrix::<f64>::zeros(n, n);
+    let mut loads = vec![0.0; n];
+    for j in 0..n {
+        let mut d = a[(j, j)];
+        for k in 0..j {
+            d -= l[(j, k)] * l[(j, k)];
+        }
+        if d < 0.5 * r0 {
+            let new = d.abs().max(r0);
+            loads[j] = new - d;
+            d = new;
+        }
+        let dj = d.sqrt();
+        l[(j, j)] = dj;
+        for i in j + 1..n {
+            let mut acc = a[(i, j)];
+            for k in 0..j {
+                acc -= l[(i, k)] * l[(j, k)];
+            }
+            l[(i, j)] = acc / dj;
+        }
+    }
+    loads
 }
