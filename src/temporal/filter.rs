@@ -794,22 +794,34 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 *ui = times_sym(gi, &g.m);
             }
         }
-        // P[i, j] −= U_i · G_j for active i ≤ j (column j of P is contiguous).
+        // P[i, j] −= U_i · G_j for active i ≤ j (column j of P is contiguous), two columns (a
+        // component's position j and rate j + 1) at a time: rows i ≤ j for both, then the
+        // diagonal entry (j + 1, j + 1).
         let ps = self.p.as_mut_slice();
-        for j in sp.indices() {
-            let (Some(pcol), Some(gj)) = (ps.get_mut(j * NX..(j + 1) * NX), g.g.get(j)) else {
+        for j in sp.indices().step_by(2) {
+            let (Some(g0), Some(g1)) = (g.g.get(j), g.g.get(j + 1)) else {
                 continue;
             };
+            let Some(pair) = ps.get_mut(j * NX..(j + 2) * NX) else {
+                continue;
+            };
+            let (c0, c1) = pair.split_at_mut(NX);
             for rg in sp.iter() {
                 if rg.start > j {
                     break;
                 }
                 let rg = rg.start..rg.end.min(j + 1);
-                if let (Some(pd), Some(ur)) = (pcol.get_mut(rg.clone()), u.get(rg)) {
-                    for (pv, ui) in pd.iter_mut().zip(ur) {
-                        *pv -= dot(ui, gj);
+                if let (Some(d0), Some(d1), Some(ur)) =
+                    (c0.get_mut(rg.clone()), c1.get_mut(rg.clone()), u.get(rg))
+                {
+                    for ((v0, v1), ui) in d0.iter_mut().zip(d1.iter_mut()).zip(ur) {
+                        *v0 -= dot(ui, g0);
+                        *v1 -= dot(ui, g1);
                     }
                 }
+            }
+            if let (Some(v), Some(ui)) = (c1.get_mut(j + 1), u.get(j + 1)) {
+                *v -= dot(ui, g1);
             }
         }
         // Mirror the upper triangle into the lower one.

@@ -508,14 +508,26 @@ fn lag_update<const LANES: usize, const RANK: usize, const NA: usize, const NX: 
             }
         }
     }
-    // C[i, col] −= KM_i · G_col on the present rows and the active columns.
-    for col in sp.indices() {
-        let Some(gc) = g.g.get(col) else { continue };
-        let Some(cc) = lag.col_mut(col) else { continue };
+    // C[i, col] −= KM_i · G_col on the present rows and the active columns, two columns (a
+    // component's position and rate) at a time so that each row of KM is loaded once for both.
+    let cs = lag.cross.as_mut_slice();
+    for c0 in sp.indices().step_by(2) {
+        let (Some(g0), Some(g1)) = (g.g.get(c0), g.g.get(c0 + 1)) else {
+            continue;
+        };
+        let Some(pair) = cs.get_mut(c0 * NA..(c0 + 2) * NA) else {
+            continue;
+        };
+        let (a, b) = pair.split_at_mut(NA);
         for rows in runs.iter() {
-            if let (Some(d), Some(kr)) = (cc.get_mut(rows.clone()), km.get(rows)) {
-                for (dv, kmi) in d.iter_mut().zip(kr) {
-                    *dv -= dot(kmi, gc);
+            if let (Some(da), Some(db), Some(kr)) = (
+                a.get_mut(rows.clone()),
+                b.get_mut(rows.clone()),
+                km.get(rows),
+            ) {
+                for ((va, vb), kmi) in da.iter_mut().zip(db.iter_mut()).zip(kr) {
+                    *va -= dot(kmi, g0);
+                    *vb -= dot(kmi, g1);
                 }
             }
         }
