@@ -10,6 +10,8 @@ secs="${1:-20}"
 cargo fuzz build --sanitizer none -O
 bin=fuzz/target/x86_64-unknown-linux-gnu/release
 known="$(grep -v '^#' fuzz/known-findings.txt | grep -v '^$' | paste -sd'|')"
+# No open finding: a pattern that matches nothing (an empty one would match every message).
+[ -n "$known" ] || known='^$a'
 work="$(mktemp -d)"
 status=0
 for t in tracker_step temporal_ops tables_validate; do

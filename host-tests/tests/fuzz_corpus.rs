@@ -85,9 +85,8 @@ fn seeds_tables_validate() {
     );
 }
 
-/// The decoded frames of a finding's input still show the fault the finding describes (so the
-/// ignored tests below keep testing what they claim): F1's frame gives a spatial
-/// pseudo-measurement covariance that is not PSD.
+/// The spatial observation of F1's input frame (one sparse lane among clutter), and the smallest
+/// eigenvalue of its covariance's correlation form.
 fn f1_observation() -> (LaneObservation<16>, f64) {
     let data = std::fs::read(
         repo_root().join("fuzz/regressions/tracker_step/f1-spatial-cov-not-psd-sparse-lane"),
@@ -127,12 +126,35 @@ fn f1_observation() -> (LaneObservation<16>, f64) {
     )
 }
 
-/// A fresh lane in slot 0 updated with F1's observation; the temporal stage's check.
-fn f2_update_with_f1_observation() -> (
+/// A fresh lane in slot 0 updated with an indefinite pseudo-measurement covariance (F1's lane
+/// with its off-diagonal covariances scaled by 1.5: `R + r₀² I` has a clearly negative
+/// eigenvalue, checked here); the temporal stage's check after the update.
+fn f2_update_with_indefinite_observation() -> (
     Result<stjpdacf::temporal::filter::UpdateInfo, stjpdacf::temporal::filter::TemporalError>,
     Result<(), String>,
 ) {
-    let (obs, _) = f1_observation();
+    let (mut obs, _) = f1_observation();
+    let idx: Vec<usize> = (0..16).filter(|&i| obs.present[i]).collect();
+    for &i in &idx {
+        for &j in &idx {
+            if i != j {
+                obs.cov[(i, j)] *= 1.5;
+            }
+        }
+    }
+    let r = nalgebra::DMatrix::<f64>::from_fn(idx.len(), idx.len(), |a, b| {
+        f64::from(obs.cov[(idx[a], idx[b])])
+            + if a == b {
+                f64::from(DEFAULT.hyper.pseudo_noise)
+            } else {
+                0.0
+            }
+    });
+    let min_r = r.symmetric_eigenvalues().min();
+    assert!(
+        min_r < -1e-3,
+        "the test covariance is not indefinite: {min_r}"
+    );
     let mut t: Box<stjpdacf::temporal::smoother::Temporal<6, 16, 7, 84, 42, 4>> =
         Box::new(stjpdacf::temporal::smoother::Temporal::new());
     t.start_lane(&DEFAULT, 0, 0, &[0; 6]).expect("start");
@@ -142,12 +164,13 @@ fn f2_update_with_f1_observation() -> (
     (res, check)
 }
 
-/// **F1** (owner: `src/spatial/filter.rs`, backward pass `smooth`): a sparse lane (14 hits in
-/// 61 rows) among clutter gives a pseudo-measurement covariance over its 9 index points that is
-/// not PSD (smallest eigenvalue of its correlation form −0.275); the temporal update takes it
-/// as `R` and publishes negative variances (−0.014 m² at index point 9 on the first frame).
+/// **F1** (fixed in `src/spatial/filter.rs`, backward pass `smooth`): a sparse lane (14 hits in
+/// 61 rows) among clutter gave a pseudo-measurement covariance over its 9 index points that was
+/// not PSD (smallest eigenvalue of its correlation form −0.275); the temporal update took it as
+/// `R` and published negative variances (−0.014 m² at index point 9 on the first frame). The
+/// spatial output is now repaired (modified Cholesky, `docs/spatial-filter.md` §4,
+/// `SpatialReport::cov_repaired`).
 #[test]
-#[ignore = "FINDING F1: fails until the spatial backward pass yields PSD pseudo-measurement covariances"]
 fn finding_f1_spatial_pseudo_measurement_covariance_not_psd() {
     let (_, e) = f1_observation();
     assert!(
@@ -159,16 +182,19 @@ fn finding_f1_spatial_pseudo_measurement_covariance_not_psd() {
 
 /// **F2** (fixed in `src/temporal/filter.rs`, `prepare_update`; defence in depth behind F1):
 /// the temporal update took the pseudo-measurement covariance as given. F1's covariance plus
-/// `r₀² I` has a negative eigenvalue (−3.4e-3 m²), the innovation covariance `S` was still
+/// `r₀² I` had a negative eigenvalue (−3.4e-3 m²), the innovation covariance `S` was still
 /// positive definite, so the update went through and the lane's covariance lost PSD (in exact
 /// arithmetic too). The update now factors `R + r₀² I` over the present points with a modified
 /// Cholesky that raises every pivot below `r₀²/2` to `r₀²` (`UpdateInfo::repaired_pivots`), so
 /// the noise it uses is PSD and so is the posterior.
 #[test]
 fn finding_f2_temporal_update_repairs_indefinite_covariance() {
-    let (res, check) = f2_update_with_f1_observation();
+    let (res, check) = f2_update_with_indefinite_observation();
     let info = res.expect("the update goes through");
-    assert!(info.repaired_pivots > 0, "F1's covariance was not repaired");
+    assert!(
+        info.repaired_pivots > 0,
+        "the indefinite covariance was not repaired"
+    );
     assert!(check.is_ok(), "after the update: {check:?}");
 }
 
@@ -199,16 +225,5 @@ fn finding_f4_validator_refuses_tables_off_their_model() {
         "regressions/tables_validate",
         "f4-",
         harness::tables_validate,
-    );
-}
-
-/// The findings' inputs still reproduce their faults (this test is not ignored: when a fix
-/// lands, it fails and says which finding's test to un-ignore).
-#[test]
-fn findings_still_reproduce() {
-    let (_, e) = f1_observation();
-    assert!(
-        e < -0.1,
-        "F1 no longer reproduces (min eig {e}): un-ignore its test"
     );
 }

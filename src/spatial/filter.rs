@@ -223,6 +223,9 @@ pub struct SpatialReport {
     pub lanes_out: u16,
     /// Confirmed lanes whose backward pass failed numerically (not reported).
     pub smoother_failed: u16,
+    /// Reported lanes whose pseudo-measurement covariance was not positive definite and was
+    /// repaired (see `docs/spatial-filter.md` §4).
+    pub cov_repaired: u16,
     /// The configuration or tables do not fit the capacities (nothing was done).
     pub bad_config: bool,
 }
@@ -926,6 +929,9 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 rep.smoother_failed += 1;
                 continue;
             }
+            if repair_psd(&mut obs) {
+                rep.cov_repaired += 1;
+            }
             if let Some(o) = out.get_mut(n_out) {
                 *o = obs;
                 n_out += 1;
@@ -1057,4 +1063,51 @@ impl Default for Meta {
     fn default() -> Self {
         Self::EMPTY
     }
+}
+
+/// Makes a lane's pseudo-measurement covariance positive definite over its present points
+/// (`docs/spatial-filter.md` §4): a modified Cholesky in index order raises every pivot below
+/// `1e-6 ×` the largest present variance to `max(|d|, that floor)` and adds the difference to
+/// that point's variance. A positive definite block is left as it is. Returns whether anything
+/// was added. `O(m³/6)` for `m` present points.
+fn repair_psd<const POINTS: usize>(obs: &mut LaneObservation<POINTS>) -> bool {
+    let mut idx = [0u8; POINTS];
+    let mut m = 0usize;
+    for (i, &p) in obs.present.iter().enumerate() {
+        if p {
+            set(&mut idx, m, i as u8);
+            m += 1;
+        }
+    }
+    let at = |a: usize| usize::from(get(&idx, a));
+    let mut c = SMatrix::<f32, POINTS, POINTS>::zeros();
+    let mut top = 0.0f32;
+    for b in 0..m {
+        for a in b..m {
+            let v = 0.5
+                * (obs.cov.get((at(a), at(b))).copied().unwrap_or(0.0)
+                    + obs.cov.get((at(b), at(a))).copied().unwrap_or(0.0));
+            if let Some(e) = c.get_mut((a, b)) {
+                *e = v;
+            }
+            if a == b {
+                top = top.max(v.abs());
+            }
+        }
+    }
+    let floor = 1e-6 * top;
+    if !(floor.is_finite() && floor > 0.0) {
+        return false;
+    }
+    let mut load = [0.0f32; POINTS];
+    let raised = crate::math::cholesky_loaded(&mut c, m, floor, floor, &mut load);
+    if raised == 0 || raised == u8::MAX {
+        return false;
+    }
+    for (a, l) in load.iter().enumerate().take(m) {
+        if let Some(e) = obs.cov.get_mut((at(a), at(a))) {
+            *e += l;
+        }
+    }
+    true
 }

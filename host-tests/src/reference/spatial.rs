@@ -1044,6 +1044,24 @@ fn backward(model: &Model, t: &Track, rank: usize) -> Option<TrackOutput> {
             cov[(b, a)] = c;
         }
     }
+    // The covariance over the present points is made positive definite as the core does
+    // (docs/spatial-filter.md §4): modified Cholesky in index order, pivots below 1e-6 × the
+    // largest present variance raised to max(|d|, that floor), the difference added to the
+    // point's variance.
+    let top = present
+        .iter()
+        .map(|&a| cov[(a, a)].abs())
+        .fold(0.0, f64::max);
+    let floor = 1e-6 * top;
+    if floor > 0.0 && floor.is_finite() {
+        let sub = DMatrix::from_fn(present.len(), present.len(), |i, j| {
+            cov[(present[i], present[j])]
+        });
+        let loads = crate::reference::temporal::repair_loads_with(&sub, floor, floor);
+        for (i, l) in loads.into_iter().enumerate() {
+            cov[(present[i], present[i])] += l;
+        }
+    }
     let total = t.hits + t.misses;
     Some(TrackOutput {
         id: t.id,

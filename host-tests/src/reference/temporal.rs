@@ -662,10 +662,15 @@ impl CoupledTemporalModel {
     }
 }
 
-/// Diagonal loads that make `a` positive definite, by a modified Cholesky factorisation in index
-/// order: a pivot `d < r0/2` becomes `max(|d|, r0)` and the difference is its load (0 elsewhere).
-/// For a PSD `a − r0 I` every pivot is `≥ r0` and every load is 0.
+/// The temporal update's repair of `R + r₀² I` (`a`): [`repair_loads_with`] with floor `r0/2`
+/// and target `r0` (for a PSD `a − r0 I` every pivot is `≥ r0` and every load is 0).
 pub fn repair_loads(a: &DMatrix<f64>, r0: f64) -> Vec<f64> {
+    repair_loads_with(a, 0.5 * r0, r0)
+}
+
+/// Diagonal loads that make `a` positive definite: a modified Cholesky in index order, a pivot
+/// `d < floor` becomes `max(|d|, target)` and the difference is its load.
+pub fn repair_loads_with(a: &DMatrix<f64>, floor: f64, target: f64) -> Vec<f64> {
     let n = a.nrows();
     let mut l = DMatrix::<f64>::zeros(n, n);
     let mut loads = vec![0.0; n];
@@ -674,8 +679,8 @@ pub fn repair_loads(a: &DMatrix<f64>, r0: f64) -> Vec<f64> {
         for k in 0..j {
             d -= l[(j, k)] * l[(j, k)];
         }
-        if d < 0.5 * r0 {
-            let new = d.abs().max(r0);
+        if d < floor {
+            let new = d.abs().max(target);
             loads[j] = new - d;
             d = new;
         }
