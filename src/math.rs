@@ -177,45 +177,6 @@ pub fn expm<const N: usize>(A: &SMatrix<f32, N, N>, t: f32) -> Option<SMatrix<f3
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use nalgebra::Matrix2;
-
-    #[test]
-    fn expm_of_nilpotent_is_exact() {
-        let a = Matrix2::new(0.0, 1.0, 0.0, 0.0);
-        let f = expm(&a, 3.0).unwrap();
-        assert_eq!(f, Matrix2::new(1.0, 3.0, 0.0, 1.0));
-    }
-
-    #[test]
-    fn discretize_of_integrator_matches_closed_form() {
-        // Wiener velocity model: Q = qc [[t³/3, t²/2], [t²/2, t]].
-        let a = Matrix2::new(0.0, 1.0, 0.0, 0.0);
-        let lql = Matrix2::new(0.0, 0.0, 0.0, 2.0);
-        for t in [1e-3f32, 0.1, 1.0, 7.5] {
-            let (f, q) = discretize(&a, &lql, t).unwrap();
-            assert!((f[(0, 1)] - t).abs() <= 1e-6 * t);
-            let want = Matrix2::new(t * t * t / 3.0, t * t / 2.0, t * t / 2.0, t) * 2.0;
-            for (g, w) in q.iter().zip(want.iter()) {
-                assert!((g - w).abs() <= 1e-5 * w.abs(), "t={t} got {g} want {w}");
-            }
-        }
-    }
-
-    #[test]
-    fn bad_steps_are_values_not_panics() {
-        let a = Matrix2::new(0.0, 1.0, -1.0, -1.0);
-        let lql = Matrix2::identity();
-        for t in [0.0, -1.0, f32::NAN, f32::INFINITY, 1e30] {
-            assert!(discretize(&a, &lql, t).is_none(), "t={t}");
-        }
-        assert!(expm(&a, f32::NAN).is_none());
-        assert!(expm(&(a * f32::NAN), 1.0).is_none());
-    }
-}
-
 /// Modified Cholesky of the leading `n×n` block of `a` (lower triangle read and replaced by `L`):
 /// a pivot `d` below `floor` becomes `max(|d|, target)` and the amount added is written to `load`, so
 /// `L Lᵀ = A + diag(load)`. Returns the number of raised pivots, or `u8::MAX` when a pivot or an
@@ -266,4 +227,43 @@ pub(crate) fn cholesky_loaded<const N: usize>(
         }
     }
     raised.min(u8::MAX - 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix2;
+
+    #[test]
+    fn expm_of_nilpotent_is_exact() {
+        let a = Matrix2::new(0.0, 1.0, 0.0, 0.0);
+        let f = expm(&a, 3.0).unwrap();
+        assert_eq!(f, Matrix2::new(1.0, 3.0, 0.0, 1.0));
+    }
+
+    #[test]
+    fn discretize_of_integrator_matches_closed_form() {
+        // Wiener velocity model: Q = qc [[t³/3, t²/2], [t²/2, t]].
+        let a = Matrix2::new(0.0, 1.0, 0.0, 0.0);
+        let lql = Matrix2::new(0.0, 0.0, 0.0, 2.0);
+        for t in [1e-3f32, 0.1, 1.0, 7.5] {
+            let (f, q) = discretize(&a, &lql, t).unwrap();
+            assert!((f[(0, 1)] - t).abs() <= 1e-6 * t);
+            let want = Matrix2::new(t * t * t / 3.0, t * t / 2.0, t * t / 2.0, t) * 2.0;
+            for (g, w) in q.iter().zip(want.iter()) {
+                assert!((g - w).abs() <= 1e-5 * w.abs(), "t={t} got {g} want {w}");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_steps_are_values_not_panics() {
+        let a = Matrix2::new(0.0, 1.0, -1.0, -1.0);
+        let lql = Matrix2::identity();
+        for t in [0.0, -1.0, f32::NAN, f32::INFINITY, 1e30] {
+            assert!(discretize(&a, &lql, t).is_none(), "t={t}");
+        }
+        assert!(expm(&a, f32::NAN).is_none());
+        assert!(expm(&(a * f32::NAN), 1.0).is_none());
+    }
 }
