@@ -12,7 +12,7 @@ bin=fuzz/target/x86_64-unknown-linux-gnu/release
 known="$(grep -v '^#' fuzz/known-findings.txt | grep -v '^$' | paste -sd'|')"
 work="$(mktemp -d)"
 status=0
-for t in tracker_step temporal_ops tables_validate; do
+for t in tracker_step temporal_ops tables_validate wire_decode; do
   mkdir -p "$work/$t/corpus" "$work/$t/crashes"
   cp fuzz/seeds/$t/* "$work/$t/corpus/"
   "$bin/$t" -fork=1 -ignore_crashes=1 -max_total_time="$secs" -rss_limit_mb=4096 \

@@ -85,6 +85,15 @@ fn seeds_tables_validate() {
     );
 }
 
+#[test]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored --skip finding_`"]
+fn seeds_wire_decode() {
+    println!(
+        "{} inputs",
+        replay("seeds/wire_decode", "", harness::wire_decode)
+    );
+}
+
 /// The decoded frames of a finding's input still show the fault the finding describes (so the
 /// ignored tests below keep testing what they claim): F1's frame gives a spatial
 /// pseudo-measurement covariance that is not PSD.
