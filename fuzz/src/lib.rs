@@ -1160,3 +1160,39 @@ pub fn wire_decode(data: &[u8]) -> Result<(), String> {
     }
     Ok(())
 }
+
+/// The frames a [`wire_decode`] input makes its two receivers accept, as `(buffer index,
+/// points)`: the raw stream's, then the structured part's (empty when the input starts with
+/// `MAGIC`). Public so that a crash input can be classified (`examples/classify.rs`).
+pub fn wire_accepted_frames(data: &[u8]) -> [Vec<(usize, Vec<[f32; 2]>)>; 2] {
+    let mut pts = vec![[0.0f32; 2]; MEAS];
+    let mut raw = Vec::new();
+    let mut rx = Receiver::new();
+    let mut p = 0;
+    let mut k = 0;
+    while p < data.len() && k < MAX_OFFERS {
+        if let Ok(i) = rx.accept(&data[p..], &mut pts) {
+            raw.push((k, pts[..i.count].to_vec()));
+        }
+        p += match wire::decode(&data[p..], &mut pts) {
+            Ok(i) => wire::frame_len(i.count),
+            Err(_) => {
+                1 + data[p + 1..]
+                    .windows(4)
+                    .position(|w| w == wire::MAGIC)
+                    .unwrap_or(data.len() - p - 1)
+            }
+        };
+        k += 1;
+    }
+    let mut structured = Vec::new();
+    if !data.starts_with(&wire::MAGIC) {
+        let mut rx = Receiver::new();
+        for (k, s) in decode_wire_input(data).iter().enumerate() {
+            if let Ok(i) = rx.accept(&s.bytes, &mut pts) {
+                structured.push((k, pts[..i.count].to_vec()));
+            }
+        }
+    }
+    [raw, structured]
+}
