@@ -9,12 +9,12 @@ cd "$(dirname "$0")/.."
 secs="${1:-20}"
 cargo fuzz build --sanitizer none -O
 bin=fuzz/target/x86_64-unknown-linux-gnu/release
-known="$(grep -v '^#' fuzz/known-findings.txt | grep -v '^$' | paste -sd'|')"
+known="$( (grep -v "^#" fuzz/known-findings.txt || true) | (grep -v "^$" || true) | paste -sd"|")"
 # No open finding: a pattern that matches nothing (an empty one would match every message).
 [ -n "$known" ] || known='^$a'
 work="$(mktemp -d)"
 status=0
-for t in tracker_step temporal_ops tables_validate; do
+for t in tracker_step temporal_ops tables_validate wire_decode; do
   mkdir -p "$work/$t/corpus" "$work/$t/crashes"
   cp fuzz/seeds/$t/* "$work/$t/corpus/"
   "$bin/$t" -fork=1 -ignore_crashes=1 -max_total_time="$secs" -rss_limit_mb=4096 \

@@ -3,7 +3,7 @@
 //!   from the long runs; every input must pass every invariant), so that CI replays what the
 //!   fuzzer explored without a libFuzzer build. A debug build runs them ~150 times slower, so
 //!   they are `#[ignore]`d there and `.ci/run` runs them in release
-//!   (`cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored --skip finding_`);
+//!   (`cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`);
 //! * over the minimised inputs of each finding, `fuzz/regressions/<target>/<finding>-*`, one
 //!   named test per finding. A finding's test fails until the finding is fixed in the file that
 //!   owns it, so it is `#[ignore]`d with the reason; run them with
@@ -59,7 +59,7 @@ fn replay(dir: &str, prefix: &str, body: fn(&[u8]) -> Result<(), String>) -> usi
 }
 
 #[test]
-#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored --skip finding_`"]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`"]
 fn seeds_tracker_step() {
     println!(
         "{} inputs",
@@ -68,7 +68,7 @@ fn seeds_tracker_step() {
 }
 
 #[test]
-#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored --skip finding_`"]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`"]
 fn seeds_temporal_ops() {
     println!(
         "{} inputs",
@@ -77,11 +77,20 @@ fn seeds_temporal_ops() {
 }
 
 #[test]
-#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored --skip finding_`"]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`"]
 fn seeds_tables_validate() {
     println!(
         "{} inputs",
         replay("seeds/tables_validate", "", harness::tables_validate)
+    );
+}
+
+#[test]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`"]
+fn seeds_wire_decode() {
+    println!(
+        "{} inputs",
+        replay("seeds/wire_decode", "", harness::wire_decode)
     );
 }
 
