@@ -149,6 +149,10 @@ pub struct StepReport {
     /// Lane updates whose pseudo-measurement covariance was not positive definite and was
     /// repaired (see [`crate::temporal::filter::TemporalFilter::update`]).
     pub pseudo_cov_repairs: u32,
+    /// Pivots of the temporal covariance raised after this frame's lane updates because f32
+    /// rounding had made it indefinite (see
+    /// [`crate::temporal::filter::TemporalFilter::repair_covariance`]; 0 on almost every frame).
+    pub temporal_cov_repairs: u32,
 }
 
 /// The output of one frame.
@@ -344,6 +348,7 @@ impl<
             temporal_failures: 0,
             dt,
             pseudo_cov_repairs: 0,
+            temporal_cov_repairs: 0,
         };
         // 1. Spatial JPDACF.
         for o in &mut self.obs {
@@ -447,6 +452,7 @@ impl<
             }
         }
         probe.enter(Stage::Temporal);
+        report.temporal_cov_repairs = self.temporal.repair_covariance(self.tables);
         // Re-rank the lanes present (slots = rank from the left at the bottom of the window).
         let ranks = self.current_ranks();
         let _ = self.temporal.set_ranks(&ranks);

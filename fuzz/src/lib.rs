@@ -322,9 +322,19 @@ impl Op {
                     .fold((f32::INFINITY, 0.0f32), |(a, b), (v, _)| {
                         (a.min(*v), b.max(*v))
                     });
+                // As the tracker does after its lane updates (here: a frame with one update,
+                // the strictest schedule).
+                let res = t.update(&DEFAULT, *s, obs).map(|_| ());
+                let raised = if res.is_ok() {
+                    t.repair_covariance(&DEFAULT)
+                } else {
+                    0
+                };
                 (
-                    format!("update slot {s}, {n} points, variances {lo:e}..{hi:e}"),
-                    t.update(&DEFAULT, *s, obs).map(|_| ()),
+                    format!(
+                        "update slot {s}, {n} points, variances {lo:e}..{hi:e}, {raised} pivots repaired"
+                    ),
+                    res,
                 )
             }
             Op::Remove(s) => {

@@ -236,3 +236,45 @@ fn finding_f4_validator_refuses_tables_off_their_model() {
         harness::tables_validate,
     );
 }
+
+/// **F5** (fixed in `src/temporal/filter.rs`, `TemporalFilter::repair_covariance`): once the
+/// pattern that tolerated F1/F2 was gone, `temporal_ops` found the f32 limit of the standard-form
+/// update `P −= G M Gᵀ`: a strongly informative update (prior variance ~190 m² of a lane's first
+/// Gram component at its birth, posterior ~1e-3 m²; more so with pseudo-measurement variances of
+/// 1e-10..1e-6) leaves about two significant digits, and a posterior that is nearly singular in
+/// correlation form came out indefinite (eigenvalue −0.77 in correlation form, a variance of
+/// −4.1e-5; the smoother's lag blocks likewise). The tracker now repairs the filter covariance and
+/// the lag blocks once per frame after its updates (modified LDLᵀ in correlation form, variances
+/// only inflated, counted in `StepReport::temporal_cov_repairs`); the target does so after every
+/// update. The inputs must still break the unrepaired update (so that this test keeps testing
+/// the repair) and must pass with it.
+#[test]
+fn finding_f5_informative_update_repaired_to_psd() {
+    use stjpdacf::temporal::smoother::Temporal;
+    for f in files("regressions/temporal_ops", "f5-") {
+        let data = std::fs::read(&f).expect("read");
+        let mut t: Box<Temporal<6, 16, 7, 84, 42, 4>> = Box::new(Temporal::new());
+        let mut broken = false;
+        for op in harness::decode_temporal_input(&data) {
+            let ok = match &op {
+                harness::Op::Update(s, obs) => t.update(&DEFAULT, *s, obs).is_ok(),
+                other => other.apply(&mut t).1.is_ok(),
+            };
+            if ok
+                && stjpdacf_host::invariants::check_temporal(&t, &DEFAULT, PsdCheck::Cholesky)
+                    .is_err()
+            {
+                broken = true;
+            }
+        }
+        assert!(
+            broken,
+            "{}: the unrepaired update no longer breaks",
+            f.display()
+        );
+    }
+    assert_eq!(
+        replay("regressions/temporal_ops", "f5-", harness::temporal_ops),
+        3
+    );
+}

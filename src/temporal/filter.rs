@@ -167,6 +167,9 @@ pub struct TemporalFilter<
     p: SMatrix<f32, NX, NX>,
     active: [bool; LANES],
     rank: [u8; LANES],
+    /// An update since the last repair reduced some variance below [`REPAIR_TRIGGER`] of its
+    /// prior (or to ≤ 0): f32 rounding may have broken positive definiteness.
+    repair_due: bool,
 }
 
 impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize> Default
@@ -179,6 +182,19 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
 
 /// A product of finite factors stays far from overflow below this bound (f32 max is 3.4e38).
 const SAFE: f32 = 1e30;
+
+/// Smallest pivot [`TemporalFilter::repair_covariance`] accepts in the correlation form of the
+/// covariance: well above the f32 rounding of an 84×84 factorisation (`n·ε ≈ 5e-6` per entry),
+/// well below any correlation structure the model produces on purpose.
+pub const REPAIR_PIVOT: f32 = 1e-4;
+
+/// A lane update marks the covariance for [`TemporalFilter::repair_covariance`] when it reduces
+/// some active variance to less than this fraction of its prior (or to ≤ 0): the rounding of
+/// `P −= G M Gᵀ` is `~ε·prior` per entry, so below `1e-2` it may exceed `1e-4` of the posterior in
+/// correlation form. Ordinary tracking updates reduce variances by a few times at most (the
+/// prediction only adds one frame of process noise); a lane's birth or its return after a long
+/// coast reduces its first components' variances ~10⁵ times and triggers the repair.
+pub const REPAIR_TRIGGER: f32 = 1e-2;
 
 /// `sqrt(Σ v²)`, a bound on every `|v|` (infinite or NaN when some value is not finite).
 fn norm_bound(v: &[f32]) -> f32 {
@@ -199,6 +215,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             p: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; NX]; NX])),
             active: [false; LANES],
             rank: [0; LANES],
+            repair_due: false,
         }
     }
 
@@ -798,6 +815,10 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         // component's position j and rate j + 1) at a time: rows i ≤ j for both, then the
         // diagonal entry (j + 1, j + 1).
         let ps = self.p.as_mut_slice();
+        let mut prior = [0.0f32; NX];
+        for i in sp.indices() {
+            set(&mut prior, i, ps.get(i + NX * i).copied().unwrap_or(0.0));
+        }
         for j in sp.indices().step_by(2) {
             let (Some(g0), Some(g1)) = (g.g.get(j), g.g.get(j + 1)) else {
                 continue;
@@ -833,6 +854,12 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
+        // Strongly informative update: mark the covariance for repair.
+        let due = sp.indices().any(|i| {
+            let post = ps.get(i + NX * i).copied().unwrap_or(0.0);
+            !(post > REPAIR_TRIGGER * get(&prior, i))
+        });
+        self.repair_due |= due;
     }
 
     /// Lane `s`'s positions at the index points, `f = V_r a_s`, and their variances
@@ -893,6 +920,164 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     pub fn covariance(&self) -> &SMatrix<f32, NX, NX> {
         &self.p
     }
+
+    /// `true` when an update since the last repair was strongly informative (see
+    /// [`TemporalFilter::repair_covariance`]).
+    pub fn repair_due(&self) -> bool {
+        self.repair_due
+    }
+
+    /// Makes the covariance over the active lanes positive definite again where f32 rounding
+    /// broke it, and returns the number of pivots raised (0: nothing changed but the rounding of
+    /// a mirror copy).
+    ///
+    /// Why it is needed: a lane update is `P −= G M Gᵀ`, a difference of two nearly equal
+    /// matrices when the update is strongly informative. At a lane's birth the prior variance of
+    /// its first Gram component is ~190 m² and the posterior ~1e-3 m² (a 10⁵ reduction), so f32
+    /// keeps about two significant digits of the posterior, and a posterior that is nearly
+    /// singular in correlation form (strongly correlated components, as after a few points on a
+    /// long lane) can come out indefinite (fuzzing found correlation-form eigenvalues of −0.77 and
+    /// negative variances; the f64 reference keeps ten digits and never does). A square-root form
+    /// would avoid it at several times the cost of the update.
+    ///
+    /// How: a modified `LDLᵀ` factorisation (Gill–Murray) of the correlation form
+    /// `D^-1/2 P D^-1/2` (`D` the absolute diagonal) over the active indices raises every pivot
+    /// below [`REPAIR_PIVOT`] (or too small for its column: multipliers stay within ±1), which
+    /// factors `P + diag(e)` with `e ≥ 0` bounded; `e` is added to the variances. A covariance whose
+    /// correlation form has its smallest eigenvalue above `REPAIR_PIVOT` (every pivot is at least
+    /// that eigenvalue) is left as it is; otherwise the repair only inflates variances
+    /// (conservative), by at most `REPAIR_PIVOT` relative where the matrix was PSD. The
+    /// [`crate::tracker::Tracker`] calls it once per frame after its lane updates and counts the
+    /// raised pivots in its step report. The window of the smoother is not touched: adding
+    /// `diag(e)` to the current state's covariance is independent noise on `x_k`, which keeps the
+    /// augmented covariance PSD.
+    ///
+    /// It only runs when an update since the last call reduced some active variance below
+    /// [`REPAIR_TRIGGER`] of its prior (a lane's birth, its return after a long coast, a very
+    /// precise observation); otherwise it returns 0 at once.
+    ///
+    /// # Complexity
+    /// When it runs, `n³/6` multiply-adds for `n = 2r·lanes` active state entries (98 k at 6
+    /// lanes, rank 7), on the lower triangle of `P` in place (the upper one keeps the original,
+    /// mirrored back): no stack copy of `P`. This is part of a frame's worst case.
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
+    pub fn repair_covariance<const NT: usize>(&mut self, tables: &Tables<NT, LANES, POINTS>) -> u8 {
+        if !self.repair_due {
+            return 0;
+        }
+        self.repair_due = false;
+        let sp = self.spans(Self::r_used(tables));
+        let mut runs: [Range<usize>; LANES] = core::array::from_fn(|_| 0..0);
+        let mut n = 0usize;
+        for (dst, rg) in runs.iter_mut().zip(sp.iter()) {
+            *dst = rg;
+            n += 1;
+        }
+        repair_psd::<NX>(self.p.as_mut_slice(), NX, runs.get(..n).unwrap_or(&[]))
+    }
+}
+
+/// Repairs the symmetric matrix stored column-major in `ps` (leading dimension `ld`), restricted
+/// to the indices of `runs` (increasing, disjoint ranges, at most `N` indices in all), where
+/// rounding made it indefinite; returns the pivots raised. See
+/// [`TemporalFilter::repair_covariance`] for the method; the lower triangle is the work space, the
+/// upper one keeps the original and is mirrored back, the diagonal gets `diag(e)`. `n³/6`
+/// multiply-adds for `n` indices, the inner loop over contiguous slices.
+pub(crate) fn repair_psd<const N: usize>(ps: &mut [f32], ld: usize, runs: &[Range<usize>]) -> u8 {
+    let mut idx = [0usize; N];
+    let mut n = 0usize;
+    for i in runs.iter().cloned().flatten() {
+        if let Some(e) = idx.get_mut(n) {
+            *e = i;
+            n += 1;
+        }
+    }
+    let idx = idx.get(..n).unwrap_or(&[]);
+    // Original diagonal and scale 1/sqrt|P_ii| (1 for a zero diagonal).
+    let mut d0 = [0.0f32; N];
+    let mut inv_s = [1.0f32; N];
+    for (a, &i) in idx.iter().enumerate() {
+        let d = ps.get(i + ld * i).copied().unwrap_or(0.0);
+        if !d.is_finite() {
+            // A non-finite state is not repairable here (the update checks keep it finite).
+            return 0;
+        }
+        set(&mut d0, a, d);
+        if d != 0.0 {
+            set(&mut inv_s, a, 1.0 / math::sqrt(d.abs()));
+        }
+    }
+    // Scaled lower triangle, in place (column-major: column idx[b] holds rows idx[a], a ≥ b).
+    for (b, &j) in idx.iter().enumerate() {
+        let sb = get(&inv_s, b);
+        for (a, &i) in idx.iter().enumerate().skip(b) {
+            if let Some(e) = ps.get_mut(i + ld * j) {
+                *e *= get(&inv_s, a) * sb;
+            }
+        }
+    }
+    // Right-looking LDLᵀ of the lower triangle with modified pivots (Gill–Murray, β = 1):
+    // `d_k ← max(REPAIR_PIVOT, |d_k|, max_i c_ik²)` for the column `c` below the pivot. This
+    // factors `A + diag(e)`, `e ≥ 0`, keeps every multiplier `|L_ik| ≤ 1` so that `e` stays
+    // bounded when `A` is far from PSD, and changes nothing for a correlation matrix whose
+    // pivots are ≥ REPAIR_PIVOT (its Schur complements have `c_ik² ≤ d_k`).
+    let mut raise = [0.0f32; N];
+    let mut raised = 0u8;
+    let mut col = [0.0f32; N];
+    for (k, &c) in idx.iter().enumerate() {
+        let dk = ps.get(c + ld * c).copied().unwrap_or(0.0);
+        let mut theta2 = 0.0f32;
+        for (a, &i) in idx.iter().enumerate().skip(k + 1) {
+            let v = ps.get(i + ld * c).copied().unwrap_or(0.0);
+            set(&mut col, a, v);
+            theta2 = theta2.max(v * v);
+        }
+        let d = REPAIR_PIVOT.max(dk.abs()).max(theta2);
+        // `!(dk >= d)` also catches NaN.
+        if !(dk >= d) {
+            let e = d - dk;
+            set(&mut raise, k, if e.is_finite() { e } else { 0.0 });
+            raised = raised.saturating_add(1);
+        }
+        let inv_d = 1.0 / d;
+        // A[i, j] −= c_i c_j / d for k < b ≤ a, column by column over the contiguous runs.
+        for (b, &j) in idx.iter().enumerate().skip(k + 1) {
+            let lb = get(&col, b) * inv_d;
+            if lb == 0.0 {
+                continue;
+            }
+            let mut a0 = 0usize;
+            for rg in runs {
+                let a1 = a0 + rg.len();
+                if a1 > b {
+                    let from = b.max(a0);
+                    let dst = ps.get_mut(ld * j + rg.start + (from - a0)..ld * j + rg.end);
+                    if let (Some(dst), Some(src)) = (dst, col.get(from..a1)) {
+                        for (x, cv) in dst.iter_mut().zip(src) {
+                            *x -= cv * lb;
+                        }
+                    }
+                }
+                a0 = a1;
+            }
+        }
+    }
+    // Restore: lower triangle from the upper one, the diagonal raised by diag(e) unscaled.
+    for (b, &j) in idx.iter().enumerate() {
+        for &i in idx.iter().skip(b + 1) {
+            let up = ps.get(j + ld * i).copied().unwrap_or(0.0);
+            if let Some(e) = ps.get_mut(i + ld * j) {
+                *e = up;
+            }
+        }
+        let sb = get(&inv_s, b);
+        let add = get(&raise, b) / (sb * sb);
+        if let Some(e) = ps.get_mut(j + ld * j) {
+            *e = get(&d0, b) + if add.is_finite() { add } else { 0.0 };
+        }
+    }
+    raised
 }
 
 /// `a · b` over a fixed length (unrolled by the compiler).
@@ -982,5 +1167,74 @@ fn forward_subst<const N: usize>(l: &SMatrix<f32, N, N>, b: &mut [f32]) {
         if let Some(e) = b.get_mut(i) {
             *e = acc / l.get((i, i)).copied().unwrap_or(1.0);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::SMatrix;
+
+    fn min_eig_corr(p: &SMatrix<f32, 4, 4>) -> f64 {
+        let m = p.map(f64::from);
+        let d = m.diagonal().map(|v| 1.0 / v.abs().sqrt());
+        let c = SMatrix::<f64, 4, 4>::from_fn(|i, j| m[(i, j)] * d[i] * d[j]);
+        c.symmetric_eigenvalues().min()
+    }
+
+    #[test]
+    fn repair_leaves_a_well_conditioned_covariance_alone() {
+        let l = SMatrix::<f32, 4, 4>::new(
+            2.0, 0.0, 0.0, 0.0, 0.5, 1.0, 0.0, 0.0, -0.3, 0.2, 0.7, 0.0, 0.1, 0.4, -0.2, 0.5,
+        );
+        let p = l * l.transpose();
+        let mut q = p;
+        assert_eq!(repair_psd::<4>(q.as_mut_slice(), 4, &[0..4]), 0);
+        assert_eq!(q, p);
+    }
+
+    #[test]
+    fn repair_makes_an_indefinite_covariance_psd_by_inflating_variances_only() {
+        // Correlations of 0.99 between all of 0..3 and −0.99 between 0 and 3: indefinite, with
+        // very different scales (as a posterior after a strongly informative update).
+        let s = [1e-3f32, 2e-1, 5.0, 3e-4];
+        let mut p = SMatrix::<f32, 4, 4>::from_fn(|i, j| {
+            let rho = if i == j {
+                1.0
+            } else if (i, j) == (0, 3) || (i, j) == (3, 0) {
+                -0.99
+            } else {
+                0.99
+            };
+            rho * (s[i] * s[j]).sqrt()
+        });
+        assert!(min_eig_corr(&p) < -0.5);
+        let before = p;
+        let raised = repair_psd::<4>(p.as_mut_slice(), 4, &[0..4]);
+        assert!(raised > 0);
+        assert!(min_eig_corr(&p) > 0.0, "{}", min_eig_corr(&p));
+        for i in 0..4 {
+            assert!(p[(i, i)] >= before[(i, i)]);
+            // Bounded inflation (multipliers within ±1): at most a few times the variance.
+            assert!(p[(i, i)] <= 10.0 * before[(i, i)], "{i}: {}", p[(i, i)]);
+            for j in 0..4 {
+                if i != j {
+                    assert_eq!(p[(i, j)], before[(i, j)]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn repair_touches_only_the_given_indices() {
+        let mut p = SMatrix::<f32, 4, 4>::identity();
+        p[(0, 2)] = 2.0;
+        p[(2, 0)] = 2.0;
+        p[(1, 1)] = -1.0;
+        let before = p;
+        assert!(repair_psd::<4>(p.as_mut_slice(), 4, &[0..1, 2..3]) > 0);
+        assert_eq!(p[(1, 1)], -1.0);
+        assert!(p[(0, 0)] > 1.0 || p[(2, 2)] > 1.0);
+        assert_eq!(p[(0, 2)], before[(0, 2)]);
     }
 }

@@ -31,7 +31,8 @@
 use nalgebra::{Matrix2, SMatrix, SVector};
 
 use super::filter::{
-    dot, project, times_sym, Spans, TemporalError, TemporalFilter, UpdateInfo, UpdateParts,
+    dot, project, repair_psd, times_sym, Spans, TemporalError, TemporalFilter, UpdateInfo,
+    UpdateParts,
 };
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::LaneObservation;
@@ -370,6 +371,35 @@ impl<
         Ok(UpdateInfo {
             repaired_pivots: g.repaired,
         })
+    }
+
+    /// Repairs the filter's covariance and every lagged lane's covariance block where f32
+    /// rounding made them indefinite ([`TemporalFilter::repair_covariance`]: the lag blocks
+    /// `Σ_j −= K_j M K_jᵀ` cancel as the filter's covariance does); returns the pivots raised.
+    /// Call it once per frame after the lane updates (the tracker does). Like the filter's, it
+    /// only runs after a strongly informative update (the same updates move the lag blocks).
+    ///
+    /// # Complexity
+    /// When it runs, `n³/6` multiply-adds for the filter (`n = 2r·lanes`) plus `LAG·lanes·r³/6`
+    /// for the window.
+    pub fn repair_covariance<const NT: usize>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+    ) -> u32 {
+        if !self.filter.repair_due() {
+            return 0;
+        }
+        let mut raised = u32::from(self.filter.repair_covariance(tables));
+        let r = (tables.gram_rank as usize).min(RANK);
+        let runs = [0..r];
+        for lag in &mut self.window {
+            for (block, present) in lag.blocks.iter_mut().zip(lag.present) {
+                if present {
+                    raised += u32::from(repair_psd::<RANK>(block.as_mut_slice(), RANK, &runs));
+                }
+            }
+        }
+        raised
     }
 
     /// The smoothed lane in slot `s` `lag` frames back (`1..=LAG`): positions at the index points

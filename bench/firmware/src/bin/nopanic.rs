@@ -221,6 +221,7 @@ fn main() -> ! {
     black_box(tf.coefficient_var(u(), &black_box([0.0; 16]), u()));
     black_box((tf.mean().get(u()), tf.covariance().get((u(), u()))));
     black_box(TemporalFilter::<6, 16, 7, 84>::index(u(), u(), u()));
+    black_box((tf.repair_due(), tf.repair_covariance(tables)));
     tf.remove_lane(u());
     let mut tp: Temporal<6, 16, 7, 84, 42, 4> = black_box(Temporal::new());
     let _ = tp.start_lane(tables, u(), black_box(0), &ranks);
@@ -236,6 +237,7 @@ fn main() -> ! {
         tp.frames(),
         tp.filter().lanes(),
     ));
+    black_box(tp.repair_covariance(tables));
     tp.remove_lane(u());
 
     // The tracker.
