@@ -857,7 +857,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         // Strongly informative update: mark the covariance for repair.
         let due = sp.indices().any(|i| {
             let post = ps.get(i + NX * i).copied().unwrap_or(0.0);
-            !(post > REPAIR_TRIGGER * get(&prior, i))
+            post.is_nan() || post <= REPAIR_TRIGGER * get(&prior, i)
         });
         self.repair_due |= due;
     }
@@ -1034,8 +1034,7 @@ pub(crate) fn repair_psd<const N: usize>(ps: &mut [f32], ld: usize, runs: &[Rang
             theta2 = theta2.max(v * v);
         }
         let d = REPAIR_PIVOT.max(dk.abs()).max(theta2);
-        // `!(dk >= d)` also catches NaN.
-        if !(dk >= d) {
+        if dk.is_nan() || dk < d {
             let e = d - dk;
             set(&mut raise, k, if e.is_finite() { e } else { 0.0 });
             raised = raised.saturating_add(1);
@@ -1189,7 +1188,10 @@ mod tests {
         );
         let p = l * l.transpose();
         let mut q = p;
-        assert_eq!(repair_psd::<4>(q.as_mut_slice(), 4, &[0..4]), 0);
+        assert_eq!(
+            repair_psd::<4>(q.as_mut_slice(), 4, core::slice::from_ref(&(0..4))),
+            0
+        );
         assert_eq!(q, p);
     }
 
@@ -1210,7 +1212,7 @@ mod tests {
         });
         assert!(min_eig_corr(&p) < -0.5);
         let before = p;
-        let raised = repair_psd::<4>(p.as_mut_slice(), 4, &[0..4]);
+        let raised = repair_psd::<4>(p.as_mut_slice(), 4, core::slice::from_ref(&(0..4)));
         assert!(raised > 0);
         assert!(min_eig_corr(&p) > 0.0, "{}", min_eig_corr(&p));
         for i in 0..4 {

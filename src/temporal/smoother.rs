@@ -391,11 +391,15 @@ impl<
         }
         let mut raised = u32::from(self.filter.repair_covariance(tables));
         let r = (tables.gram_rank as usize).min(RANK);
-        let runs = [0..r];
+        let runs = 0..r;
         for lag in &mut self.window {
             for (block, present) in lag.blocks.iter_mut().zip(lag.present) {
                 if present {
-                    raised += u32::from(repair_psd::<RANK>(block.as_mut_slice(), RANK, &runs));
+                    raised += u32::from(repair_psd::<RANK>(
+                        block.as_mut_slice(),
+                        RANK,
+                        core::slice::from_ref(&runs),
+                    ));
                 }
             }
         }
