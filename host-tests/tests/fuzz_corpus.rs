@@ -278,3 +278,20 @@ fn finding_f5_informative_update_repaired_to_psd() {
         3
     );
 }
+
+/// **F6** (fixed in `src/temporal/filter.rs`): the first long `temporal_ops` run after F5's
+/// repair found 12 inputs in 2 min where the repair did not run or did not suffice: a second very
+/// precise update of a lane born the frame before reduced a combination of Gram components (not
+/// any single component's variance) ~10⁵ times, and the published variances at the index points
+/// (`diag(V_r C V_rᵀ)`, filtered and smoothed) came out as −1.8e-5 … −8.3e-4 m², rounding noise of
+/// terms of ~10 m². Fixed twice over: the repair's trigger is now exact (`λ_max(M C)`, which
+/// bounds the variance reduction of every direction of the state and of the smoother's augmented
+/// state, instead of the diagonal ratios), and a published variance is never below the rounding
+/// bound of its own f32 computation (`2r·ε·|v|ᵀ|C||v|`). The three smallest inputs must pass.
+#[test]
+fn finding_f6_published_variances_not_below_their_rounding_bound() {
+    assert_eq!(
+        replay("regressions/temporal_ops", "f6-", harness::temporal_ops),
+        3
+    );
+}

@@ -82,6 +82,9 @@ pub(crate) struct UpdateParts<const RANK: usize, const NX: usize> {
     pub w: SVector<f32, RANK>,
     /// Pivots of `R + r₀² I` raised because it was not positive definite there.
     pub repaired: u8,
+    /// The update is strongly informative: some direction of the state keeps less than
+    /// [`REPAIR_TRIGGER`] of its variance (`λ_max(M Cov(a_s)) > 1 − REPAIR_TRIGGER`).
+    pub strong: bool,
 }
 
 impl<const RANK: usize, const NX: usize> UpdateParts<RANK, NX> {
@@ -93,6 +96,7 @@ impl<const RANK: usize, const NX: usize> UpdateParts<RANK, NX> {
         m: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; RANK])),
         w: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; 1])),
         repaired: 0,
+        strong: false,
     };
 }
 
@@ -167,8 +171,8 @@ pub struct TemporalFilter<
     p: SMatrix<f32, NX, NX>,
     active: [bool; LANES],
     rank: [u8; LANES],
-    /// An update since the last repair reduced some variance below [`REPAIR_TRIGGER`] of its
-    /// prior (or to ≤ 0): f32 rounding may have broken positive definiteness.
+    /// An update since the last repair was strongly informative ([`REPAIR_TRIGGER`]): f32
+    /// rounding may have broken positive definiteness.
     repair_due: bool,
 }
 
@@ -188,10 +192,11 @@ const SAFE: f32 = 1e30;
 /// well below any correlation structure the model produces on purpose.
 pub const REPAIR_PIVOT: f32 = 1e-4;
 
-/// A lane update marks the covariance for [`TemporalFilter::repair_covariance`] when it reduces
-/// some active variance to less than this fraction of its prior (or to ≤ 0): the rounding of
-/// `P −= G M Gᵀ` is `~ε·prior` per entry, so below `1e-2` it may exceed `1e-4` of the posterior in
-/// correlation form. Ordinary tracking updates reduce variances by a few times at most (the
+/// A lane update marks the covariance for [`TemporalFilter::repair_covariance`] when it keeps
+/// less than this fraction of the variance along some direction of the state
+/// (`λ_max(M C) > 1 − REPAIR_TRIGGER`, which bounds every direction; also when a variance falls
+/// below this fraction of its prior or to ≤ 0): the rounding of `P −= G M Gᵀ` is `~ε·prior` per
+/// entry, so below `1e-2` it may exceed `1e-4` of the posterior in correlation form. Ordinary tracking updates reduce variances by a few times at most (the
 /// prediction only adds one frame of process noise); a lane's birth or its return after a long
 /// coast reduces its first components' variances ~10⁵ times and triggers the repair.
 pub const REPAIR_TRIGGER: f32 = 1e-2;
@@ -575,7 +580,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
 
     /// Update with lane `s`'s pseudo-measurements: `y = V_r a_s + e`, `e ~ N(0, R + r₀² I)` over the
     /// present index points (`R` the observation's covariance block), as the rank-`r` correction
-    /// of [`UpdateParts`]; the covariance keeps one computed triangle, mirrored (symmetric).
+    /// of `UpdateParts`; the covariance keeps one computed triangle, mirrored (symmetric).
     ///
     /// A pseudo-measurement covariance that is not positive semi-definite is repaired, not
     /// trusted: its factorisation raises every pivot of `R + r₀² I` that falls below `r₀²/2` to
@@ -757,6 +762,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         parts.m = M;
         parts.w = w;
         parts.repaired = repaired;
+        parts.strong = strongly_informative(&M, &pss, r);
         Ok(())
     }
 
@@ -859,7 +865,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             let post = ps.get(i + NX * i).copied().unwrap_or(0.0);
             post.is_nan() || post <= REPAIR_TRIGGER * get(&prior, i)
         });
-        self.repair_due |= due;
+        self.repair_due |= due || g.strong;
     }
 
     /// Lane `s`'s positions at the index points, `f = V_r a_s`, and their variances
@@ -892,18 +898,23 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         Some(project(&tables.gram_eigvec, r, &a, &p))
     }
 
-    /// `cᵀ Cov(a_s) c` over the first `r` position coefficients of slot `s` (0 for a free slot).
+    /// `cᵀ Cov(a_s) c` over the first `r` position coefficients of slot `s` (0 for a free slot),
+    /// not below the rounding bound of its f32 computation (see [`TemporalFilter::lane`]).
     pub fn coefficient_var(&self, s: usize, c: &[f32; POINTS], r: usize) -> f32 {
         if !self.is_active(s) {
             return 0.0;
         }
-        let mut acc = 0.0;
+        let mut acc = 0.0f32;
+        let mut bound = 0.0f32;
         for j in 0..r.min(RANK) {
+            let ij = Self::idx(s, j, 0);
+            bound += get(c, j).abs() * math::sqrt(self.pg(ij, ij).abs());
             for j2 in 0..r.min(RANK) {
-                acc += get(c, j) * get(c, j2) * self.pg(Self::idx(s, j, 0), Self::idx(s, j2, 0));
+                acc += get(c, j) * get(c, j2) * self.pg(ij, Self::idx(s, j2, 0));
             }
         }
-        acc
+        // Not below the rounding bound of its computation (see `project`).
+        acc.max(2.0 * r as f32 * f32::EPSILON * bound * bound)
     }
 
     /// The stacked mean (for the smoother and diagnostics).
@@ -952,9 +963,10 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// `diag(e)` to the current state's covariance is independent noise on `x_k`, which keeps the
     /// augmented covariance PSD.
     ///
-    /// It only runs when an update since the last call reduced some active variance below
-    /// [`REPAIR_TRIGGER`] of its prior (a lane's birth, its return after a long coast, a very
-    /// precise observation); otherwise it returns 0 at once.
+    /// It only runs when an update since the last call kept less than [`REPAIR_TRIGGER`] of the
+    /// variance along some direction of the state (`λ_max(M C)`, see `UpdateParts::strong`; or cut a
+    /// variance below that fraction, or to ≤ 0): a lane's birth, its return after a long coast, a
+    /// very precise observation. Otherwise it returns 0 at once.
     ///
     /// # Complexity
     /// When it runs, `n³/6` multiply-adds for `n = 2r·lanes` active state entries (98 k at 6
@@ -1102,6 +1114,41 @@ pub(crate) fn times_sym<const R: usize>(a: &[f32; R], m: &SMatrix<f32, R, R>) ->
 /// A lane from its coefficients: positions `f_i = v_i · a` and variances `v_i P v_iᵀ` at every
 /// index point, `v_i` the first `r` entries of row `i` of the Gram eigenvectors `v`.
 /// `POINTS · (RANK² + 2·RANK)` multiply-adds.
+/// `true` when `λ_max(M C) > 1 − REPAIR_TRIGGER` over the leading `r×r` blocks (power
+/// iteration, 16 steps from the all-ones vector; `M C` has the eigenvalues of the PSD
+/// `C^½ M C^½`, in `[0, 1)` for an exact update). The update `P −= G M Gᵀ` keeps the fraction
+/// `1 − λ` of the variance along its generalized eigenvectors, and `λ_max` bounds the reduction of
+/// every direction of the whole state (the nonzero eigenvalues of `P^-½ G M Gᵀ P^-½` are those of
+/// `M Gᵀ P⁻¹ G = M C`), the smoother's augmented state included. A NaN counts as strong.
+fn strongly_informative<const RANK: usize>(
+    m: &SMatrix<f32, RANK, RANK>,
+    c: &SMatrix<f32, RANK, RANK>,
+    r: usize,
+) -> bool {
+    let mc = m * c;
+    let mut x = SVector::<f32, RANK>::from_fn(|j, _| if j < r { 1.0 } else { 0.0 });
+    let mut lam = 0.0f32;
+    for _ in 0..16 {
+        let y = mc * x;
+        let ny = y.amax();
+        let nx = x.amax();
+        if !(ny.is_finite() && nx.is_finite()) {
+            return true;
+        }
+        if ny == 0.0 || nx == 0.0 {
+            return false;
+        }
+        lam = ny / nx;
+        x = y / ny;
+    }
+    lam.is_nan() || lam > 1.0 - REPAIR_TRIGGER
+}
+
+/// Positions `V_r a` and variances `diag(V_r P V_rᵀ)` at the index points. A variance is not
+/// published below a bound on the rounding error of its own f32 computation,
+/// `2r·ε·(Σ_j |v_j| √P_jj)²` (`≥ 2r·ε·|v|ᵀ|P||v|` for a PSD `P`): where the
+/// exact value is smaller than that (a direction measured ~10⁵ times more precisely than the
+/// components' prior scale), the computed one is rounding noise and can come out negative.
 pub(crate) fn project<const POINTS: usize, const RANK: usize>(
     v: &SMatrix<f32, POINTS, POINTS>,
     r: usize,
@@ -1110,6 +1157,12 @@ pub(crate) fn project<const POINTS: usize, const RANK: usize>(
 ) -> (SVector<f32, POINTS>, SVector<f32, POINTS>) {
     let mut mean = SVector::<f32, POINTS>::zeros();
     let mut var = SVector::<f32, POINTS>::zeros();
+    let sd: [f32; RANK] = core::array::from_fn(|j| {
+        p.get(j)
+            .and_then(|row| row.get(j))
+            .map_or(0.0, |d| math::sqrt(d.abs()))
+    });
+    let tol = 2.0 * r as f32 * f32::EPSILON;
     for (i, (m, w)) in mean.iter_mut().zip(var.iter_mut()).enumerate() {
         let vi: [f32; RANK] = core::array::from_fn(|j| {
             if j < r {
@@ -1120,7 +1173,8 @@ pub(crate) fn project<const POINTS: usize, const RANK: usize>(
         });
         *m = dot(&vi, a);
         let pv: [f32; RANK] = core::array::from_fn(|j| p.get(j).map_or(0.0, |row| dot(row, &vi)));
-        *w = dot(&pv, &vi);
+        let s: f32 = vi.iter().zip(&sd).map(|(v, d)| v.abs() * d).sum();
+        *w = dot(&pv, &vi).max(tol * s * s);
     }
     (mean, var)
 }
