@@ -1052,7 +1052,7 @@ pub fn decode_wire_input(data: &[u8]) -> Vec<Sent> {
                 (f, None)
             }
         };
-        let resend = fault != Fault::None && byte(&mut u).is_multiple_of(2);
+        let resend = fault != Fault::None && byte(&mut u) & 1 == 0;
         sent.push(Sent {
             bytes,
             fault,
