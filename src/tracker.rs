@@ -33,7 +33,7 @@ use nalgebra::SVector;
 
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::{
-    Config as SpatialConfig, LaneObservation, SpatialFilter, SpatialReport, Status,
+    Config as SpatialConfig, LaneObservation, SpatialFilter, SpatialReport,
 };
 use crate::spatial::{get, set};
 use crate::tables::Tables;
@@ -240,16 +240,7 @@ impl<
         const LAG: usize,
     > Tracker<NT, NS, LANES, POINTS, ROWS, PER_ROW, MEAS, RANK, NX, NA, LAG>
 {
-    const EMPTY_OBS: LaneObservation<POINTS> = LaneObservation {
-        status: Status::Tentative,
-        present: [false; POINTS],
-        z: SVector::from_array_storage(nalgebra::ArrayStorage([[0.0; POINTS]; 1])),
-        cov: nalgebra::SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; POINTS]; POINTS])),
-        u_first: 0.0,
-        u_last: 0.0,
-        existence: 0.0,
-        rank: 0,
-    };
+    const EMPTY_OBS: LaneObservation<POINTS> = LaneObservation::EMPTY;
 
     /// A tracker on `tables` with the default configuration (`const`: it can live in a `static`).
     pub const fn new(tables: &'static Tables<NT, LANES, POINTS>) -> Self {

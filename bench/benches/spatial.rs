@@ -31,7 +31,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialReport, Status};
+use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialReport};
 use stjpdacf::spatial::row::{self, RowParams};
 use stjpdacf::spatial::Stacked;
 use stjpdacf::tables::DEFAULT;
@@ -308,16 +308,7 @@ fn rows(c: &mut Criterion) {
 }
 
 fn empty_out() -> [LaneObservation<POINTS>; LANES] {
-    [LaneObservation {
-        status: Status::Tentative,
-        present: [false; POINTS],
-        z: SVector::zeros(),
-        cov: SMatrix::zeros(),
-        u_first: 0.0,
-        u_last: 0.0,
-        existence: 0.0,
-        rank: 0,
-    }; LANES]
+    [LaneObservation::EMPTY; LANES]
 }
 
 fn run_core(f: &mut Filter, pts: &[[f32; 2]]) -> (usize, SpatialReport) {

@@ -39,7 +39,7 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::DVector;
 use stjpdacf::probe::NoProbe;
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, Status};
+use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf::tracker::ReferenceTracker;
@@ -68,16 +68,7 @@ fn tables() -> ModelTables {
     ModelTables::from_hyper(&h).expect("tables")
 }
 
-const EMPTY_OBS: LaneObservation<16> = LaneObservation {
-    status: Status::Tentative,
-    present: [false; 16],
-    z: nalgebra::SVector::from_array_storage(nalgebra::ArrayStorage([[0.0; 16]; 1])),
-    cov: nalgebra::SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; 16]; 16])),
-    u_first: 0.0,
-    u_last: 0.0,
-    existence: 0.0,
-    rank: 0,
-};
+const EMPTY_OBS: LaneObservation<16> = LaneObservation::EMPTY;
 
 fn core_driver(frames: &[Frame]) -> Driver<ReferenceTracker> {
     let mut d = Driver::new(Box::new(ReferenceTracker::new(&DEFAULT)));

@@ -29,7 +29,7 @@ use nalgebra::{SMatrix, SVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use stjpdacf::probe::{Probe, Stage};
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialReport, Status};
+use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialReport};
 use stjpdacf::spatial::row::{self, RowOutcome, RowParams};
 use stjpdacf::spatial::Stacked;
 use stjpdacf::tables::DEFAULT;
@@ -273,16 +273,7 @@ fn frame_inputs(name: &str) -> Option<Vec<Vec<[f32; 2]>>> {
 const FRAMES: [&str; 4] = ["frame_typical", "frame_worst", "seq_typical", "seq_worst"];
 
 fn empty_out() -> Obs {
-    [LaneObservation {
-        status: Status::Tentative,
-        present: [false; POINTS],
-        z: SVector::zeros(),
-        cov: SMatrix::zeros(),
-        u_first: 0.0,
-        u_last: 0.0,
-        existence: 0.0,
-        rank: 0,
-    }; LANES]
+    [LaneObservation::EMPTY; LANES]
 }
 
 /// The measured region of row inputs: `iters` row steps on copies of the predicted state.

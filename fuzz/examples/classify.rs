@@ -2,7 +2,7 @@
 //! on, up to the failing step, give a spatial pseudo-measurement covariance that is not PSD
 //! (finding F1)?
 //! `cargo run --release --example classify -- [wire_decode] FILE...`
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, Status};
+use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 
 /// The frames the tracker stepped on up to the failure `msg` describes.
@@ -56,16 +56,7 @@ fn main() {
         let mut worst = f64::INFINITY;
         for pts in frames(wire, &data, &msg) {
             let mut sf: Box<SpatialFilter<3, 6, 64, 16>> = Box::new(SpatialFilter::new());
-            let empty = LaneObservation {
-                status: Status::Tentative,
-                present: [false; 16],
-                z: nalgebra::SVector::zeros(),
-                cov: nalgebra::SMatrix::zeros(),
-                u_first: 0.0,
-                u_last: 0.0,
-                existence: 0.0,
-                rank: 0,
-            };
+            let empty = LaneObservation::EMPTY;
             let mut out = [empty; 6];
             let (n, _) = sf.run(&DEFAULT, &Config::DEFAULT, &pts, &mut out);
             for o in out.iter().take(n) {

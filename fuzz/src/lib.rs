@@ -584,16 +584,7 @@ pub fn tables_validate(data: &[u8]) -> Result<(), String> {
     pts.extend(decode_frame(&mut u).into_iter().take(64));
     let mut spatial: Box<SpatialFilter<3, LANES, 64, 16>> = Box::new(SpatialFilter::new());
     let mut temporal: Box<Temporal<LANES, POINTS, RANK, NX, 42, 4>> = Box::new(Temporal::new());
-    let empty = LaneObservation {
-        status: Status::Tentative,
-        present: [false; POINTS],
-        z: nalgebra::SVector::zeros(),
-        cov: SMatrix::zeros(),
-        u_first: 0.0,
-        u_last: 0.0,
-        existence: 0.0,
-        rank: 0,
-    };
+    let empty = LaneObservation::EMPTY;
     let cfg = SpatialConfig::DEFAULT;
     for frame in 0..3 {
         let mut out = [empty; LANES];

@@ -9,40 +9,8 @@ use stjpdacf::tracker::{Instant, StepOutput, Tracker};
 use stjpdacf_host::hyper::HyperFile;
 use stjpdacf_host::reference::pipeline::{PipelineConfig, ReferencePipeline};
 use stjpdacf_host::repo_root;
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
+use stjpdacf_host::scenario::equivalence_sequence;
 use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
-
-type Frames = Vec<(i64, Vec<[f32; 2]>)>;
-
-fn sequence(seed: u64, clutter: f64, appear: usize) -> Frames {
-    let mut us = 0i64;
-    let mut frames = Vec::new();
-    for k in 0..25usize {
-        us += match k {
-            0 => 0,
-            7 => 100_000,
-            16 => 250_000,
-            _ => 50_000,
-        };
-        let pts = if (10..13).contains(&k) {
-            Vec::new()
-        } else {
-            let cfg = ScenarioConfig {
-                lanes: if k < appear { 2 } else { 3 },
-                left: -5.4 + 0.02 * k as f64,
-                clutter_density: clutter,
-                ..ScenarioConfig::default()
-            };
-            Scenario::generate(&cfg, seed * 1000 + k as u64)
-                .points
-                .iter()
-                .map(|&(u, x)| [u as f32, x as f32])
-                .collect()
-        };
-        frames.push((us, pts));
-    }
-    frames
-}
 
 trait Step {
     fn step(&mut self, us: i64, pts: &[[f32; 2]]) -> StepOutput<6, 16>;
@@ -76,7 +44,10 @@ fn tracker(rank: usize) -> Box<dyn Step> {
 fn main() {
     let h = HyperFile::load(&repo_root().join(DEFAULT_HYPER)).expect("hyper");
     let tables = ModelTables::from_hyper(&h).expect("tables");
-    let seqs = [sequence(1, 0.0, 8), sequence(2, 0.005, 5)];
+    let seqs = [
+        equivalence_sequence(1, 0.0, 8),
+        equivalence_sequence(2, 0.005, 5),
+    ];
     println!("| rank | lanes compared | max |Δmean| (m) | max |Δmean| points 1–15 (m) | max rel |Δvar| | slot mismatches |");
     println!("|---|---|---|---|---|---|");
     for rank in [4usize, 5, 6, 7] {

@@ -8,7 +8,7 @@
 //! ```sh
 //! cargo run --release -p stjpdacf-host --example soak_replay -- 1 2095
 //! ```
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, Status};
+use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, ReferenceTracker};
 use stjpdacf_host::invariants::{active_indices, eigen_figures};
@@ -30,16 +30,7 @@ fn main() {
     for k in 0..until {
         let f = road.next_frame();
         let pts: Vec<[f32; 2]> = f.points.iter().take(256).copied().collect();
-        let empty = LaneObservation {
-            status: Status::Tentative,
-            present: [false; 16],
-            z: nalgebra::SVector::zeros(),
-            cov: nalgebra::SMatrix::zeros(),
-            u_first: 0.0,
-            u_last: 0.0,
-            existence: 0.0,
-            rank: 0,
-        };
+        let empty = LaneObservation::EMPTY;
         let mut out = [empty; 6];
         let (n, _) = sf.run(&DEFAULT, &Config::DEFAULT, &pts, &mut out);
         let mut worst = f64::INFINITY;

@@ -346,3 +346,37 @@ impl Scenario {
             && self.junction_weight(lane, u).is_none_or(|s| s < 1.0 - 1e-9)
     }
 }
+
+/// The seeded 25-frame sequences of the tracker equivalence tests (and the rank study): 20 fps,
+/// lanes drifting 2 cm a frame to the right, the frames after 6 and 15 coming after steps of
+/// 100 ms and 250 ms (2× and 5×), frames 10–12 empty (blackout), a third lane appearing at frame
+/// `appear`. `(timestamp µs, points [u, x])` per frame.
+pub fn equivalence_sequence(seed: u64, clutter: f64, appear: usize) -> Vec<(i64, Vec<[f32; 2]>)> {
+    let mut us = 0i64;
+    let mut frames = Vec::new();
+    for k in 0..25usize {
+        us += match k {
+            0 => 0,
+            7 => 100_000,
+            16 => 250_000,
+            _ => 50_000,
+        };
+        let pts = if (10..13).contains(&k) {
+            Vec::new()
+        } else {
+            let cfg = ScenarioConfig {
+                lanes: if k < appear { 2 } else { 3 },
+                left: -5.4 + 0.02 * k as f64,
+                clutter_density: clutter,
+                ..ScenarioConfig::default()
+            };
+            Scenario::generate(&cfg, seed * 1000 + k as u64)
+                .points
+                .iter()
+                .map(|&(u, x)| [u as f32, x as f32])
+                .collect()
+        };
+        frames.push((us, pts));
+    }
+    frames
+}

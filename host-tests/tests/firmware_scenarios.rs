@@ -2,22 +2,13 @@
 //! generator writes, decodable by the core's receiver at M = 256, wired into the firmware's
 //! binaries, and as adversarial as `stjpdacf_host::fwscenario` says.
 
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, Status};
+use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::wire::{frame_len, Receiver};
 use stjpdacf_host::fwscenario::{self, check_all, scenarios, MEAS, SCENARIO_DIR, STEP_US};
 use stjpdacf_host::repo_root;
 
-const EMPTY_OBS: LaneObservation<16> = LaneObservation {
-    status: Status::Tentative,
-    present: [false; 16],
-    z: nalgebra::SVector::from_array_storage(nalgebra::ArrayStorage([[0.0; 16]; 1])),
-    cov: nalgebra::SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; 16]; 16])),
-    u_first: 0.0,
-    u_last: 0.0,
-    existence: 0.0,
-    rank: 0,
-};
+const EMPTY_OBS: LaneObservation<16> = LaneObservation::EMPTY;
 
 #[test]
 fn committed_firmware_scenarios_are_regenerated_exactly() {

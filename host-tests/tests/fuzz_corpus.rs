@@ -15,7 +15,7 @@ mod harness;
 
 use std::path::PathBuf;
 
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, Status};
+use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf_host::invariants::PsdCheck;
 use stjpdacf_host::repo_root;
@@ -104,16 +104,7 @@ fn f1_observation() -> (LaneObservation<16>, f64) {
     let frames = harness::decode_tracker_input(&data);
     let (_, pts) = frames.first().expect("a frame");
     let mut sf: Box<SpatialFilter<3, 6, 64, 16>> = Box::new(SpatialFilter::new());
-    let empty = LaneObservation {
-        status: Status::Tentative,
-        present: [false; 16],
-        z: nalgebra::SVector::zeros(),
-        cov: nalgebra::SMatrix::zeros(),
-        u_first: 0.0,
-        u_last: 0.0,
-        existence: 0.0,
-        rank: 0,
-    };
+    let empty = LaneObservation::EMPTY;
     let mut out = [empty; 6];
     let (n, _) = sf.run(&DEFAULT, &Config::DEFAULT, pts, &mut out);
     assert_eq!(n, 1);

@@ -3,7 +3,7 @@
 //! counters for bad input. Tolerances: a pseudo-measurement within 4σ + 0.1 m of the truth.
 
 use nalgebra::DMatrix;
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, Status};
+use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf_host::scenario::{Scenario, ScenarioConfig, Shape};
 
@@ -17,16 +17,7 @@ fn run(
 ) {
     let mut f = Box::new(Filter::new());
     let pts: Vec<[f32; 2]> = points.iter().map(|&(u, x)| [u as f32, x as f32]).collect();
-    let mut out = [LaneObservation {
-        status: Status::Tentative,
-        present: [false; 16],
-        z: nalgebra::SVector::zeros(),
-        cov: nalgebra::SMatrix::zeros(),
-        u_first: 0.0,
-        u_last: 0.0,
-        existence: 0.0,
-        rank: 0,
-    }; 6];
+    let mut out = [LaneObservation::EMPTY; 6];
     let (n, rep) = f.run(&DEFAULT, &Config::default(), &pts, &mut out);
     (out[..n].to_vec(), rep)
 }

@@ -9,16 +9,7 @@ use stjpdacf::tables::DEFAULT;
 
 type Filter = SpatialFilter<3, 6, 64, 16>;
 
-const EMPTY: LaneObservation<16> = LaneObservation {
-    status: Status::Tentative,
-    present: [false; 16],
-    z: nalgebra::SVector::from_array_storage(nalgebra::ArrayStorage([[0.0; 16]; 1])),
-    cov: nalgebra::SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; 16]; 16])),
-    u_first: 0.0,
-    u_last: 0.0,
-    existence: 0.0,
-    rank: 0,
-};
+const EMPTY: LaneObservation<16> = LaneObservation::EMPTY;
 
 fn coord() -> impl Strategy<Value = f32> {
     prop_oneof![

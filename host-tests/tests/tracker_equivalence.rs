@@ -33,7 +33,7 @@ use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker};
 use stjpdacf_host::hyper::HyperFile;
 use stjpdacf_host::reference::pipeline::{PipelineConfig, RefLane, ReferencePipeline};
 use stjpdacf_host::repo_root;
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
+use stjpdacf_host::scenario::equivalence_sequence;
 use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
 
 const N: usize = 16;
@@ -75,37 +75,13 @@ struct Sequence {
     frames: Vec<(i64, Vec<[f32; 2]>)>,
 }
 
-/// 25 frames at 20 fps: lanes drift 2 cm a frame to the right; the frames after 6 and 15 come
-/// after steps of 100 ms and 250 ms (2× and 5×); frames 10–12 are empty (blackout); the third
-/// lane appears at frame `appear`.
+/// The named sequence `equivalence_sequence(seed, clutter, appear)` (25 frames at 20 fps with
+/// 2× and 5× steps, a blackout and a lane appearing at frame `appear`).
 fn sequence(name: &'static str, seed: u64, clutter: f64, appear: usize) -> Sequence {
-    let mut us = 0i64;
-    let mut frames = Vec::new();
-    for k in 0..25usize {
-        us += match k {
-            0 => 0,
-            7 => 100_000,
-            16 => 250_000,
-            _ => 50_000,
-        };
-        let pts = if (10..13).contains(&k) {
-            Vec::new()
-        } else {
-            let cfg = ScenarioConfig {
-                lanes: if k < appear { 2 } else { 3 },
-                left: -5.4 + 0.02 * k as f64,
-                clutter_density: clutter,
-                ..ScenarioConfig::default()
-            };
-            Scenario::generate(&cfg, seed * 1000 + k as u64)
-                .points
-                .iter()
-                .map(|&(u, x)| [u as f32, x as f32])
-                .collect()
-        };
-        frames.push((us, pts));
+    Sequence {
+        name,
+        frames: equivalence_sequence(seed, clutter, appear),
     }
-    Sequence { name, frames }
 }
 
 #[derive(Debug, Default, Clone, Copy)]

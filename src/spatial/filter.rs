@@ -183,6 +183,20 @@ pub struct LaneObservation<const POINTS: usize> {
     pub rank: u8,
 }
 
+impl<const POINTS: usize> LaneObservation<POINTS> {
+    /// A blank observation (tentative, no point present, all zero): the filler of output arrays.
+    pub const EMPTY: Self = Self {
+        status: Status::Tentative,
+        present: [false; POINTS],
+        z: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; POINTS]; 1])),
+        cov: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; POINTS]; POINTS])),
+        u_first: 0.0,
+        u_last: 0.0,
+        existence: 0.0,
+        rank: 0,
+    };
+}
+
 /// Counters of one frame of the spatial filter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

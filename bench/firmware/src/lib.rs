@@ -42,7 +42,7 @@ use cortex_m::peripheral::SYST;
 use cortex_m_rt::{exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprintln};
 use stjpdacf::probe::{Probe, Stage};
-use stjpdacf::spatial::filter::{Config as SpatialConfig, LaneObservation, SpatialFilter, Status};
+use stjpdacf::spatial::filter::{Config as SpatialConfig, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::ReferenceTracker;
 use stjpdacf::wire::{self, frame_len, Receiver};
@@ -312,16 +312,7 @@ pub fn run_spatial(scenarios: &[(&str, &[u8])], syst: SYST) -> ! {
     finish(ok)
 }
 
-const EMPTY_OBS: LaneObservation<16> = LaneObservation {
-    status: Status::Tentative,
-    present: [false; 16],
-    z: nalgebra::SVector::from_array_storage(nalgebra::ArrayStorage([[0.0; 16]; 1])),
-    cov: nalgebra::SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; 16]; 16])),
-    u_first: 0.0,
-    u_last: 0.0,
-    existence: 0.0,
-    rank: 0,
-};
+const EMPTY_OBS: LaneObservation<16> = LaneObservation::EMPTY;
 
 /// Bytes of stack ever used (painted words overwritten, scanning from the far end) and the
 /// stack's size.
