@@ -1,5 +1,5 @@
 //! Cost of `Temporal::repair_covariance` at the reference configuration: six lanes born and
-//! updated (a strongly informative update each), then one repair. Run under callgrind to count
+//! updated (an update each: the repair is due), then one repair. Run under callgrind to count
 //! instructions: `valgrind --tool=callgrind target/release/examples/repair_cost`.
 use nalgebra::{SMatrix, SVector};
 use stjpdacf::spatial::filter::{LaneObservation, Status};

@@ -275,14 +275,62 @@ fn finding_f5_informative_update_repaired_to_psd() {
 /// precise update of a lane born the frame before reduced a combination of Gram components (not
 /// any single component's variance) ~10⁵ times, and the published variances at the index points
 /// (`diag(V_r C V_rᵀ)`, filtered and smoothed) came out as −1.8e-5 … −8.3e-4 m², rounding noise of
-/// terms of ~10 m². Fixed twice over: the repair's trigger is now exact (`λ_max(M C)`, which
-/// bounds the variance reduction of every direction of the state and of the smoother's augmented
-/// state, instead of the diagonal ratios), and a published variance is never below the rounding
-/// bound of its own f32 computation (`2r·ε·|v|ᵀ|C||v|`). The three smallest inputs must pass.
+/// terms of ~10 m². Fixed twice over: the repair then ran on `λ_max(M C) > 0.99` (every
+/// direction's reduction, instead of the diagonal ratios; since F7 it runs after every update),
+/// and a published variance is never below the rounding bound of its own f32 computation
+/// (`2r·ε·|v|ᵀ|C||v|`). The three smallest inputs must pass.
 #[test]
 fn finding_f6_published_variances_not_below_their_rounding_bound() {
     assert_eq!(
         replay("regressions/temporal_ops", "f6-", harness::temporal_ops),
         3
+    );
+}
+
+/// **F7** (fixed in `src/temporal/filter.rs`): CI's 20 s `temporal_ops` smoke found an update that
+/// broke positive definiteness below both of F6's triggers: one very precise point on a new lane
+/// left its covariance nearly singular in correlation form (smallest eigenvalue 2.6e-4, healthy),
+/// then nine precise points cut no variance 100-fold (`λ_max(M C) < 0.99`) and the posterior came
+/// out with a correlation-form eigenvalue of −4.7e-3. The rounding of `P −= G M Gᵀ` depends on the
+/// cancellation in `G M Gᵀ`, not only on the reduction; a rigorous bound on it is too loose to be
+/// a trigger and an exact check costs what the repair costs, so the repair now runs after every
+/// frame with a lane update. The input must still break the unrepaired update with no variance
+/// cut 100-fold (what the old trigger looked at), and must pass with the repair.
+#[test]
+fn finding_f7_update_below_the_old_trigger_repaired_to_psd() {
+    use stjpdacf::temporal::smoother::Temporal;
+    for f in files("regressions/temporal_ops", "f7-") {
+        let data = std::fs::read(&f).expect("read");
+        let mut t: Box<Temporal<6, 16, 7, 84, 42, 4>> = Box::new(Temporal::new());
+        let mut breaking_cut = None;
+        for op in harness::decode_temporal_input(&data) {
+            let before: Vec<f32> = (0..84).map(|i| t.filter().covariance()[(i, i)]).collect();
+            let ok = match &op {
+                harness::Op::Update(s, obs) => t.update(&DEFAULT, *s, obs).is_ok(),
+                other => other.apply(&mut t).1.is_ok(),
+            };
+            let broken = stjpdacf_host::invariants::check_temporal(&t, &DEFAULT, PsdCheck::Eigen)
+                .is_err();
+            if ok && broken && breaking_cut.is_none() {
+                // The largest variance reduction of the update that broke it.
+                let p = t.filter().covariance();
+                let cut = stjpdacf_host::invariants::active_indices(t.filter())
+                    .into_iter()
+                    .map(|i| p[(i, i)] / before[i])
+                    .fold(f32::INFINITY, f32::min);
+                breaking_cut = Some(cut);
+            }
+        }
+        let cut = breaking_cut
+            .unwrap_or_else(|| panic!("{}: the unrepaired update no longer breaks", f.display()));
+        assert!(
+            cut > 1e-2,
+            "{}: the breaking update cut a variance to {cut:e} of its prior (the old trigger)",
+            f.display()
+        );
+    }
+    assert_eq!(
+        replay("regressions/temporal_ops", "f7-", harness::temporal_ops),
+        1
     );
 }

@@ -82,9 +82,6 @@ pub(crate) struct UpdateParts<const RANK: usize, const NX: usize> {
     pub w: SVector<f32, RANK>,
     /// Pivots of `R + r₀² I` raised because it was not positive definite there.
     pub repaired: u8,
-    /// The update is strongly informative: some direction of the state keeps less than
-    /// [`REPAIR_TRIGGER`] of its variance (`λ_max(M Cov(a_s)) > 1 − REPAIR_TRIGGER`).
-    pub strong: bool,
 }
 
 impl<const RANK: usize, const NX: usize> UpdateParts<RANK, NX> {
@@ -96,7 +93,6 @@ impl<const RANK: usize, const NX: usize> UpdateParts<RANK, NX> {
         m: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; RANK])),
         w: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; 1])),
         repaired: 0,
-        strong: false,
     };
 }
 
@@ -171,8 +167,8 @@ pub struct TemporalFilter<
     p: SMatrix<f32, NX, NX>,
     active: [bool; LANES],
     rank: [u8; LANES],
-    /// An update since the last repair was strongly informative ([`REPAIR_TRIGGER`]): f32
-    /// rounding may have broken positive definiteness.
+    /// A lane was updated since the last repair: f32 rounding may have broken positive
+    /// definiteness.
     repair_due: bool,
 }
 
@@ -191,15 +187,6 @@ const SAFE: f32 = 1e30;
 /// covariance: well above the f32 rounding of an 84×84 factorisation (`n·ε ≈ 5e-6` per entry),
 /// well below any correlation structure the model produces on purpose.
 pub const REPAIR_PIVOT: f32 = 1e-4;
-
-/// A lane update marks the covariance for [`TemporalFilter::repair_covariance`] when it keeps
-/// less than this fraction of the variance along some direction of the state
-/// (`λ_max(M C) > 1 − REPAIR_TRIGGER`, which bounds every direction; also when a variance falls
-/// below this fraction of its prior or to ≤ 0): the rounding of `P −= G M Gᵀ` is `~ε·prior` per
-/// entry, so below `1e-2` it may exceed `1e-4` of the posterior in correlation form. Ordinary tracking updates reduce variances by a few times at most (the
-/// prediction only adds one frame of process noise); a lane's birth or its return after a long
-/// coast reduces its first components' variances ~10⁵ times and triggers the repair.
-pub const REPAIR_TRIGGER: f32 = 1e-2;
 
 /// `sqrt(Σ v²)`, a bound on every `|v|` (infinite or NaN when some value is not finite).
 fn norm_bound(v: &[f32]) -> f32 {
@@ -762,7 +749,6 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         parts.m = M;
         parts.w = w;
         parts.repaired = repaired;
-        parts.strong = strongly_informative(&M, &pss, r);
         Ok(())
     }
 
@@ -821,10 +807,6 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         // component's position j and rate j + 1) at a time: rows i ≤ j for both, then the
         // diagonal entry (j + 1, j + 1).
         let ps = self.p.as_mut_slice();
-        let mut prior = [0.0f32; NX];
-        for i in sp.indices() {
-            set(&mut prior, i, ps.get(i + NX * i).copied().unwrap_or(0.0));
-        }
         for j in sp.indices().step_by(2) {
             let (Some(g0), Some(g1)) = (g.g.get(j), g.g.get(j + 1)) else {
                 continue;
@@ -860,12 +842,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        // Strongly informative update: mark the covariance for repair.
-        let due = sp.indices().any(|i| {
-            let post = ps.get(i + NX * i).copied().unwrap_or(0.0);
-            post.is_nan() || post <= REPAIR_TRIGGER * get(&prior, i)
-        });
-        self.repair_due |= due || g.strong;
+        // Any update can leave the covariance indefinite in f32 (see `repair_covariance`).
+        self.repair_due = true;
     }
 
     /// Lane `s`'s positions at the index points, `f = V_r a_s`, and their variances
@@ -932,7 +910,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         &self.p
     }
 
-    /// `true` when an update since the last repair was strongly informative (see
+    /// `true` when a lane was updated since the last repair (see
     /// [`TemporalFilter::repair_covariance`]).
     pub fn repair_due(&self) -> bool {
         self.repair_due
@@ -943,7 +921,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// a mirror copy).
     ///
     /// Why it is needed: a lane update is `P −= G M Gᵀ`, a difference of two nearly equal
-    /// matrices when the update is strongly informative. At a lane's birth the prior variance of
+    /// matrices when the update is informative. At a lane's birth the prior variance of
     /// its first Gram component is ~190 m² and the posterior ~1e-3 m² (a 10⁵ reduction), so f32
     /// keeps about two significant digits of the posterior, and a posterior that is nearly
     /// singular in correlation form (strongly correlated components, as after a few points on a
@@ -963,15 +941,21 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// `diag(e)` to the current state's covariance is independent noise on `x_k`, which keeps the
     /// augmented covariance PSD.
     ///
-    /// It only runs when an update since the last call kept less than [`REPAIR_TRIGGER`] of the
-    /// variance along some direction of the state (`λ_max(M C)`, see `UpdateParts::strong`; or cut a
-    /// variance below that fraction, or to ≤ 0): a lane's birth, its return after a long coast, a
-    /// very precise observation. Otherwise it returns 0 at once.
+    /// When it runs: after every frame with a lane update (it returns 0 at once when no lane was
+    /// updated since the last call). An earlier version ran it only after strongly informative
+    /// updates (`λ_max(M C) > 0.99` or a variance cut 100-fold), and fuzzing found an update
+    /// under both thresholds that still broke positive definiteness (finding F7: nine precise
+    /// points on a lane whose covariance one earlier point had left nearly singular in
+    /// correlation form; eigenvalue −4.7e-3). The rounding of `P −= G M Gᵀ` depends on
+    /// cancellation in `G M Gᵀ` as well as on the variance reduction, and a rigorous a-priori
+    /// bound on it is far too loose to be a trigger (it exceeds `REPAIR_PIVOT` in 99.99 % of the
+    /// soak's frames), while checking positive definiteness exactly costs what the repair costs.
+    /// So the repair is the check. On a healthy covariance it raises nothing and changes nothing.
     ///
     /// # Complexity
-    /// When it runs, `n³/6` multiply-adds for `n = 2r·lanes` active state entries (98 k at 6
-    /// lanes, rank 7), on the lower triangle of `P` in place (the upper one keeps the original,
-    /// mirrored back): no stack copy of `P`. This is part of a frame's worst case.
+    /// `n³/6` multiply-adds for `n = 2r·lanes` active state entries (98 k at 6 lanes, rank 7),
+    /// on the lower triangle of `P` in place (the upper one keeps the original, mirrored back):
+    /// no stack copy of `P`. Part of every frame with a lane update.
     // Not inlined: its stack frame must not add to its caller's (stack budget).
     #[inline(never)]
     pub fn repair_covariance<const NT: usize>(&mut self, tables: &Tables<NT, LANES, POINTS>) -> u8 {
@@ -1114,36 +1098,6 @@ pub(crate) fn times_sym<const R: usize>(a: &[f32; R], m: &SMatrix<f32, R, R>) ->
 /// A lane from its coefficients: positions `f_i = v_i · a` and variances `v_i P v_iᵀ` at every
 /// index point, `v_i` the first `r` entries of row `i` of the Gram eigenvectors `v`.
 /// `POINTS · (RANK² + 2·RANK)` multiply-adds.
-/// `true` when `λ_max(M C) > 1 − REPAIR_TRIGGER` over the leading `r×r` blocks (power
-/// iteration, 16 steps from the all-ones vector; `M C` has the eigenvalues of the PSD
-/// `C^½ M C^½`, in `[0, 1)` for an exact update). The update `P −= G M Gᵀ` keeps the fraction
-/// `1 − λ` of the variance along its generalized eigenvectors, and `λ_max` bounds the reduction of
-/// every direction of the whole state (the nonzero eigenvalues of `P^-½ G M Gᵀ P^-½` are those of
-/// `M Gᵀ P⁻¹ G = M C`), the smoother's augmented state included. A NaN counts as strong.
-fn strongly_informative<const RANK: usize>(
-    m: &SMatrix<f32, RANK, RANK>,
-    c: &SMatrix<f32, RANK, RANK>,
-    r: usize,
-) -> bool {
-    let mc = m * c;
-    let mut x = SVector::<f32, RANK>::from_fn(|j, _| if j < r { 1.0 } else { 0.0 });
-    let mut lam = 0.0f32;
-    for _ in 0..16 {
-        let y = mc * x;
-        let ny = y.amax();
-        let nx = x.amax();
-        if !(ny.is_finite() && nx.is_finite()) {
-            return true;
-        }
-        if ny == 0.0 || nx == 0.0 {
-            return false;
-        }
-        lam = ny / nx;
-        x = y / ny;
-    }
-    lam.is_nan() || lam > 1.0 - REPAIR_TRIGGER
-}
-
 /// Positions `V_r a` and variances `diag(V_r P V_rᵀ)` at the index points. A variance is not
 /// published below a bound on the rounding error of its own f32 computation,
 /// `2r·ε·(Σ_j |v_j| √P_jj)²` (`≥ 2r·ε·|v|ᵀ|P||v|` for a PSD `P`): where the

@@ -377,10 +377,10 @@ impl<
     /// rounding made them indefinite ([`TemporalFilter::repair_covariance`]: the lag blocks
     /// `Σ_j −= K_j M K_jᵀ` cancel as the filter's covariance does); returns the pivots raised.
     /// Call it once per frame after the lane updates (the tracker does). Like the filter's, it
-    /// only runs after a strongly informative update (the same updates move the lag blocks).
+    /// runs when a lane was updated since the last call (the same updates move the lag blocks).
     ///
     /// # Complexity
-    /// When it runs, `n³/6` multiply-adds for the filter (`n = 2r·lanes`) plus `LAG·lanes·r³/6`
+    /// `n³/6` multiply-adds for the filter (`n = 2r·lanes`) plus `LAG·lanes·r³/6`
     /// for the window.
     pub fn repair_covariance<const NT: usize>(
         &mut self,
