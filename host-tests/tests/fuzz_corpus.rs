@@ -309,8 +309,8 @@ fn finding_f7_update_below_the_old_trigger_repaired_to_psd() {
                 harness::Op::Update(s, obs) => t.update(&DEFAULT, *s, obs).is_ok(),
                 other => other.apply(&mut t).1.is_ok(),
             };
-            let broken = stjpdacf_host::invariants::check_temporal(&t, &DEFAULT, PsdCheck::Eigen)
-                .is_err();
+            let broken =
+                stjpdacf_host::invariants::check_temporal(&t, &DEFAULT, PsdCheck::Eigen).is_err();
             if ok && broken && breaking_cut.is_none() {
                 // The largest variance reduction of the update that broke it.
                 let p = t.filter().covariance();

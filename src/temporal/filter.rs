@@ -1036,25 +1036,48 @@ pub(crate) fn repair_psd<const N: usize>(ps: &mut [f32], ld: usize, runs: &[Rang
             raised = raised.saturating_add(1);
         }
         let inv_d = 1.0 / d;
-        // A[i, j] −= c_i c_j / d for k < b ≤ a, column by column over the contiguous runs.
-        for (b, &j) in idx.iter().enumerate().skip(k + 1) {
+        // A[i, j] −= c_i c_j / d for k < b ≤ a over the contiguous runs, two adjacent columns at
+        // a time where possible (each `c_i` loaded once for both; the same operations, in the
+        // same order, as column by column).
+        let n = idx.len();
+        let mut b = k + 1;
+        while b < n {
+            let j = idx.get(b).copied().unwrap_or(0);
             let lb = get(&col, b) * inv_d;
-            if lb == 0.0 {
-                continue;
-            }
-            let mut a0 = 0usize;
-            for rg in runs {
-                let a1 = a0 + rg.len();
-                if a1 > b {
-                    let from = b.max(a0);
-                    let dst = ps.get_mut(ld * j + rg.start + (from - a0)..ld * j + rg.end);
-                    if let (Some(dst), Some(src)) = (dst, col.get(from..a1)) {
-                        for (x, cv) in dst.iter_mut().zip(src) {
-                            *x -= cv * lb;
+            let lb1 = get(&col, b + 1) * inv_d;
+            if b + 1 < n && idx.get(b + 1) == Some(&(j + 1)) && lb != 0.0 && lb1 != 0.0 {
+                // Row b of column b, then rows a > b of both columns.
+                if let Some(x) = ps.get_mut(j + ld * j) {
+                    *x -= get(&col, b) * lb;
+                }
+                if let Some(both) = ps.get_mut(ld * j..ld * (j + 2)) {
+                    let (c0, c1) = both.split_at_mut(ld);
+                    let mut a0 = 0usize;
+                    for rg in runs {
+                        let a1 = a0 + rg.len();
+                        if a1 > b + 1 {
+                            let from = (b + 1).max(a0);
+                            let rows = rg.start + (from - a0)..rg.end;
+                            if let (Some(d0), Some(d1), Some(src)) = (
+                                c0.get_mut(rows.clone()),
+                                c1.get_mut(rows),
+                                col.get(from..a1),
+                            ) {
+                                for ((x0, x1), cv) in d0.iter_mut().zip(d1.iter_mut()).zip(src) {
+                                    *x0 -= cv * lb;
+                                    *x1 -= cv * lb1;
+                                }
+                            }
                         }
+                        a0 = a1;
                     }
                 }
-                a0 = a1;
+                b += 2;
+            } else {
+                if lb != 0.0 {
+                    column_update(ps, ld, j, b, runs, &col, lb);
+                }
+                b += 1;
             }
         }
     }
@@ -1073,6 +1096,33 @@ pub(crate) fn repair_psd<const N: usize>(ps: &mut [f32], ld: usize, runs: &[Rang
         }
     }
     raised
+}
+
+/// Column `j` (the `b`-th index) of the lower triangle: `A[idx_a, j] −= c_a · lb` for `a ≥ b`,
+/// over the contiguous runs (the work of [`repair_psd`]).
+fn column_update(
+    ps: &mut [f32],
+    ld: usize,
+    j: usize,
+    b: usize,
+    runs: &[Range<usize>],
+    col: &[f32],
+    lb: f32,
+) {
+    let mut a0 = 0usize;
+    for rg in runs {
+        let a1 = a0 + rg.len();
+        if a1 > b {
+            let from = b.max(a0);
+            let dst = ps.get_mut(ld * j + rg.start + (from - a0)..ld * j + rg.end);
+            if let (Some(dst), Some(src)) = (dst, col.get(from..a1)) {
+                for (x, cv) in dst.iter_mut().zip(src) {
+                    *x -= cv * lb;
+                }
+            }
+        }
+        a0 = a1;
+    }
 }
 
 /// `a · b` over a fixed length (unrolled by the compiler).
