@@ -27,7 +27,7 @@ for spec in tracker_step:20000 temporal_ops:20000 tables_validate:15000 wire_dec
   "$bin/$t" -seed=1 -runs="$runs" -max_total_time="$cap" -rss_limit_mb=4096 \
     -artifact_prefix="$work/$t/crashes/" "$work/$t/corpus" > "$work/$t/log" 2>&1 || true
   secs=$((SECONDS - start))
-  execs="$(grep -o '^#[0-9]*' "$work/$t/log" | tail -1 | tr -d '#')"
+  execs="$( (grep -o '^Done [0-9]* runs' "$work/$t/log" || grep -o '^#[0-9]*' "$work/$t/log" || true) | tail -1 | tr -dc '0-9')"
   n=0; unknown=0
   for c in "$work/$t"/crashes/*; do
     [ -e "$c" ] || continue
