@@ -228,6 +228,32 @@ fn finding_f4_validator_refuses_tables_off_their_model() {
     );
 }
 
+/// Replays a `temporal_ops` input without the covariance repair; for the first successful
+/// operation after which the temporal state breaks an invariant, the smallest ratio of an active
+/// variance to its value before that operation (its largest variance cut); `None` if none does.
+fn first_unrepaired_break(data: &[u8], check: PsdCheck) -> Option<f32> {
+    use stjpdacf::temporal::smoother::Temporal;
+    use stjpdacf_host::invariants::{active_indices, check_temporal};
+    let mut t: Box<Temporal<6, 16, 7, 84, 42, 4>> = Box::new(Temporal::new());
+    for op in harness::decode_temporal_input(data) {
+        let before: Vec<f32> = (0..84).map(|i| t.filter().covariance()[(i, i)]).collect();
+        let ok = match &op {
+            harness::Op::Update(s, obs) => t.update(&DEFAULT, *s, obs).is_ok(),
+            other => other.apply(&mut t).1.is_ok(),
+        };
+        if ok && check_temporal(&t, &DEFAULT, check).is_err() {
+            let p = t.filter().covariance();
+            return Some(
+                active_indices(t.filter())
+                    .into_iter()
+                    .map(|i| p[(i, i)] / before[i])
+                    .fold(f32::INFINITY, f32::min),
+            );
+        }
+    }
+    None
+}
+
 /// **F5** (fixed in `src/temporal/filter.rs`, `TemporalFilter::repair_covariance`): once the
 /// pattern that tolerated F1/F2 was gone, `temporal_ops` found the f32 limit of the standard-form
 /// update `P −= G M Gᵀ`: a strongly informative update (prior variance ~190 m² of a lane's first
@@ -241,25 +267,10 @@ fn finding_f4_validator_refuses_tables_off_their_model() {
 /// the repair) and must pass with it.
 #[test]
 fn finding_f5_informative_update_repaired_to_psd() {
-    use stjpdacf::temporal::smoother::Temporal;
     for f in files("regressions/temporal_ops", "f5-") {
         let data = std::fs::read(&f).expect("read");
-        let mut t: Box<Temporal<6, 16, 7, 84, 42, 4>> = Box::new(Temporal::new());
-        let mut broken = false;
-        for op in harness::decode_temporal_input(&data) {
-            let ok = match &op {
-                harness::Op::Update(s, obs) => t.update(&DEFAULT, *s, obs).is_ok(),
-                other => other.apply(&mut t).1.is_ok(),
-            };
-            if ok
-                && stjpdacf_host::invariants::check_temporal(&t, &DEFAULT, PsdCheck::Cholesky)
-                    .is_err()
-            {
-                broken = true;
-            }
-        }
         assert!(
-            broken,
+            first_unrepaired_break(&data, PsdCheck::Cholesky).is_some(),
             "{}: the unrepaired update no longer breaks",
             f.display()
         );
@@ -298,30 +309,9 @@ fn finding_f6_published_variances_not_below_their_rounding_bound() {
 /// cut 100-fold (what the old trigger looked at), and must pass with the repair.
 #[test]
 fn finding_f7_update_below_the_old_trigger_repaired_to_psd() {
-    use stjpdacf::temporal::smoother::Temporal;
     for f in files("regressions/temporal_ops", "f7-") {
         let data = std::fs::read(&f).expect("read");
-        let mut t: Box<Temporal<6, 16, 7, 84, 42, 4>> = Box::new(Temporal::new());
-        let mut breaking_cut = None;
-        for op in harness::decode_temporal_input(&data) {
-            let before: Vec<f32> = (0..84).map(|i| t.filter().covariance()[(i, i)]).collect();
-            let ok = match &op {
-                harness::Op::Update(s, obs) => t.update(&DEFAULT, *s, obs).is_ok(),
-                other => other.apply(&mut t).1.is_ok(),
-            };
-            let broken =
-                stjpdacf_host::invariants::check_temporal(&t, &DEFAULT, PsdCheck::Eigen).is_err();
-            if ok && broken && breaking_cut.is_none() {
-                // The largest variance reduction of the update that broke it.
-                let p = t.filter().covariance();
-                let cut = stjpdacf_host::invariants::active_indices(t.filter())
-                    .into_iter()
-                    .map(|i| p[(i, i)] / before[i])
-                    .fold(f32::INFINITY, f32::min);
-                breaking_cut = Some(cut);
-            }
-        }
-        let cut = breaking_cut
+        let cut = first_unrepaired_break(&data, PsdCheck::Eigen)
             .unwrap_or_else(|| panic!("{}: the unrepaired update no longer breaks", f.display()));
         assert!(
             cut > 1e-2,
