@@ -6,7 +6,7 @@ use std::hint::black_box;
 use criterion::{criterion_group, criterion_main, Criterion};
 use stjpdacf::kernel::{Matern32, RbfStateSpace};
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_host::reference::statespace::{Matern32 as RefMatern, RbfTaylor};
+use stjpdacf_reference::statespace::{Matern32 as RefMatern, RbfTaylor};
 
 fn rbf_core<const NT: usize>(l: f64) -> RbfStateSpace<NT> {
     let r = RbfTaylor {

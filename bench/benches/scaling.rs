@@ -41,7 +41,7 @@ use stjpdacf_bench::cputime::ThreadCpuTime;
 use stjpdacf_bench::harness::{Driver, Step};
 use stjpdacf_bench::inputs::{self, Frame};
 use stjpdacf_bench::report::{self, Machine, ScalingInput, ScalingOut};
-use stjpdacf_host::tablegen::static_tables;
+use stjpdacf_tools::tablegen::static_tables;
 
 /// One point of a curve: warm the tracker up on `frames`, record what a pass does, time it.
 #[allow(clippy::too_many_arguments)]

@@ -35,12 +35,12 @@ use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialR
 use stjpdacf::spatial::row::{self, RowParams};
 use stjpdacf::spatial::Stacked;
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::reference::jpda::{self, MissConvention};
-use stjpdacf_host::reference::spatial::{self as refspatial, Model};
-use stjpdacf_host::repo_root;
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig, Shape};
-use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::jpda::{self, MissConvention};
+use stjpdacf_reference::spatial::{self as refspatial, Model};
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig, Shape};
+use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER};
 
 /// State entries per lane (offset + order-2 RBF state).
 const NS: usize = 3;

@@ -48,12 +48,12 @@ use stjpdacf_bench::harness::Driver;
 use stjpdacf_bench::inputs::{self, Frame, STEP_US};
 use stjpdacf_bench::probes::{CallCounter, StageGroup, StageTimer};
 use stjpdacf_bench::report::{self, Machine, SequenceMeta, TrackerMeta};
-use stjpdacf_host::reference::identity::{self, Curve, Gate};
-use stjpdacf_host::reference::pipeline::{PipelineConfig, ReferencePipeline};
-use stjpdacf_host::reference::spatial::{self as refspatial, FrameResult, Model};
-use stjpdacf_host::reference::temporal::{CoupledTemporalModel, Gaussian, LaneMeasurement};
-use stjpdacf_host::repo_root;
-use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
+use stjpdacf_reference::identity::{self, Curve, Gate};
+use stjpdacf_reference::pipeline::{PipelineConfig, ReferencePipeline};
+use stjpdacf_reference::spatial::{self as refspatial, FrameResult, Model};
+use stjpdacf_reference::temporal::{CoupledTemporalModel, Gaussian, LaneMeasurement};
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER};
 
 /// Spatial model: rows between index points.
 const K: usize = 4;
@@ -63,7 +63,7 @@ const PER_ROW: usize = 16;
 const WARM: usize = 2;
 
 fn tables() -> ModelTables {
-    let h = stjpdacf_host::hyper::HyperFile::load(&repo_root().join(DEFAULT_HYPER))
+    let h = stjpdacf_reference::hyper::HyperFile::load(&repo_root().join(DEFAULT_HYPER))
         .expect("hyper file");
     ModelTables::from_hyper(&h).expect("tables")
 }

@@ -26,8 +26,8 @@ use stjpdacf::tracker::ReferenceTracker;
 use stjpdacf_bench::harness::Driver;
 use stjpdacf_bench::inputs::{self, Frame, STEP_US};
 use stjpdacf_bench::report::{self, IcountOut, IcountRow, Machine};
-use stjpdacf_host::reference::pipeline::{PipelineConfig, ReferencePipeline};
-use stjpdacf_host::tablegen::ModelTables;
+use stjpdacf_reference::pipeline::{PipelineConfig, ReferencePipeline};
+use stjpdacf_tools::tablegen::ModelTables;
 
 #[inline(never)]
 fn core_frame(d: &mut Driver<ReferenceTracker>, frames: &[Frame]) {

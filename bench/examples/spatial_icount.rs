@@ -33,7 +33,7 @@ use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialR
 use stjpdacf::spatial::row::{self, RowOutcome, RowParams};
 use stjpdacf::spatial::Stacked;
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig, Shape};
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig, Shape};
 
 const NS: usize = 3;
 const LANES: usize = 6;

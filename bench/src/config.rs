@@ -1,12 +1,12 @@
 //! Model configurations off the reference point, for the scaling curves: hyperparameter files
 //! derived from `data/hyper/default.json` with another number of lane slots D or index points N.
-//! Tables for them are built at run time by `stjpdacf_host::tablegen::static_tables`.
+//! Tables for them are built at run time by `stjpdacf_tools::tablegen::static_tables`.
 
 use anyhow::{ensure, Context, Result};
 use nalgebra::DMatrix;
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::repo_root;
-use stjpdacf_host::tablegen::DEFAULT_HYPER;
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::tablegen::DEFAULT_HYPER;
 
 /// BEV rows of the reference configuration (16 index points, 4 rows per interval).
 pub const REFERENCE_ROWS: usize = 61;
@@ -102,7 +102,7 @@ pub fn hyper_with_points(points: usize) -> Result<HyperFile> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stjpdacf_host::tablegen::{static_tables, ModelTables};
+    use stjpdacf_tools::tablegen::{static_tables, ModelTables};
 
     #[test]
     fn lane_variants_keep_the_default_block_and_extend_it() {

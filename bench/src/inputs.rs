@@ -7,7 +7,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig};
 
 /// Nominal frame step, µs.
 pub const STEP_US: i64 = 50_000;

@@ -217,7 +217,7 @@ pub struct Results {
 pub fn target_dir() -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|| stjpdacf_host::repo_root().join("target"))
+        .unwrap_or_else(|| stjpdacf_tools::repo_root().join("target"))
 }
 
 /// Where the benches write their side files: `<target>/stjpdacf-bench/`.
@@ -1038,7 +1038,7 @@ mod tests {
     fn committed_results_render() {
         // The committed measurements parse, render and plot (no figure is checked: they are
         // measurements of a shared machine).
-        let path = stjpdacf_host::repo_root().join("docs/bench/results.json");
+        let path = stjpdacf_tools::repo_root().join("docs/bench/results.json");
         let r: Results = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
         let md = render_markdown(&r).unwrap();
         assert!(md.contains("### Scaling"));

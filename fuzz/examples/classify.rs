@@ -14,7 +14,7 @@ fn frames(wire: bool, data: &[u8], msg: &str) -> Vec<Vec<[f32; 2]>> {
             .unwrap_or(usize::MAX)
     };
     if wire {
-        let [raw, structured] = stjpdacf_fuzz::wire_accepted_frames(data);
+        let [raw, structured] = stjpdacf_test_support::fuzz::wire_accepted_frames(data);
         let (part, rest) = match msg.split_once(": ") {
             Some(("raw stream", rest)) => (raw, rest),
             Some((_, rest)) => (structured, rest),
@@ -28,7 +28,7 @@ fn frames(wire: bool, data: &[u8], msg: &str) -> Vec<Vec<[f32; 2]>> {
             .collect();
     }
     let step = index(msg, "step ");
-    stjpdacf_fuzz::decode_tracker_input(data)
+    stjpdacf_test_support::fuzz::decode_tracker_input(data)
         .into_iter()
         .take(step.saturating_add(1))
         .map(|(_, p)| p.into_iter().take(256).collect())
@@ -45,9 +45,9 @@ fn main() {
     for path in args {
         let data = std::fs::read(&path).unwrap_or_default();
         let r = if wire {
-            stjpdacf_fuzz::wire_decode(&data)
+            stjpdacf_test_support::fuzz::wire_decode(&data)
         } else {
-            stjpdacf_fuzz::tracker_step(&data)
+            stjpdacf_test_support::fuzz::tracker_step(&data)
         };
         let Err(msg) = r else {
             println!("{path}: passes");
@@ -61,8 +61,9 @@ fn main() {
             let (n, _) = sf.run(&DEFAULT, &Config::DEFAULT, &pts, &mut out);
             for o in out.iter().take(n) {
                 let idx: Vec<usize> = (0..16).filter(|&i| o.present[i]).collect();
-                worst =
-                    worst.min(stjpdacf_fuzz::invariants::eigen_figures(&o.cov, &idx).min_eig_corr);
+                worst = worst.min(
+                    stjpdacf_test_support::invariants::eigen_figures(&o.cov, &idx).min_eig_corr,
+                );
             }
         }
         if worst < -1e-3 {

@@ -2,7 +2,9 @@
 //! each: `cargo run --release --example ops_trace -- FILE...`.
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::temporal::smoother::Temporal;
-use stjpdacf_fuzz::{check_temporal, decode_temporal_input, Op, PsdCheck, LANES, NX, POINTS, RANK};
+use stjpdacf_test_support::fuzz::{
+    check_temporal, decode_temporal_input, Op, PsdCheck, LANES, NX, POINTS, RANK,
+};
 
 fn main() {
     for f in std::env::args().skip(1) {

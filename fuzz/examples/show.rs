@@ -5,15 +5,15 @@ fn main() {
     let data = std::fs::read(&path).unwrap_or_default();
     let r = match target.as_str() {
         "tracker_step" => {
-            for (at, pts) in stjpdacf_fuzz::decode_tracker_input(&data) {
+            for (at, pts) in stjpdacf_test_support::fuzz::decode_tracker_input(&data) {
                 println!("t = {at} µs, {} points: {pts:?}", pts.len());
             }
-            stjpdacf_fuzz::tracker_step(&data)
+            stjpdacf_test_support::fuzz::tracker_step(&data)
         }
-        "temporal_ops" => stjpdacf_fuzz::temporal_ops(&data),
+        "temporal_ops" => stjpdacf_test_support::fuzz::temporal_ops(&data),
         "tables_validate" => {
             which_differ(&data);
-            stjpdacf_fuzz::tables_validate(&data)
+            stjpdacf_test_support::fuzz::tables_validate(&data)
         }
         _ => Err(format!("unknown target {target}")),
     };
@@ -22,7 +22,7 @@ fn main() {
 
 /// Which matrices differ from the default.
 pub fn which_differ(data: &[u8]) {
-    let t = stjpdacf_fuzz::mutate_tables(&mut arbitrary::Unstructured::new(data));
+    let t = stjpdacf_test_support::fuzz::mutate_tables(&mut arbitrary::Unstructured::new(data));
     let d = stjpdacf::tables::DEFAULT;
     let m = |a: &[f32], b: &[f32]| {
         a.iter()

@@ -1,11 +1,11 @@
-//! cargo-fuzz target `tables_validate`: the body and its invariants are `stjpdacf_fuzz::tables_validate`
+//! cargo-fuzz target `tables_validate`: the body and its invariants are `stjpdacf_test_support::fuzz::tables_validate`
 //! (also run over the committed corpus by `host-tests/tests/fuzz_corpus.rs`).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    if let Err(v) = stjpdacf_fuzz::tables_validate(data) {
+    if let Err(v) = stjpdacf_test_support::fuzz::tables_validate(data) {
         panic!("invariant violated: {v}");
     }
 });

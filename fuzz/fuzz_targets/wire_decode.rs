@@ -1,11 +1,11 @@
-//! cargo-fuzz target `wire_decode`: the body and its invariants are `stjpdacf_fuzz::wire_decode`
+//! cargo-fuzz target `wire_decode`: the body and its invariants are `stjpdacf_test_support::fuzz::wire_decode`
 //! (also run over the committed corpus by `host-tests/tests/fuzz_corpus.rs`).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    if let Err(v) = stjpdacf_fuzz::wire_decode(data) {
+    if let Err(v) = stjpdacf_test_support::fuzz::wire_decode(data) {
         panic!("invariant violated: {v}");
     }
 });

@@ -2,15 +2,15 @@
 //! 7 components) against the full dense f64 pipeline on the seeded sequences of
 //! `tests/tracker_equivalence.rs` (filtered lanes, every frame).
 //!
-//! `cargo run --release -p stjpdacf-host --example rank_study`
+//! `cargo run --release -p stjpdacf-test-support --example rank_study`
 
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, StepOutput, Tracker};
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::reference::pipeline::{PipelineConfig, ReferencePipeline};
-use stjpdacf_host::repo_root;
-use stjpdacf_host::scenario::equivalence_sequence;
-use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::pipeline::{PipelineConfig, ReferencePipeline};
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::scenario::equivalence_sequence;
+use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER};
 
 trait Step {
     fn step(&mut self, us: i64, pts: &[[f32; 2]]) -> StepOutput<6, 16>;

@@ -1,5 +1,5 @@
 //! Prints the memory cost of the core's types at the reference configuration (bytes):
-//! `cargo run -p stjpdacf-host --example sizes`.
+//! `cargo run -p stjpdacf-test-support --example sizes`.
 use std::mem::size_of;
 
 fn main() {

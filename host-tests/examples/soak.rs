@@ -1,8 +1,8 @@
 //! The long soak: seeded drives through the core tracker (never reset) and, side by side in
-//! episodes, the dense f64 reference (`stjpdacf_host::soak`). Prints and writes a JSON summary.
+//! episodes, the dense f64 reference (`stjpdacf_test_support::soak`). Prints and writes a JSON summary.
 //!
 //! ```sh
-//! cargo run --release -p stjpdacf-host --example soak -- --frames 1000000 --threads 2 --out soak.json
+//! cargo run --release -p stjpdacf-test-support --example soak -- --frames 1000000 --threads 2 --out soak.json
 //! ```
 
 use std::path::PathBuf;
@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use stjpdacf_host::soak::{run, SoakConfig};
+use stjpdacf_test_support::soak::{run, SoakConfig};
 
 /// Soak of the core tracker against the f64 reference.
 #[derive(Debug, Parser)]

@@ -1,4 +1,4 @@
-//! Replays one soak drive (`stjpdacf_host::soak::Road`, the seed of a shard is `seed + shard`)
+//! Replays one soak drive (`stjpdacf_test_support::soak::Road`, the seed of a shard is `seed + shard`)
 //! through the core tracker and prints, per frame, the smallest eigenvalue of each spatial
 //! pseudo-measurement covariance plus `r₀² I` (finding F1: negative means not positive
 //! definite), the smallest eigenvalue of the temporal covariance in correlation form and the
@@ -6,13 +6,13 @@
 //! (with a third argument, only the frames where the covariance breaks, and a summary).
 //!
 //! ```sh
-//! cargo run --release -p stjpdacf-host --example soak_replay -- 1 2095
+//! cargo run --release -p stjpdacf-test-support --example soak_replay -- 1 2095
 //! ```
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, ReferenceTracker};
-use stjpdacf_host::invariants::{active_indices, eigen_figures};
-use stjpdacf_host::soak::Road;
+use stjpdacf_test_support::invariants::{active_indices, eigen_figures};
+use stjpdacf_test_support::soak::Road;
 fn main() {
     let arg = |i: usize| -> u64 {
         std::env::args()

@@ -2,7 +2,7 @@
 //! bench (`bench/benches/tracker.rs`), for instruction counting on the host:
 //!
 //! ```sh
-//! cargo build --release -p stjpdacf-host --example step_profile
+//! cargo build --release -p stjpdacf-test-support --example step_profile
 //! valgrind --tool=callgrind --callgrind-out-file=/tmp/cg.out \
 //!   target/release/examples/step_profile typical 40
 //! callgrind_annotate --inclusive=yes /tmp/cg.out | grep -E 'step_probed|run_probed|predict_probed|update_probed|associate'
@@ -12,7 +12,7 @@
 
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, ReferenceTracker};
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig};
 
 fn frames(cfg: &ScenarioConfig, seed: u64, n: u64) -> Vec<Vec<[f32; 2]>> {
     (0..n)

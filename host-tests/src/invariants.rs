@@ -1,5 +1,5 @@
-//! Invariants of the core's published state, shared by the fuzz targets (`fuzz/src/lib.rs`
-//! includes this file), the soak (`stjpdacf_host::soak`) and the fault-injection tests: finite
+//! Invariants of the core's published state, shared by the fuzz targets (`host-tests/src/fuzz.rs`
+//! includes this file), the soak (`stjpdacf_test_support::soak`) and the fault-injection tests: finite
 //! published numbers, variances ≥ 0, existence in [0, 1], extents inside the window, ≤ `LANES`
 //! lanes with unique ids and slots, counters consistent with the input, and the temporal
 //! covariance finite, symmetric within [`ASYM_TOL`] and PSD within [`PSD_TOL`] in correlation

@@ -1,29 +1,14 @@
-//! Host side of `stjpdacf`: the f64 reference implementation, the offline table generator, the
-//! hyperparameter file format, and the tools behind the `stjpdacf` command-line program.
+//! Test support of `stjpdacf`: the helpers the host tests (`host-tests/tests/`), the fuzz targets
+//! (`fuzz/`) and the benches share.
 //!
-//! This crate uses `std` freely; the no_std core is the `stjpdacf` crate.
+//! * [`invariants`] — the reliability invariants of the core's outputs and temporal covariance;
+//! * [`fuzz`] — the fuzz harness bodies: arbitrary bytes → one part of the core → its invariants
+//!   (run by cargo-fuzz in `fuzz/` and over the committed corpora by `tests/fuzz_corpus.rs`);
+//! * [`soak`] (feature `host`, on by default) — long runs of the core against the f64 reference.
+//!
+//! Nothing outside tests, fuzzing and benches depends on this crate.
 
-pub mod camera;
-pub mod demo;
-pub mod frontend;
-pub mod fwscenario;
-pub mod hyper;
+pub mod fuzz;
 pub mod invariants;
-pub mod metric;
-pub mod reference;
-pub mod scenario;
+#[cfg(feature = "host")]
 pub mod soak;
-pub mod synth;
-pub mod tablegen;
-pub mod track;
-pub mod train;
-pub mod trainrun;
-pub mod tusimple;
-
-/// The repository root (this crate's parent folder), for tools and tests that read bundled data.
-pub fn repo_root() -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .map(std::path::Path::to_path_buf)
-        .unwrap_or_default()
-}

@@ -29,7 +29,7 @@
 //!
 //! The work is split into `shards` independent drives (seeds `seed + shard`) run on `threads`
 //! threads; [`SoakSummary`] merges them. The long run is the `soak` example
-//! (`cargo run --release -p stjpdacf-host --example soak -- --help`).
+//! (`cargo run --release -p stjpdacf-test-support --example soak -- --help`).
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
@@ -43,10 +43,11 @@ use serde::Serialize;
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker};
 
-use crate::hyper::HyperFile;
 use crate::invariants::{self, active_indices, PsdCheck, POINTS};
-use crate::reference::pipeline::{PipelineConfig, RefLane, ReferencePipeline};
-use crate::tablegen::{ModelTables, DEFAULT_HYPER};
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::model::ModelTables;
+use stjpdacf_reference::pipeline::{PipelineConfig, RefLane, ReferencePipeline};
+use stjpdacf_tools::tablegen::DEFAULT_HYPER;
 
 /// Nominal frame step, µs (30 fps).
 pub const FRAME_US: i64 = 33_333;
@@ -497,7 +498,7 @@ impl SoakSummary {
 /// # Errors
 /// When the default hyperparameter file cannot be read or the tables not built.
 pub fn truncated_tables() -> Result<ModelTables> {
-    let h = HyperFile::load(&crate::repo_root().join(DEFAULT_HYPER))?;
+    let h = HyperFile::load(&stjpdacf_tools::repo_root().join(DEFAULT_HYPER))?;
     let mut t = ModelTables::from_hyper(&h)?;
     let r = t.gram_rank;
     let v = t.gram_eigvec.columns(0, r).into_owned();

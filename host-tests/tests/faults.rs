@@ -2,7 +2,7 @@
 //! seeded three-lane road at 30 fps (lines at −3.6, 0 and 3.6 m with a gentle curve, 61 rows,
 //! detection 0.9, σ = 5 cm, light clutter 0.005 /m/row). Each test states the expected behaviour
 //! in its doc comment and checks, after the fault: the state is valid (the shared invariants of
-//! `stjpdacf_host::invariants`: finite output, variances ≥ 0, covariance symmetric PSD within
+//! `stjpdacf_test_support::invariants`: finite output, variances ≥ 0, covariance symmetric PSD within
 //! tolerance), the counters say what happened, and tracking resumes within a stated number of
 //! frames (measured, printed with `--nocapture`, asserted with margin).
 //!
@@ -12,7 +12,7 @@
 //! The last test sends the road through the SPI frame format (`stjpdacf::wire`) with corrupted
 //! frames mid-stream.
 //!
-//! `cargo test -p stjpdacf-host --test faults -- --nocapture`
+//! `cargo test -p stjpdacf-test-support --test faults -- --nocapture`
 
 use embedded_hal::spi::{ErrorKind, ErrorType, Operation, SpiDevice};
 use rand::{Rng, SeedableRng};
@@ -21,7 +21,7 @@ use rand_distr::{Distribution, Normal};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, ReferenceTracker, StepError, StepOutput};
 use stjpdacf::wire::{self, LinkStats, ReadError, Receiver, WireError};
-use stjpdacf_host::invariants::{self, PsdCheck, POINTS};
+use stjpdacf_test_support::invariants::{self, PsdCheck, POINTS};
 
 /// Nominal frame step, µs (30 fps).
 const FRAME_US: i64 = 33_333;

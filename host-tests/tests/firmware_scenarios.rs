@@ -1,12 +1,12 @@
 //! The firmware benchmark's scenario files (`bench/firmware/scenarios`): byte for byte what the
 //! generator writes, decodable by the core's receiver at M = 256, wired into the firmware's
-//! binaries, and as adversarial as `stjpdacf_host::fwscenario` says.
+//! binaries, and as adversarial as `stjpdacf_tools::fwscenario` says.
 
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::wire::{frame_len, Receiver};
-use stjpdacf_host::fwscenario::{self, check_all, scenarios, MEAS, SCENARIO_DIR, STEP_US};
-use stjpdacf_host::repo_root;
+use stjpdacf_tools::fwscenario::{self, check_all, scenarios, MEAS, SCENARIO_DIR, STEP_US};
+use stjpdacf_tools::repo_root;
 
 const EMPTY_OBS: LaneObservation<16> = LaneObservation::EMPTY;
 

@@ -1,24 +1,22 @@
-//! The fuzz targets' bodies (`fuzz/src/lib.rs`, included here) as plain tests:
+//! The fuzz targets' bodies (`stjpdacf_test_support::fuzz`) as plain tests:
 //! * over the committed seed corpora `fuzz/seeds/<target>/` (minimised with `cargo fuzz cmin`
 //!   from the long runs; every input must pass every invariant), so that CI replays what the
 //!   fuzzer explored without a libFuzzer build. A debug build runs them ~150 times slower, so
 //!   they are `#[ignore]`d there and `.ci/run` runs them in release
-//!   (`cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`);
+//!   (`cargo test --release -p stjpdacf-test-support --test fuzz_corpus -- --include-ignored`);
 //! * over the minimised inputs of each finding, `fuzz/regressions/<target>/<finding>-*`, one
 //!   named test per finding. A finding's test fails until the finding is fixed in the file that
 //!   owns it, so it is `#[ignore]`d with the reason; run them with
-//!   `cargo test -p stjpdacf-host --test fuzz_corpus -- --ignored`.
+//!   `cargo test -p stjpdacf-test-support --test fuzz_corpus -- --ignored`.
 
-#[allow(dead_code, missing_docs)]
-#[path = "../../fuzz/src/lib.rs"]
-mod harness;
+use stjpdacf_test_support::fuzz as harness;
 
 use std::path::PathBuf;
 
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_host::invariants::PsdCheck;
-use stjpdacf_host::repo_root;
+use stjpdacf_test_support::invariants::PsdCheck;
+use stjpdacf_tools::repo_root;
 
 fn files(dir: &str, prefix: &str) -> Vec<PathBuf> {
     let d = repo_root().join("fuzz").join(dir);
@@ -59,7 +57,7 @@ fn replay(dir: &str, prefix: &str, body: fn(&[u8]) -> Result<(), String>) -> usi
 }
 
 #[test]
-#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`"]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-test-support --test fuzz_corpus -- --include-ignored`"]
 fn seeds_tracker_step() {
     println!(
         "{} inputs",
@@ -68,7 +66,7 @@ fn seeds_tracker_step() {
 }
 
 #[test]
-#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`"]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-test-support --test fuzz_corpus -- --include-ignored`"]
 fn seeds_temporal_ops() {
     println!(
         "{} inputs",
@@ -77,7 +75,7 @@ fn seeds_temporal_ops() {
 }
 
 #[test]
-#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`"]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-test-support --test fuzz_corpus -- --include-ignored`"]
 fn seeds_tables_validate() {
     println!(
         "{} inputs",
@@ -86,7 +84,7 @@ fn seeds_tables_validate() {
 }
 
 #[test]
-#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-host --test fuzz_corpus -- --include-ignored`"]
+#[ignore = "release only (debug is ~150x slower): .ci/run runs it with `cargo test --release -p stjpdacf-test-support --test fuzz_corpus -- --include-ignored`"]
 fn seeds_wire_decode() {
     println!(
         "{} inputs",
@@ -122,7 +120,7 @@ fn f1_observation() -> (LaneObservation<16>, f64) {
     println!("F1: R + r0² I over the present points: smallest eigenvalue {min_r:.3e} m²");
     (
         *o,
-        stjpdacf_host::invariants::eigen_figures(&o.cov, &idx).min_eig_corr,
+        stjpdacf_test_support::invariants::eigen_figures(&o.cov, &idx).min_eig_corr,
     )
 }
 
@@ -159,8 +157,8 @@ fn f2_update_with_indefinite_observation() -> (
         Box::new(stjpdacf::temporal::smoother::Temporal::new());
     t.start_lane(&DEFAULT, 0, 0, &[0; 6]).expect("start");
     let res = t.update(&DEFAULT, 0, &obs);
-    let check =
-        stjpdacf_host::invariants::check_temporal(&t, &DEFAULT, PsdCheck::Cholesky).map(|_| ());
+    let check = stjpdacf_test_support::invariants::check_temporal(&t, &DEFAULT, PsdCheck::Cholesky)
+        .map(|_| ());
     (res, check)
 }
 
@@ -233,7 +231,7 @@ fn finding_f4_validator_refuses_tables_off_their_model() {
 /// variance to its value before that operation (its largest variance cut); `None` if none does.
 fn first_unrepaired_break(data: &[u8], check: PsdCheck) -> Option<f32> {
     use stjpdacf::temporal::smoother::Temporal;
-    use stjpdacf_host::invariants::{active_indices, check_temporal};
+    use stjpdacf_test_support::invariants::{active_indices, check_temporal};
     let mut t: Box<Temporal<6, 16, 7, 84, 42, 4>> = Box::new(Temporal::new());
     for op in harness::decode_temporal_input(data) {
         let before: Vec<f32> = (0..84).map(|i| t.filter().covariance()[(i, i)]).collect();

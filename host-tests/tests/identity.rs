@@ -10,7 +10,7 @@ use stjpdacf::spatial::filter::{LaneObservation, Status};
 use stjpdacf::temporal::identity::{
     IdentityConfig, LaneId, LanePrediction, LaneTable, ObsFate, SlotFate,
 };
-use stjpdacf_host::reference::identity::{self as reference, Curve, Gate};
+use stjpdacf_reference::identity::{self as reference, Curve, Gate};
 
 const D: usize = 6;
 const N: usize = 8;

@@ -4,7 +4,7 @@
 
 use nalgebra::{DMatrix, DVector};
 use serde_json::Value;
-use stjpdacf_host::reference::jpda::{
+use stjpdacf_reference::jpda::{
     block_diagonal, count_events_full_gating, enumerate_events, predict, row_step, stack_tracks,
     Estimate, Event, MissConvention, RowParams, RowResult,
 };
@@ -15,7 +15,7 @@ const TOL: f64 = 1e-12;
 // ---------------------------------------------------------------- JSON helpers
 
 fn load_golden() -> Value {
-    let path = stjpdacf_host::repo_root().join("data/golden/jpda_marginals.json");
+    let path = stjpdacf_tools::repo_root().join("data/golden/jpda_marginals.json");
     let text =
         std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("read {}: {e}", path.display()));
     serde_json::from_str(&text).expect("valid JSON")

@@ -1,21 +1,21 @@
-//! A short soak in CI (`stjpdacf_host::soak`, the long run is the `soak` example): two seeded
+//! A short soak in CI (`stjpdacf_test_support::soak`, the long run is the `soak` example): two seeded
 //! 30 fps drives of 300 frames (10 s each, with the road's dashed lines, clutter, dropped frames
 //! and lane wander), the core tracker never reset and, on every frame, the same frames through
 //! a fresh core tracker and the dense f64 reference on the core's own model.
 //!
 //! The reference costs ~0.3 s a frame in a debug build, so this test is `#[ignore]`d in the
 //! debug `cargo test --workspace` and `.ci/run` runs it in release
-//! (`cargo test --release -p stjpdacf-host --test soak -- --ignored`, ~5 s of CPU);
+//! (`cargo test --release -p stjpdacf-test-support --test soak -- --ignored`, ~5 s of CPU);
 //! `short_soak_core` runs in every build (the core alone, 150 frames).
 //!
 //! Asserted: no refused frame, no output or covariance invariant violated, no negative
 //! published variance, no discrete disagreement with the reference, filtered and smoothed
 //! positions within 1e-3 m of the f64 reference (measured 3.2e-4 m on the 600-frame run of
 //! seed 0), variances within 5e-3 relative, every true line tracked with a mean error
-//! below 0.1 m. The figures are printed (`cargo test -p stjpdacf-host --test soak -- --nocapture`).
+//! below 0.1 m. The figures are printed (`cargo test -p stjpdacf-test-support --test soak -- --nocapture`).
 
-use stjpdacf_host::invariants::{ASYM_TOL, PSD_TOL};
-use stjpdacf_host::soak::{run, SoakConfig};
+use stjpdacf_test_support::invariants::{ASYM_TOL, PSD_TOL};
+use stjpdacf_test_support::soak::{run, SoakConfig};
 
 #[test]
 fn short_soak_core() {
@@ -39,7 +39,7 @@ fn short_soak_core() {
 }
 
 #[test]
-#[ignore = "release only: .ci/run runs it with `cargo test --release -p stjpdacf-host --test soak -- --ignored`"]
+#[ignore = "release only: .ci/run runs it with `cargo test --release -p stjpdacf-test-support --test soak -- --ignored`"]
 fn short_soak_against_the_f64_reference() {
     let cfg = SoakConfig {
         frames: 600,

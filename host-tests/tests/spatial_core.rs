@@ -9,7 +9,7 @@ use nalgebra::{SMatrix, SVector};
 use serde_json::Value;
 use stjpdacf::spatial::row::{self, MissModel, RowParams};
 use stjpdacf::spatial::Stacked;
-use stjpdacf_host::repo_root;
+use stjpdacf_tools::repo_root;
 
 const LANES: usize = 4;
 
@@ -212,7 +212,7 @@ mod properties {
     use proptest::prelude::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
-    use stjpdacf_host::reference::jpda as reference;
+    use stjpdacf_reference::jpda as reference;
 
     /// A coupled 3-entry-per-lane state ([c, g, g']) of `d` lanes 3.5 m apart, prior from B ⊗ P.
     fn lanes(d: usize, rho: f64, rng: &mut ChaCha8Rng) -> (DVector<f64>, DMatrix<f64>) {
@@ -356,7 +356,7 @@ mod properties {
         (worst, sum / scenes as f64, min_exact)
     }
 
-    /// The figures are printed (README): `cargo test --release -p stjpdacf-host --test spatial_core
+    /// The figures are printed (README): `cargo test --release -p stjpdacf-test-support --test spatial_core
     /// truncation -- --nocapture`.
     #[test]
     fn truncation_error_on_dense_rows() {

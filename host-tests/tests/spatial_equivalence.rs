@@ -38,13 +38,13 @@ use stjpdacf::spatial::filter::{
     Config as CoreConfig, LaneObservation, SpatialFilter, SpatialReport, Status as CoreStatus,
 };
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::reference::spatial::{
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::spatial::{
     run_frame, Config, FrameResult, Margins, Model, Status, TrackOutput,
 };
-use stjpdacf_host::repo_root;
-use stjpdacf_host::scenario::{Gap, Junction, Scenario, ScenarioConfig, Shape};
-use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::scenario::{Gap, Junction, Scenario, ScenarioConfig, Shape};
+use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER};
 
 type Filter = SpatialFilter<3, 6, 64, 16>;
 const K: usize = 4;

@@ -5,7 +5,7 @@
 use nalgebra::DMatrix;
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig, Shape};
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig, Shape};
 
 type Filter = SpatialFilter<3, 6, 64, 16>;
 

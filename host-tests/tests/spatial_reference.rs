@@ -8,15 +8,15 @@
 //! tables' initiation offset variance (`offset_variance = 25 m²`).
 
 use nalgebra::{DMatrix, DVector};
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::reference::jpda::{self, Estimate, MissConvention, RowParams};
-use stjpdacf_host::reference::spatial::{
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::jpda::{self, Estimate, MissConvention, RowParams};
+use stjpdacf_reference::spatial::{
     bin_points, condition_on_point, insert_track, mixture_update_full, run_frame, Config,
     FrameResult, Model, Status,
 };
-use stjpdacf_host::repo_root;
-use stjpdacf_host::scenario::{Gap, Junction, Scenario, ScenarioConfig, Shape};
-use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::scenario::{Gap, Junction, Scenario, ScenarioConfig, Shape};
+use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER};
 
 const K: usize = 4;
 const PER_ROW: usize = 16;

@@ -7,8 +7,8 @@
 
 use nalgebra::DMatrix;
 use serde_json::Value;
-use stjpdacf_host::reference::statespace::{Matern32, RbfTaylor};
-use stjpdacf_host::repo_root;
+use stjpdacf_reference::statespace::{Matern32, RbfTaylor};
+use stjpdacf_tools::repo_root;
 
 fn golden() -> Value {
     let p = repo_root().join("data/golden/statespace.json");

@@ -11,10 +11,10 @@
 use nalgebra::{DMatrix, SMatrix};
 use stjpdacf::kernel::{Matern32 as CoreMatern, RbfStateSpace};
 use stjpdacf::tables::{DEFAULT, FORMAT_VERSION};
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::reference::statespace::{Matern32, RbfTaylor};
-use stjpdacf_host::repo_root;
-use stjpdacf_host::tablegen::{self, ModelTables};
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::statespace::{Matern32, RbfTaylor};
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::tablegen::{self, ModelTables};
 
 fn default_model() -> ModelTables {
     let h = HyperFile::load(&repo_root().join(tablegen::DEFAULT_HYPER)).unwrap();
@@ -28,7 +28,7 @@ fn committed_tables_are_regenerated_exactly() {
     let have = std::fs::read_to_string(repo_root().join(tablegen::DEFAULT_TABLES)).unwrap();
     assert!(
         want == have,
-        "{} is stale: run `cargo run -p stjpdacf-host -- tables --hyper {} --out {}`",
+        "{} is stale: run `cargo run -p stjpdacf-tools -- tables --hyper {} --out {}`",
         tablegen::DEFAULT_TABLES,
         tablegen::DEFAULT_HYPER,
         tablegen::DEFAULT_TABLES
@@ -173,7 +173,7 @@ fn core_rbf_statespace_matches_reference_for_orders_2_to_6() {
 #[test]
 fn readme_holds_the_current_approximation_table() {
     let readme = std::fs::read_to_string(repo_root().join("README.md")).unwrap();
-    let table = stjpdacf_host::reference::statespace::approximation_table(2..=6);
+    let table = stjpdacf_reference::statespace::approximation_table(2..=6);
     assert!(
         readme.contains(&table),
         "README.md's approximation table is stale; paste `stjpdacf kernels`:\n{table}"

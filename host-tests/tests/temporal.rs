@@ -1,5 +1,5 @@
 //! Tests of the f64 temporal coupled filter and fixed-lag RTS smoother
-//! (`stjpdacf_host::reference::temporal`) against `data/golden/rts.json` (filterpy / numpy dense
+//! (`stjpdacf_reference::temporal`) against `data/golden/rts.json` (filterpy / numpy dense
 //! reference values), plus unit tests of the coupled model builder.
 //!
 //! Tolerance rule for every golden comparison: for each compared vector or matrix,
@@ -11,8 +11,8 @@ use std::path::PathBuf;
 
 use nalgebra::{DMatrix, DVector};
 use serde_json::Value;
-use stjpdacf_host::reference::statespace::Matern32;
-use stjpdacf_host::reference::temporal::{
+use stjpdacf_reference::statespace::Matern32;
+use stjpdacf_reference::temporal::{
     fixed_lag_smooth, predict, rts_gain, rts_smooth, run_filter, update, CoupledTemporalModel,
     FilterStep, FixedLagSmoother, Gaussian, LaneMeasurement, LinearGaussianModel,
 };
@@ -22,7 +22,7 @@ const TOL: f64 = 1e-10;
 // ---------------------------------------------------------------- JSON helpers
 
 fn golden_path(name: &str) -> PathBuf {
-    stjpdacf_host::repo_root()
+    stjpdacf_tools::repo_root()
         .join("data")
         .join("golden")
         .join(name)
@@ -681,9 +681,9 @@ fn fixed_lag_window_is_bounded_and_lag0_is_filter() {
 /// min eig(P_{k|N}) ≥ −1e-12·max|P_{k|N}| and min eig(P_{k|k} − P_{k|N}) ≥ −1e-12·max|P_{k|k}|.
 #[test]
 fn rts_with_singular_gram_stays_psd() {
-    let path = stjpdacf_host::repo_root().join(stjpdacf_host::tablegen::DEFAULT_HYPER);
-    let hyper = stjpdacf_host::hyper::HyperFile::load(&path).unwrap();
-    let tables = stjpdacf_host::tablegen::ModelTables::from_hyper(&hyper).unwrap();
+    let path = stjpdacf_tools::repo_root().join(stjpdacf_tools::tablegen::DEFAULT_HYPER);
+    let hyper = stjpdacf_reference::hyper::HyperFile::load(&path).unwrap();
+    let tables = stjpdacf_tools::tablegen::ModelTables::from_hyper(&hyper).unwrap();
     let model = CoupledTemporalModel::from_tables(&tables).unwrap();
     let lanes = 4;
     let n = model.points();

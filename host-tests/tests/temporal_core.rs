@@ -3,7 +3,7 @@
 //! full `K_u`): the difference is the effect of the truncation plus f32.
 //!
 //! Tolerances: means within 2e-3 m, variances within 2e-3 relative + 1e-5 m² (measured figures
-//! are printed: `cargo test -p stjpdacf-host --test temporal_core -- --nocapture`).
+//! are printed: `cargo test -p stjpdacf-test-support --test temporal_core -- --nocapture`).
 
 use nalgebra::{DMatrix, SMatrix, SVector};
 use rand::{Rng, SeedableRng};
@@ -11,10 +11,10 @@ use rand_chacha::ChaCha8Rng;
 use stjpdacf::spatial::filter::{LaneObservation, Status};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::temporal::filter::{TemporalError, TemporalFilter};
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::reference::temporal::{CoupledTemporalModel, Gaussian, LaneMeasurement};
-use stjpdacf_host::repo_root;
-use stjpdacf_host::tablegen::{self, ModelTables};
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::temporal::{CoupledTemporalModel, Gaussian, LaneMeasurement};
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::tablegen::{self, ModelTables};
 
 type Filter = TemporalFilter<6, 16, 7, 84>;
 const N: usize = 16;
@@ -195,7 +195,7 @@ fn bad_inputs_leave_the_state_untouched() {
 #[test]
 fn fixed_lag_smoother_matches_dense_rts() {
     use stjpdacf::temporal::smoother::Temporal;
-    use stjpdacf_host::reference::temporal::FixedLagSmoother;
+    use stjpdacf_reference::temporal::FixedLagSmoother;
     const LAG: usize = 4;
     let (t, reference) = model();
     let index_u: Vec<f64> = t.index_u.iter().copied().collect();

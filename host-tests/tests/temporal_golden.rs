@@ -12,7 +12,7 @@ use stjpdacf::kernel::Matern32;
 use stjpdacf::spatial::filter::{LaneObservation, Status};
 use stjpdacf::tables::{Tables, TemporalTables, DEFAULT};
 use stjpdacf::temporal::smoother::Temporal;
-use stjpdacf_host::repo_root;
+use stjpdacf_tools::repo_root;
 
 fn golden() -> Value {
     serde_json::from_str(

@@ -4,7 +4,7 @@
 
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, ReferenceTracker, StepError};
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig};
 
 /// `size_of` the whole reference tracker must stay within 160 KiB (issue budget; pinned here).
 #[test]

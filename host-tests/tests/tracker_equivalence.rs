@@ -24,17 +24,17 @@
 //!   over many frames the retained part's posterior shrinks and the relative gap grows.
 //!
 //! The measured maxima are printed
-//! (`cargo test -p stjpdacf-host --test tracker_equivalence -- --nocapture`).
+//! (`cargo test -p stjpdacf-test-support --test tracker_equivalence -- --nocapture`).
 
 use std::collections::BTreeMap;
 
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker};
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::reference::pipeline::{PipelineConfig, RefLane, ReferencePipeline};
-use stjpdacf_host::repo_root;
-use stjpdacf_host::scenario::equivalence_sequence;
-use stjpdacf_host::tablegen::{ModelTables, DEFAULT_HYPER};
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::pipeline::{PipelineConfig, RefLane, ReferencePipeline};
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::scenario::equivalence_sequence;
+use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER};
 
 const N: usize = 16;
 const K: usize = 4;

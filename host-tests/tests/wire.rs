@@ -15,7 +15,7 @@ use stjpdacf::wire::{
     self, crc32, decode, encode, frame_len, EncodeError, LinkStats, ReadError, Receiver, WireError,
     CRC_LEN, HEADER_LEN, LSB_M,
 };
-use stjpdacf_host::scenario::{Scenario, ScenarioConfig};
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig};
 
 const CAP: usize = 256;
 /// What the caller's point buffer holds before a call: any write shows.

@@ -1,4 +1,4 @@
-//! The spatial JPDACF alone on every scenario (see `stjpdacf_host::fwscenario`): it runs on the
+//! The spatial JPDACF alone on every scenario (see `stjpdacf_tools::fwscenario`): it runs on the
 //! reference MCU's memory map while the whole tracker does not fit yet.
 #![no_std]
 #![no_main]

@@ -1,4 +1,4 @@
-//! The whole tracker on scenario `typical` (see `stjpdacf_host::fwscenario`), from
+//! The whole tracker on scenario `typical` (see `stjpdacf_tools::fwscenario`), from
 //! `scenarios/typical.stjf`.
 #![no_std]
 #![no_main]

@@ -1,4 +1,4 @@
-//! The whole tracker on scenario `worst` (see `stjpdacf_host::fwscenario`), from
+//! The whole tracker on scenario `worst` (see `stjpdacf_tools::fwscenario`), from
 //! `scenarios/worst.stjf`.
 #![no_std]
 #![no_main]

@@ -1,4 +1,4 @@
-//! The whole tracker on scenario `worst_patterns` (see `stjpdacf_host::fwscenario`), from
+//! The whole tracker on scenario `worst_patterns` (see `stjpdacf_tools::fwscenario`), from
 //! `scenarios/worst_patterns.stjf`.
 #![no_std]
 #![no_main]

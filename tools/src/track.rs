@@ -25,9 +25,9 @@ use stjpdacf::tables::{
 use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, StepOutput, TrackerConfig};
 
 use crate::camera::Camera;
-use crate::hyper::HyperFile;
-use crate::tablegen::ModelTables;
 use crate::tusimple::{Frame, TuSimpleRecord, NO_POINT};
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_reference::model::ModelTables;
 
 /// Lanes not seen for more frames than this are not written.
 pub const MAX_REPORT_MISSES: u16 = 2;

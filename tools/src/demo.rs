@@ -53,11 +53,11 @@ use stjpdacf::tracker::{LaneEstimate, TrackerConfig};
 
 use crate::camera::Camera;
 use crate::frontend::{self, FrontendParams};
-use crate::hyper::HyperFile;
 use crate::metric::{self, Score};
 use crate::synth::{self, NoiseLevel, SynthParams};
 use crate::track::{self, lane_band, FrameView, LaneBand, Space, MAX_REPORT_MISSES};
 use crate::tusimple::{self, Frame, TuSimpleRecord};
+use stjpdacf_reference::hyper::HyperFile;
 
 /// Replay labels, relative to the data folder.
 pub const REPLAY_LABELS: &str = "tusimple/train_subset.json";

@@ -51,9 +51,9 @@
 //! ridges that are not labelled lanes (the road-edge and barrier lines, the second line of double
 //! markings, tyre tracks); remaining misses are mostly the gaps of dashed markings (labels run
 //! through them) and lanes far off to the side. Reproduce with
-//! `cargo run --release -p stjpdacf-host --example frontend_eval` (per-frame figures; takes
+//! `cargo run --release -p stjpdacf-tools --example frontend_eval` (per-frame figures; takes
 //! `name=value` parameter overrides) or
-//! `cargo test --release -p stjpdacf-host --test frontend -- --nocapture`.
+//! `cargo test --release -p stjpdacf-tools --test frontend -- --nocapture`.
 //!
 //! Images are read with the `image` crate (JPEG, PNG). [`overlay_png`] draws feature points (and
 //! optionally labelled lanes) over an image for inspection.

@@ -5,15 +5,15 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
-use stjpdacf_host::camera::Camera;
-use stjpdacf_host::demo;
-use stjpdacf_host::frontend;
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::metric;
-use stjpdacf_host::synth::{self, NoiseLevel, SynthParams};
-use stjpdacf_host::tablegen;
-use stjpdacf_host::trainrun;
-use stjpdacf_host::tusimple;
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::demo;
+use stjpdacf_tools::frontend;
+use stjpdacf_tools::metric;
+use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
+use stjpdacf_tools::tablegen;
+use stjpdacf_tools::trainrun;
+use stjpdacf_tools::tusimple;
 
 #[derive(Parser)]
 #[command(name = "stjpdacf", version, about = "ST-JPDACF lane tracker: tools")]
@@ -183,7 +183,7 @@ enum Command {
         /// Use only the first K labels.
         #[arg(long)]
         clips: Option<usize>,
-        /// Noise preset (see `stjpdacf_host::synth`).
+        /// Noise preset (see `stjpdacf_tools::synth`).
         #[arg(long, value_enum, default_value_t = NoiseLevel::Mid)]
         noise: NoiseLevel,
         /// Override the preset's column noise σ, px.
@@ -259,7 +259,7 @@ fn main() -> Result<()> {
             space,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
-                Some(p) => stjpdacf_host::track::tables_from_hyper(&HyperFile::load(&p)?)?,
+                Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
                 None => &stjpdacf::tables::DEFAULT,
             };
             let cam = Camera::from_spec(&camera)?;
@@ -273,10 +273,10 @@ fn main() -> Result<()> {
             let frames = tusimple::read_frames(&frames)?;
             let bar = indicatif::ProgressBar::new(frames.len() as u64);
             let space = match space {
-                SpaceArg::Image => stjpdacf_host::track::Space::Image,
-                SpaceArg::Bev => stjpdacf_host::track::Space::Bev,
+                SpaceArg::Image => stjpdacf_tools::track::Space::Image,
+                SpaceArg::Bev => stjpdacf_tools::track::Space::Bev,
             };
-            let (preds, stats) = stjpdacf_host::track::track(&frames, tables, &cam, space, |k| {
+            let (preds, stats) = stjpdacf_tools::track::track(&frames, tables, &cam, space, |k| {
                 bar.set_position(k as u64 + 1)
             })?;
             bar.finish_and_clear();
@@ -289,7 +289,7 @@ fn main() -> Result<()> {
         Command::Kernels => {
             print!(
                 "{}",
-                stjpdacf_host::reference::statespace::approximation_table(2..=6)
+                stjpdacf_reference::statespace::approximation_table(2..=6)
             );
         }
         Command::Eval {
@@ -378,7 +378,7 @@ fn main() -> Result<()> {
             eprintln!("B =\n{:.3}", p.b());
             eprintln!(
                 "stationary B profile (|i−j| = 0..): {:.3?}",
-                stjpdacf_host::train::stationary_profile(&p.b())
+                stjpdacf_tools::train::stationary_profile(&p.b())
             );
             if let Some(dir) = report {
                 let cmd = std::env::args().collect::<Vec<_>>().join(" ");

@@ -5,11 +5,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use approx::assert_relative_eq;
-use stjpdacf_host::metric::{self, bench, bench_one_submit, lane_angle, lane_threshold};
-use stjpdacf_host::tusimple::{read_labels, write_records, TuSimpleRecord};
+use stjpdacf_tools::metric::{self, bench, bench_one_submit, lane_angle, lane_threshold};
+use stjpdacf_tools::tusimple::{read_labels, write_records, TuSimpleRecord};
 
 fn labels_path() -> PathBuf {
-    stjpdacf_host::repo_root().join("data/tusimple/sample_512x288/label_data.json")
+    stjpdacf_tools::repo_root().join("data/tusimple/sample_512x288/label_data.json")
 }
 
 fn labels() -> Vec<TuSimpleRecord> {

@@ -80,7 +80,7 @@ use nalgebra::{DMatrix, DVector};
 
 use super::jpda::{self, Estimate, MissConvention, RowParams};
 use super::statespace::RbfTaylor;
-use crate::tablegen::ModelTables;
+use crate::model::ModelTables;
 
 /// The parameters of the frame walk (`spatial::Config` of the core; defaults of §6).
 #[derive(Debug, Clone, PartialEq)]
@@ -1057,7 +1057,7 @@ fn backward(model: &Model, t: &Track, rank: usize) -> Option<TrackOutput> {
         let sub = DMatrix::from_fn(present.len(), present.len(), |i, j| {
             cov[(present[i], present[j])]
         });
-        let loads = crate::reference::temporal::repair_loads_with(&sub, floor, floor);
+        let loads = crate::temporal::repair_loads_with(&sub, floor, floor);
         for (i, l) in loads.into_iter().enumerate() {
             cov[(present[i], present[i])] += l;
         }

@@ -3,13 +3,13 @@
 //!
 //! ```sh
 //! # regenerate the scenario files (bench/firmware/scenarios/*.stjf)
-//! cargo run --release -p stjpdacf-host --example firmware -- scenarios
+//! cargo xtask firmware-scenarios
 //! # build, run every binary under QEMU, write the JSON summary, check the committed budget
-//! cargo run --release -p stjpdacf-host --example firmware -- run --check
+//! cargo xtask firmware --check
 //! # after an intended change of the figures: rewrite bench/firmware/budget.json
-//! cargo run --release -p stjpdacf-host --example firmware -- run --update-budget
+//! cargo xtask firmware --update-budget
 //! # the no-panic proof (on failure: the call chains that reach a panic)
-//! cargo run --release -p stjpdacf-host --example firmware -- nopanic
+//! cargo xtask nopanic
 //! ```
 //!
 //! Needs `rustup target add thumbv7em-none-eabihf`, `rustup component add llvm-tools`,
@@ -22,9 +22,9 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
-use clap::{Parser, Subcommand};
+use clap::Args;
 use serde::{Deserialize, Serialize};
-use stjpdacf_host::{fwscenario, repo_root};
+use stjpdacf_tools::{fwscenario, repo_root};
 
 /// The stages as the firmware prints them (`events_stage` is the Events stage).
 const STAGES: [&str; 11] = [
@@ -55,45 +55,32 @@ const RAM_ORIGIN: u64 = 0x2000_0000;
 /// The loop `calibration` measures, instructions.
 const CALIBRATION: u64 = 2_000_000;
 
-#[derive(Parser)]
-#[command(about = "Firmware benchmark: scenarios, QEMU runs, budgets, no-panic proof")]
-struct Cli {
-    #[command(subcommand)]
-    cmd: Cmd,
-}
-
-#[derive(Subcommand)]
-enum Cmd {
-    /// Regenerate the scenario files in bench/firmware/scenarios.
-    Scenarios,
-    /// Build the firmware, run every binary under QEMU, write the JSON summary.
-    Run {
-        /// Where to write the JSON summary (default bench/firmware/target/report.json, or
-        /// report-qemu-ram.json with --qemu-ram).
-        #[arg(long)]
-        json: Option<PathBuf>,
-        /// Fail when a count exceeds bench/firmware/budget.json by more than 2 % (+100
-        /// instructions), when a budgeted binary does not run, or when a stack high-water mark
-        /// exceeds 16 KiB.
-        #[arg(long)]
-        check: bool,
-        /// Rewrite bench/firmware/budget.json from this run.
-        #[arg(long, conflicts_with = "check")]
-        update_budget: bool,
-        /// Link against QEMU's whole memory (bench/firmware/memory-qemu.x: 4 MiB RAM) instead of
-        /// the reference MCU's memory.x, to measure code that does not fit it yet. No budgets.
-        #[arg(long, conflicts_with_all = ["check", "update_budget"])]
-        qemu_ram: bool,
-        /// Kill a QEMU run after this many seconds.
-        #[arg(long, default_value_t = 300)]
-        timeout: u64,
-        /// Skip `cargo build` (use the binaries already built).
-        #[arg(long)]
-        no_build: bool,
-    },
-    /// Build the no-panic proof; on failure, rebuild it with a plain panic handler and print the
-    /// call chains from the core to the panic.
-    Nopanic,
+/// `cargo xtask firmware`: build the firmware, run every binary under QEMU, write the JSON
+/// summary, check or rewrite the budgets.
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Where to write the JSON summary (default bench/firmware/target/report.json, or
+    /// report-qemu-ram.json with --qemu-ram).
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Fail when a count exceeds bench/firmware/budget.json by more than 2 % (+100
+    /// instructions), when a budgeted binary does not run, or when a stack high-water mark
+    /// exceeds 16 KiB.
+    #[arg(long)]
+    pub check: bool,
+    /// Rewrite bench/firmware/budget.json from this run.
+    #[arg(long, conflicts_with = "check")]
+    pub update_budget: bool,
+    /// Link against QEMU's whole memory (bench/firmware/memory-qemu.x: 4 MiB RAM) instead of
+    /// the reference MCU's memory.x, to measure code that does not fit it yet. No budgets.
+    #[arg(long, conflicts_with_all = ["check", "update_budget"])]
+    pub qemu_ram: bool,
+    /// Kill a QEMU run after this many seconds.
+    #[arg(long, default_value_t = 300)]
+    pub timeout: u64,
+    /// Skip `cargo build` (use the binaries already built).
+    #[arg(long)]
+    pub no_build: bool,
 }
 
 /// max and median (the lower median: a value of an actual frame) of per-frame counts.
@@ -584,11 +571,10 @@ fn budget_from(report: &Report) -> Budget {
         schema: "stjpdacf-firmware-budget/v1".into(),
         about:
             "Instructions per frame (max and median over each scenario's frames) under QEMU \
-                mps2-an386 -icount shift=3. Checked by `cargo run --release -p stjpdacf-host \
-                --example firmware -- run --check`: a count may exceed its budget by `tolerance` \
+                mps2-an386 -icount shift=3. Checked by `cargo xtask firmware --check`: a count may exceed its budget by `tolerance` \
                 plus `slack_instructions`; every running binary's stack high-water mark must stay \
                 under `stack_limit_bytes`; `runs: false` marks a binary that does not run on the \
-                reference memory map yet (not enforced). Re-baseline with `-- run --update-budget`."
+                reference memory map yet (not enforced). Re-baseline with `cargo xtask firmware --update-budget`."
                 .into(),
         tolerance: TOLERANCE,
         slack_instructions: SLACK,
@@ -796,22 +782,28 @@ fn cmd_nopanic() -> Result<()> {
     )
 }
 
-fn main() -> Result<()> {
-    match Cli::parse().cmd {
-        Cmd::Scenarios => {
-            for p in fwscenario::write_all(&repo_root().join(fwscenario::SCENARIO_DIR))? {
-                println!("wrote {}", p.display());
-            }
-            Ok(())
-        }
-        Cmd::Run {
-            json,
-            check,
-            update_budget,
-            qemu_ram,
-            timeout,
-            no_build,
-        } => cmd_run(json, check, update_budget, qemu_ram, timeout, no_build),
-        Cmd::Nopanic => cmd_nopanic(),
+/// `cargo xtask firmware-scenarios`: regenerates the scenario files in bench/firmware/scenarios.
+pub fn scenarios() -> Result<()> {
+    for p in fwscenario::write_all(&repo_root().join(fwscenario::SCENARIO_DIR))? {
+        println!("wrote {}", p.display());
     }
+    Ok(())
+}
+
+/// `cargo xtask firmware`.
+pub fn run(a: RunArgs) -> Result<()> {
+    cmd_run(
+        a.json,
+        a.check,
+        a.update_budget,
+        a.qemu_ram,
+        a.timeout,
+        a.no_build,
+    )
+}
+
+/// `cargo xtask nopanic`: build the no-panic proof; on failure, rebuild it with a plain panic
+/// handler and print the call chains from the core to the panic.
+pub fn nopanic() -> Result<()> {
+    cmd_nopanic()
 }

@@ -1,4 +1,4 @@
-//! Tests of the image front end (`stjpdacf_host::frontend`, `stjpdacf frontend`) on the 10 real
+//! Tests of the image front end (`stjpdacf_tools::frontend`, `stjpdacf frontend`) on the 10 real
 //! 512×288 TuSimple frames bundled in `data/tusimple/sample_512x288` (and one of them upscaled to
 //! 1280×720).
 //!
@@ -12,12 +12,12 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use stjpdacf_host::camera::Camera;
-use stjpdacf_host::frontend::{self, score, FrontendParams, HELD_OUT_SET, TUNING_SET};
-use stjpdacf_host::tusimple::{read_frames, read_labels, write_jsonl_to, Frame, TuSimpleRecord};
+use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::frontend::{self, score, FrontendParams, HELD_OUT_SET, TUNING_SET};
+use stjpdacf_tools::tusimple::{read_frames, read_labels, write_jsonl_to, Frame, TuSimpleRecord};
 
 fn sample_dir() -> PathBuf {
-    stjpdacf_host::repo_root().join("data/tusimple/sample_512x288")
+    stjpdacf_tools::repo_root().join("data/tusimple/sample_512x288")
 }
 
 fn labels() -> Vec<TuSimpleRecord> {

@@ -3,7 +3,7 @@
 //! [`SCENARIO_DIR`]; the firmware embeds them with `include_bytes!`.
 //!
 //! ```sh
-//! cargo run --release -p stjpdacf-host --example firmware -- scenarios
+//! cargo xtask firmware-scenarios
 //! ```
 //!
 //! rewrites the files byte for byte (the test `committed_firmware_scenarios_are_regenerated_exactly`
@@ -240,7 +240,7 @@ pub fn check_all(dir: &Path) -> Result<Vec<&'static str>> {
         let have = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
         ensure!(
             have == s.encode()?,
-            "{} is not what the generator writes: run `cargo run --release -p stjpdacf-host --example firmware -- scenarios`",
+            "{} is not what the generator writes: run `cargo xtask firmware-scenarios`",
             p.display()
         );
         names.push(s.name);

@@ -5,13 +5,13 @@
 
 use nalgebra::{DMatrix, DVector};
 use serde_json::Value;
-use stjpdacf_host::train::{
+use stjpdacf_tools::train::{
     fit_icm, fit_matern, icm_lml, icm_lml_grad, matern_lml_grad, simulate_frames, FitConfig, Frame,
     IcmParams, Lane, Layout, MaternParams, Series,
 };
 
 fn golden() -> Value {
-    let path = stjpdacf_host::repo_root().join("data/golden/coreg_train.json");
+    let path = stjpdacf_tools::repo_root().join("data/golden/coreg_train.json");
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
@@ -396,9 +396,9 @@ fn matern_gradient_and_recovery() {
 
 #[test]
 fn pipeline_on_label_subset_writes_a_valid_file_and_report() {
-    use stjpdacf_host::camera::Camera;
-    use stjpdacf_host::trainrun::{run, write_report, TrainOptions};
-    let root = stjpdacf_host::repo_root();
+    use stjpdacf_tools::camera::Camera;
+    use stjpdacf_tools::trainrun::{run, write_report, TrainOptions};
+    let root = stjpdacf_tools::repo_root();
     let opts = TrainOptions {
         labels: vec![root.join("data/tusimple/train_subset/label_data_0601_subset.json")],
         base: root.join("data/hyper/default.json"),
@@ -414,7 +414,7 @@ fn pipeline_on_label_subset_writes_a_valid_file_and_report() {
         max_gap: 10.0,
     };
     let out = run(&opts, &|_, _, _| {}).unwrap();
-    let base = stjpdacf_host::hyper::HyperFile::load(&opts.base).unwrap();
+    let base = stjpdacf_reference::hyper::HyperFile::load(&opts.base).unwrap();
     out.hyper.validate().unwrap();
     assert_eq!(out.frames_used, 8);
     assert_eq!(out.hyper.lanes(), base.lanes());

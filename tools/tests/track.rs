@@ -6,16 +6,18 @@ use std::process::Command;
 
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::TrackerConfig;
-use stjpdacf_host::camera::Camera;
-use stjpdacf_host::hyper::HyperFile;
-use stjpdacf_host::metric::bench_one_submit;
-use stjpdacf_host::repo_root;
-use stjpdacf_host::synth::{synthesize, NoiseLevel, SynthParams};
-use stjpdacf_host::tablegen;
-use stjpdacf_host::track::{
+use stjpdacf_reference::hyper::HyperFile;
+use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::metric::bench_one_submit;
+use stjpdacf_tools::repo_root;
+use stjpdacf_tools::synth::{synthesize, NoiseLevel, SynthParams};
+use stjpdacf_tools::tablegen;
+use stjpdacf_tools::track::{
     lane_band, lane_x, preprocess, tables_from_hyper, track, track_with, FrameView, Space,
 };
-use stjpdacf_host::tusimple::{read_labels, read_predictions, write_frames, Frame, TuSimpleRecord};
+use stjpdacf_tools::tusimple::{
+    read_labels, read_predictions, write_frames, Frame, TuSimpleRecord,
+};
 
 #[test]
 fn run_time_tables_equal_the_committed_ones() {

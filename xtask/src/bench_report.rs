@@ -2,7 +2,7 @@
 //!
 //! ```sh
 //! cargo bench -p stjpdacf-bench --bench tracker --bench stages --bench scaling
-//! cargo run -p stjpdacf-bench --example bench_report
+//! cargo xtask bench-report
 //! ```
 //!
 //! Reads `target/stjpdacf-bench/{tracker,stages,scaling}.json` and criterion's estimates under
@@ -15,13 +15,13 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use clap::Parser;
+use clap::Args;
 use stjpdacf_bench::report::{plot_scaling, render_csv, render_markdown, splice, Results};
-use stjpdacf_host::repo_root;
+use stjpdacf_tools::repo_root;
 
-#[derive(Parser)]
-#[command(about = "Turns the host benches' measurements into docs/bench/")]
-struct Args {
+/// `cargo xtask bench-report`: turns the host benches' measurements into docs/bench/.
+#[derive(Args, Debug)]
+pub struct ReportArgs {
     /// Redraw from the committed results.json only (no new measurements).
     #[arg(long)]
     committed: bool,
@@ -30,8 +30,8 @@ struct Args {
     out: PathBuf,
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+/// `cargo xtask bench-report`.
+pub fn run(args: ReportArgs) -> Result<()> {
     let out = if args.out.is_absolute() {
         args.out
     } else {

@@ -2,8 +2,8 @@
 //! core with them and checks the core's invariants, returning `Err(description)` for the first
 //! one broken. The cargo-fuzz targets (`fuzz/fuzz_targets/*.rs`) panic on `Err`;
 //! `host-tests/tests/fuzz_corpus.rs` runs the same bodies over the committed corpora as plain
-//! tests (it includes this file with `#[path]`, so it depends only on `stjpdacf`, `nalgebra`
-//! and `arbitrary`).
+//! tests. This module needs only the core, `nalgebra`, `arbitrary` and `crc32fast` (the fuzz
+//! crate builds this crate without its default `host` feature).
 //!
 //! Targets:
 //! * [`tracker_step`]: `ReferenceTracker::step` on up to [`MAX_STEPS`] frames per input: lane-like
@@ -22,8 +22,8 @@
 //! Invariants (all targets, where they apply): no panic; every published number finite; published
 //! variances ≥ 0; existence in [0, 1]; extents inside the window and ordered; ≤ `LANES` lanes;
 //! ids and slots unique; counters consistent with the input; a refused step or failed operation
-//! leaves the state untouched; the temporal covariance finite, symmetric within [`invariants::ASYM_TOL`] and
-//! positive semi-definite within [`invariants::PSD_TOL`] (both in correlation form, see [`cov_health`]).
+//! leaves the state untouched; the temporal covariance finite, symmetric within [`crate::invariants::ASYM_TOL`] and
+//! positive semi-definite within [`crate::invariants::PSD_TOL`] (both in correlation form, see [`cov_health`]).
 
 use arbitrary::Unstructured;
 use nalgebra::SMatrix;
@@ -33,13 +33,7 @@ use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf::tracker::{Instant, ReferenceTracker, StepError};
 use stjpdacf::wire::{self, FrameInfo, LinkStats, Receiver, WireError};
 
-/// The invariants (shared with the host crate's soak and fault tests).
-#[path = "../../host-tests/src/invariants.rs"]
-pub mod invariants;
-
-// Re-exported for users of the fuzz crate (unused where a test includes this file).
-#[allow(unused_imports)]
-pub use invariants::{
+pub use crate::invariants::{
     check_output, check_temporal, check_tracker, cov_health, CovHealth, PsdCheck, LANES, MEAS, NX,
     POINTS, RANK,
 };

@@ -12,12 +12,12 @@ use rand_chacha::ChaCha8Rng;
 use serde_json::json;
 
 use crate::camera::Camera;
-use crate::hyper::{Coregionalization, HyperFile, SCHEMA};
 use crate::train::{
     correlation, fit_icm, fit_matern, label_to_frame, read_labels, stationary_b,
     stationary_profile, temporal_series, FitConfig, FitResult, Frame, FrameConfig, IcmParams,
     LabelFrame, Layout, MaternParams,
 };
+use stjpdacf_reference::hyper::{Coregionalization, HyperFile, SCHEMA};
 
 /// Options of a training run.
 #[derive(Debug, Clone)]

@@ -1,17 +1,17 @@
-//! Tests of the real-geometry replay generator (`stjpdacf_host::synth`, `stjpdacf synth`) on the
+//! Tests of the real-geometry replay generator (`stjpdacf_tools::synth`, `stjpdacf synth`) on the
 //! bundled subset of TuSimple training labels (`data/tusimple/train_subset.json`: 40 labels of
 //! `label_data_0313.json`, every 71st line; 1280×720).
 
 use std::path::PathBuf;
 use std::process::Command;
 
-use stjpdacf_host::camera::Camera;
-use stjpdacf_host::metric::bench_one_submit;
-use stjpdacf_host::synth::{synth_clip, synthesize, NoiseLevel, SynthOutput, SynthParams};
-use stjpdacf_host::tusimple::{read_labels, write_jsonl_to, TuSimpleRecord};
+use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::metric::bench_one_submit;
+use stjpdacf_tools::synth::{synth_clip, synthesize, NoiseLevel, SynthOutput, SynthParams};
+use stjpdacf_tools::tusimple::{read_labels, write_jsonl_to, TuSimpleRecord};
 
 fn labels() -> Vec<TuSimpleRecord> {
-    read_labels(&stjpdacf_host::repo_root().join("data/tusimple/train_subset.json")).unwrap()
+    read_labels(&stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json")).unwrap()
 }
 
 fn run(params: &SynthParams, seed: u64) -> SynthOutput {
@@ -357,7 +357,7 @@ fn temp_dir(tag: &str) -> PathBuf {
 #[test]
 fn cli_writes_frames_and_ground_truth() {
     let d = temp_dir("cli");
-    let labels = stjpdacf_host::repo_root().join("data/tusimple/train_subset.json");
+    let labels = stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json");
     let gen = |name: &str, seed: &str| {
         let out = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
             .args(["synth", "--labels"])
@@ -380,7 +380,7 @@ fn cli_writes_frames_and_ground_truth() {
     };
     let a = gen("a", "4");
     assert_eq!(a, gen("b", "4"));
-    let frames = stjpdacf_host::tusimple::read_frames(&d.join("a.jsonl")).unwrap();
+    let frames = stjpdacf_tools::tusimple::read_frames(&d.join("a.jsonl")).unwrap();
     assert_eq!(frames.len(), 100);
     let gt = read_labels(&d.join("a-gt.jsonl")).unwrap();
     assert_eq!(gt.len(), 5);

@@ -2,15 +2,15 @@
 //! 512×288 TuSimple frames (`frontend::TUNING_SET`, `frontend::HELD_OUT_SET`), with the default
 //! parameters, or with `name=value` overrides given as arguments (for tuning on the tuning set).
 //!
-//! `cargo run --release -p stjpdacf-host --example frontend_eval [name=value …]`
+//! `cargo run --release -p stjpdacf-tools --example frontend_eval [name=value …]`
 
 use std::time::Instant;
 
-use stjpdacf_host::frontend::{self, FrontendParams, HELD_OUT_SET, TUNING_SET};
-use stjpdacf_host::tusimple::read_labels;
+use stjpdacf_tools::frontend::{self, FrontendParams, HELD_OUT_SET, TUNING_SET};
+use stjpdacf_tools::tusimple::read_labels;
 
 fn main() -> anyhow::Result<()> {
-    let dir = stjpdacf_host::repo_root().join("data/tusimple/sample_512x288");
+    let dir = stjpdacf_tools::repo_root().join("data/tusimple/sample_512x288");
     let labels = read_labels(&dir.join("label_data.json"))?;
     let mut p = FrontendParams::default();
     for a in std::env::args().skip(1) {

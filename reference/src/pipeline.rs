@@ -55,12 +55,12 @@ use std::collections::VecDeque;
 use anyhow::{bail, ensure, Context, Result};
 use nalgebra::{DMatrix, DVector};
 
-use crate::reference::identity::{self, Curve, Gate};
-use crate::reference::spatial::{self, FrameResult, Model};
-use crate::reference::temporal::{
+use crate::identity::{self, Curve, Gate};
+use crate::model::ModelTables;
+use crate::spatial::{self, FrameResult, Model};
+use crate::temporal::{
     predict, rts_step, update, CoupledTemporalModel, FilterStep, Gaussian, LaneMeasurement,
 };
-use crate::tablegen::ModelTables;
 
 /// Tuning of the reference pipeline (the core's `TrackerConfig::DEFAULT` and capacities).
 #[derive(Debug, Clone, PartialEq)]

@@ -8,10 +8,10 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use stjpdacf_host::demo::{self, Coupling, DemoOptions, Input, GT, LANE_COLOURS};
-use stjpdacf_host::metric;
-use stjpdacf_host::synth::NoiseLevel;
-use stjpdacf_host::tusimple::{read_frames, read_predictions, write_records};
+use stjpdacf_tools::demo::{self, Coupling, DemoOptions, Input, GT, LANE_COLOURS};
+use stjpdacf_tools::metric;
+use stjpdacf_tools::synth::NoiseLevel;
+use stjpdacf_tools::tusimple::{read_frames, read_predictions, write_records};
 
 fn temp_dir(tag: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("stjpdacf-demo-{tag}-{}", std::process::id()));
@@ -141,7 +141,7 @@ fn reduced_demo_scores_and_writes_its_files() {
     }
     let untimed = out.join("untimed.jsonl");
     write_records(&untimed, &preds).unwrap();
-    let gt = stjpdacf_host::repo_root().join("data/tusimple/sample_512x288/label_data.json");
+    let gt = stjpdacf_tools::repo_root().join("data/tusimple/sample_512x288/label_data.json");
     let s = metric::evaluate_files_scaled(&untimed, &gt, 2.5).unwrap();
     assert!((s.accuracy - real.score.accuracy).abs() < 1e-12, "{s:?}");
 

@@ -27,8 +27,8 @@ use std::collections::VecDeque;
 use anyhow::{bail, ensure, Context, Result};
 use nalgebra::{DMatrix, DVector};
 
-use crate::reference::statespace::Matern32;
-use crate::tablegen::ModelTables;
+use crate::model::ModelTables;
+use crate::statespace::Matern32;
 
 /// Gaussian moments: a mean and a covariance.
 #[derive(Debug, Clone, PartialEq)]

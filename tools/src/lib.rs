@@ -1,0 +1,35 @@
+//! Host tools of `stjpdacf`, the library behind the `stjpdacf` command-line program.
+//!
+//! * [`tablegen`] — hyperparameter file → the core's static tables (`stjpdacf tables`);
+//! * [`track`] — runs the core tracker on feature-point frames (`stjpdacf track`);
+//! * [`tusimple`], [`metric`] — TuSimple label I/O and the official metric (`stjpdacf eval`);
+//! * [`synth`], [`camera`] — the real-geometry replay and the camera model (`stjpdacf synth`);
+//! * [`scenario`], [`fwscenario`] — seeded synthetic BEV frames for the spatial filter, and the
+//!   firmware scenario files;
+//! * [`frontend`] — image → BEV feature points (`stjpdacf frontend`);
+//! * [`train`], [`trainrun`] — hyperparameter training (`stjpdacf train`);
+//! * [`demo`] — the demo on bundled data (`stjpdacf demo`).
+//!
+//! This crate uses `std` freely; the no_std core is the `stjpdacf` crate and the f64 reference is
+//! `stjpdacf-reference`.
+
+pub mod camera;
+pub mod demo;
+pub mod frontend;
+pub mod fwscenario;
+pub mod metric;
+pub mod scenario;
+pub mod synth;
+pub mod tablegen;
+pub mod track;
+pub mod train;
+pub mod trainrun;
+pub mod tusimple;
+
+/// The repository root (this crate's parent folder), for tools and tests that read bundled data.
+pub fn repo_root() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(std::path::Path::to_path_buf)
+        .unwrap_or_default()
+}

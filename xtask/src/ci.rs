@@ -1,0 +1,171 @@
+//! `cargo xtask ci`: every check CI runs, in order, stopping at the first failure. `.ci/run`
+//! installs the tools first (rustup targets and components, qemu-system-arm, flip-link,
+//! cargo-fuzz), then runs this.
+
+use std::process::Command;
+
+use anyhow::{ensure, Context, Result};
+use stjpdacf_tools::repo_root;
+
+/// The no_std targets the core is cross-built for: Cortex-M4F/M7 and Cortex-R5F.
+const CROSS_TARGETS: [&str; 2] = ["thumbv7em-none-eabihf", "armv7r-none-eabihf"];
+
+fn step(title: &str) {
+    println!("\n=== {title}");
+}
+
+/// Runs `program args…` in `dir` (relative to the repository root), with extra environment.
+fn run_in(dir: &str, env: &[(&str, &str)], program: &str, args: &[&str]) -> Result<()> {
+    println!("$ {program} {}", args.join(" "));
+    let mut c = Command::new(program);
+    c.current_dir(repo_root().join(dir)).args(args);
+    for (k, v) in env {
+        c.env(k, v);
+    }
+    let st = c.status().with_context(|| format!("starting {program}"))?;
+    ensure!(st.success(), "{program} {} failed ({st})", args.join(" "));
+    Ok(())
+}
+
+fn cargo(args: &[&str]) -> Result<()> {
+    run_in(".", &[], "cargo", args)
+}
+
+/// `cargo xtask ci`.
+pub fn run() -> Result<()> {
+    step("format (workspace, fuzz, firmware)");
+    cargo(&["fmt", "--all", "--", "--check"])?;
+    cargo(&["fmt", "--manifest-path", "fuzz/Cargo.toml", "--", "--check"])?;
+    cargo(&[
+        "fmt",
+        "--manifest-path",
+        "bench/firmware/Cargo.toml",
+        "--",
+        "--check",
+    ])?;
+
+    step("dependency graph");
+    crate::deps::check()?;
+
+    step("clippy (workspace, all targets)");
+    cargo(&[
+        "clippy",
+        "--workspace",
+        "--all-targets",
+        "--",
+        "-D",
+        "warnings",
+    ])?;
+
+    step("regenerate the default tables (must not change the committed file)");
+    cargo(&[
+        "run",
+        "--release",
+        "-p",
+        "stjpdacf-tools",
+        "--",
+        "tables",
+        "--hyper",
+        "data/hyper/default.json",
+        "--out",
+        "src/tables/default.rs",
+    ])?;
+    run_in(
+        ".",
+        &[],
+        "git",
+        &["diff", "--exit-code", "--", "src/tables/default.rs"],
+    )?;
+
+    step("README command 1: the demo on bundled data");
+    cargo(&["run", "--release", "-p", "stjpdacf-tools", "--", "demo"])?;
+
+    step("README command 2: tests");
+    cargo(&["test", "--workspace"])?;
+
+    step("reliability in release: soak against the f64 reference, fuzz corpora");
+    cargo(&[
+        "test",
+        "--release",
+        "-p",
+        "stjpdacf-test-support",
+        "--test",
+        "soak",
+        "--test",
+        "fuzz_corpus",
+        "--",
+        "--include-ignored",
+    ])?;
+
+    step("fuzz smoke: cargo-fuzz, seeded, a fixed number of executions a target");
+    crate::fuzz_smoke::run(&crate::fuzz_smoke::SmokeArgs { cap: 60 })?;
+
+    step("no_std core cross-builds (built alone: no feature unification)");
+    for t in CROSS_TARGETS {
+        cargo(&["build", "-p", "stjpdacf", "--target", t, "--release"])?;
+        cargo(&[
+            "build",
+            "-p",
+            "stjpdacf",
+            "--target",
+            t,
+            "--release",
+            "--features",
+            "defmt",
+        ])?;
+        cargo(&[
+            "build",
+            "-p",
+            "stjpdacf",
+            "--target",
+            t,
+            "--release",
+            "--features",
+            "fast-math",
+        ])?;
+    }
+    cargo(&[
+        "clippy",
+        "-p",
+        "stjpdacf",
+        "--target",
+        "thumbv7em-none-eabihf",
+        "--features",
+        "defmt",
+        "--",
+        "-D",
+        "warnings",
+    ])?;
+
+    step("core docs");
+    run_in(
+        ".",
+        &[("RUSTDOCFLAGS", "-D warnings")],
+        "cargo",
+        &["doc", "-p", "stjpdacf", "--no-deps"],
+    )?;
+
+    step("firmware: clippy (bench/firmware is its own workspace)");
+    run_in(
+        "bench/firmware",
+        &[],
+        "cargo",
+        &["clippy", "--release", "--bins", "--", "-D", "warnings"],
+    )?;
+
+    step("firmware: build, run every binary under QEMU, check bench/firmware/budget.json");
+    crate::firmware::run(crate::firmware::RunArgs {
+        json: None,
+        check: true,
+        update_budget: false,
+        qemu_ram: false,
+        timeout: 300,
+        no_build: false,
+    })?;
+
+    step("firmware: no-panic proof");
+    crate::firmware::nopanic()?;
+
+    step("done");
+    Ok(())
+}

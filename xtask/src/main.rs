@@ -1,0 +1,57 @@
+//! Developer commands of `stjpdacf` (`cargo xtask <command>`, an alias in `.cargo/config.toml`).
+//!
+//! | command | what it does |
+//! |---|---|
+//! | `firmware [--check \| --update-budget]` | builds `bench/firmware` for the Cortex-M4F, runs every binary under QEMU, writes the JSON summary and checks (or rewrites) `bench/firmware/budget.json` |
+//! | `firmware-scenarios` | regenerates the firmware's scenario files |
+//! | `nopanic` | the no-panic proof: links only if no panicking branch survives in the core |
+//! | `fuzz-smoke [--cap S]` | the seeded, bounded cargo-fuzz run CI does |
+//! | `bench-report [--committed]` | turns the criterion benches' measurements into `docs/bench/` |
+//! | `deps` | checks the crates' dependency graph (no test crate under a non-test crate; the reference shares no code with the core) |
+//! | `ci` | every check CI runs, in order (tools must be installed: `.ci/run` does that first) |
+
+mod bench_report;
+mod ci;
+mod deps;
+mod firmware;
+mod fuzz_smoke;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "cargo xtask", about = "Developer commands of stjpdacf")]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Build the firmware, run every binary under QEMU, write the JSON summary, check budgets.
+    Firmware(firmware::RunArgs),
+    /// Regenerate the scenario files in bench/firmware/scenarios.
+    FirmwareScenarios,
+    /// The no-panic proof (on failure: the call chains that reach a panic).
+    Nopanic,
+    /// The seeded, bounded fuzz smoke run of CI.
+    FuzzSmoke(fuzz_smoke::SmokeArgs),
+    /// Turn the host benches' measurements into docs/bench/.
+    BenchReport(bench_report::ReportArgs),
+    /// Check the crates' dependency graph.
+    Deps,
+    /// Every check CI runs, in order.
+    Ci,
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().cmd {
+        Cmd::Firmware(a) => firmware::run(a),
+        Cmd::FirmwareScenarios => firmware::scenarios(),
+        Cmd::Nopanic => firmware::nopanic(),
+        Cmd::FuzzSmoke(a) => fuzz_smoke::run(&a),
+        Cmd::BenchReport(a) => bench_report::run(a),
+        Cmd::Deps => deps::check(),
+        Cmd::Ci => ci::run(),
+    }
+}
