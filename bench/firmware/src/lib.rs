@@ -314,6 +314,31 @@ pub fn run_spatial(scenarios: &[(&str, &[u8])], syst: SYST) -> ! {
 
 const EMPTY_OBS: LaneObservation<16> = LaneObservation::EMPTY;
 
+#[doc(hidden)]
+pub use cortex_m as __cortex_m;
+#[doc(hidden)]
+pub use cortex_m_rt::entry as __entry;
+
+/// The entry point of a scenario binary: `scenario_main!(run_tracker("typical", frames))`
+/// expands to the `#[entry] fn main` that takes the peripherals and calls
+/// `stjpdacf_firmware::run_tracker("typical", frames, SYST)` (likewise [`run_spatial`]). The
+/// binary itself names its panic handler (`use panic_semihosting as _;`) and embeds its frames
+/// with `include_bytes!` (a path relative to the binary's source).
+#[macro_export]
+macro_rules! scenario_main {
+    ($run:ident($($arg:expr),* $(,)?)) => {
+        #[$crate::__entry]
+        fn main() -> ! {
+            match $crate::__cortex_m::Peripherals::take() {
+                Some(p) => $crate::$run($($arg,)* p.SYST),
+                None => loop {
+                    $crate::__cortex_m::asm::nop();
+                },
+            }
+        }
+    };
+}
+
 /// Bytes of stack ever used (painted words overwritten, scanning from the far end) and the
 /// stack's size.
 fn stack_usage() -> (usize, usize) {

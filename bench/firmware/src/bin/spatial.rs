@@ -5,22 +5,11 @@
 
 use panic_semihosting as _;
 
-#[cortex_m_rt::entry]
-fn main() -> ! {
-    match cortex_m::Peripherals::take() {
-        Some(p) => stjpdacf_firmware::run_spatial(
-            &[
-                ("typical", include_bytes!("../../scenarios/typical.stjf")),
-                ("worst", include_bytes!("../../scenarios/worst.stjf")),
-                (
-                    "worst_patterns",
-                    include_bytes!("../../scenarios/worst_patterns.stjf"),
-                ),
-            ],
-            p.SYST,
-        ),
-        None => loop {
-            cortex_m::asm::nop();
-        },
-    }
-}
+stjpdacf_firmware::scenario_main!(run_spatial(&[
+    ("typical", include_bytes!("../../scenarios/typical.stjf")),
+    ("worst", include_bytes!("../../scenarios/worst.stjf")),
+    (
+        "worst_patterns",
+        include_bytes!("../../scenarios/worst_patterns.stjf"),
+    ),
+]));

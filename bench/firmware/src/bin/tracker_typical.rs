@@ -5,16 +5,7 @@
 
 use panic_semihosting as _;
 
-#[cortex_m_rt::entry]
-fn main() -> ! {
-    match cortex_m::Peripherals::take() {
-        Some(p) => stjpdacf_firmware::run_tracker(
-            "typical",
-            include_bytes!("../../scenarios/typical.stjf"),
-            p.SYST,
-        ),
-        None => loop {
-            cortex_m::asm::nop();
-        },
-    }
-}
+stjpdacf_firmware::scenario_main!(run_tracker(
+    "typical",
+    include_bytes!("../../scenarios/typical.stjf"),
+));
