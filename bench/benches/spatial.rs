@@ -27,113 +27,23 @@
 use std::hint::black_box;
 use std::time::Duration;
 
-use criterion::{criterion_group, criterion_main, Criterion};
-use nalgebra::{DMatrix, DVector, SMatrix, SVector};
-use rand::{Rng, SeedableRng};
+use criterion::measurement::WallTime;
+use criterion::{criterion_group, criterion_main, BenchmarkGroup, Criterion};
+use nalgebra::{DMatrix, DVector, SVector};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialReport};
-use stjpdacf::spatial::row::{self, RowParams};
-use stjpdacf::spatial::Stacked;
+use stjpdacf::spatial::filter::{Config, SpatialReport};
+use stjpdacf::spatial::row::{self, RowOutcome, RowParams};
 use stjpdacf::tables::DEFAULT;
+use stjpdacf_bench::spatial::{
+    core_params, empty_out, h, row_inputs, to_f32, typical_scenario, worst_frame, Filter, State,
+    EVENTS, LANES, MEAS, NS, PER_ROW,
+};
 use stjpdacf_reference::hyper::HyperFile;
 use stjpdacf_reference::jpda::{self, MissConvention};
 use stjpdacf_reference::spatial::{self as refspatial, Model};
 use stjpdacf_tools::repo_root;
-use stjpdacf_tools::scenario::{Scenario, ScenarioConfig, Shape};
 use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER};
-
-/// State entries per lane (offset + order-2 RBF state).
-const NS: usize = 3;
-/// Lane slots D.
-const LANES: usize = 6;
-/// Rows R_max.
-const ROWS: usize = 64;
-/// Points per row.
-const PER_ROW: usize = 16;
-/// Index points N.
-const POINTS: usize = 16;
-/// Measurement budget M of a frame.
-const MEAS: usize = 256;
-/// Event budget E.
-const EVENTS: usize = 512;
-/// Lane spacing of the row benches, m.
-const SPACING: f32 = 3.6;
-
-type Filter = SpatialFilter<NS, LANES, ROWS, PER_ROW>;
-type State = Stacked<NS, LANES>;
-
-fn normal(rng: &mut ChaCha8Rng) -> f32 {
-    let u1: f32 = 1.0 - rng.random::<f32>();
-    let u2: f32 = rng.random::<f32>();
-    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f32::consts::PI * u2).cos()
-}
-
-/// `blockdiag(corner, m)`.
-fn embed(m: &SMatrix<f32, 2, 2>, corner: f32) -> SMatrix<f32, NS, NS> {
-    SMatrix::from_fn(|i, j| match (i, j) {
-        (0, 0) => corner,
-        (0, _) | (_, 0) => 0.0,
-        _ => m[(i - 1, j - 1)],
-    })
-}
-
-fn h() -> SVector<f32, NS> {
-    SVector::from([1.0, 1.0, 0.0])
-}
-
-fn lane_x(t: usize, n: usize) -> f32 {
-    (t as f32 - (n as f32 - 1.0) / 2.0) * SPACING
-}
-
-/// `n` tracks at the lane positions with the broad prior of a fresh frame: offset variance from
-/// the tables, GP part `B ⊗ P∞`.
-fn broad_state(n: usize) -> State {
-    let pinf = &DEFAULT.spatial.model.p_inf;
-    let b = &DEFAULT.coreg;
-    let mut s = State::new();
-    for t in 0..n {
-        let p = embed(&(pinf * b[(t, t)]), DEFAULT.hyper.offset_variance);
-        s.push(SVector::from([lane_x(t, n), 0.0, 0.0]), &p)
-            .expect("fewer than LANES tracks");
-    }
-    for i in 0..n {
-        for j in i + 1..n {
-            s.set_cross(i, j, &embed(&(pinf * b[(i, j)]), 0.0));
-        }
-    }
-    s
-}
-
-/// The broad state tracked over 12 rows with known associations (exact Kalman updates), then
-/// predicted to the next row: the state of a typical row in the middle of a frame.
-fn tracked_state(n: usize, rng: &mut ChaCha8Rng) -> State {
-    let f = embed(&DEFAULT.spatial.f, 1.0);
-    let q = embed(&DEFAULT.spatial.q, 0.0);
-    let mut s = broad_state(n);
-    for r in 0..12 {
-        if r > 0 {
-            s.predict(&f, &q, &DEFAULT.coreg);
-        }
-        for t in 0..n {
-            let z = lane_x(t, n) + 0.1 * normal(rng);
-            assert!(s.update_single(t, &h(), z, DEFAULT.hyper.meas_noise));
-        }
-    }
-    s.predict(&f, &q, &DEFAULT.coreg);
-    s
-}
-
-fn core_params() -> RowParams {
-    let c = Config::DEFAULT;
-    RowParams {
-        pd: c.pd,
-        pg: c.pg,
-        gamma: c.gamma,
-        clutter_density: c.clutter_density,
-        r: DEFAULT.hyper.meas_noise,
-        miss: row::MissModel::Gated,
-    }
-}
 
 fn ref_params() -> jpda::RowParams {
     let p = core_params();
@@ -171,59 +81,90 @@ fn assert_all_gated(s: &State, points: &[f32], gamma: f32) {
     }
 }
 
-fn clustered(rng: &mut ChaCha8Rng, m: usize, half_width: f32) -> Vec<f32> {
-    (0..m)
-        .map(|_| (rng.random::<f32>() * 2.0 - 1.0) * half_width)
-        .collect()
+/// The core's row step with the defaults: `h` and the row parameters.
+struct CoreRow {
+    hv: SVector<f32, NS>,
+    params: RowParams,
+}
+
+impl CoreRow {
+    /// One row step on a copy of `state`.
+    fn run(&self, state: &State, pts: &[f32], budget: usize) -> RowOutcome<LANES> {
+        let mut s = *state;
+        row::update(&mut s, &self.hv, pts, &self.params, budget)
+    }
+
+    /// Benches [`CoreRow::run`] as `name` in `g`.
+    fn bench(
+        &self,
+        g: &mut BenchmarkGroup<'_, WallTime>,
+        name: &str,
+        state: &State,
+        pts: &[f32],
+        budget: usize,
+    ) {
+        g.bench_function(name, |b| b.iter(|| self.run(state, black_box(pts), budget)));
+    }
+
+    /// Runs the row (E = 512) and prints its counts under `what`.
+    fn print(&self, what: &str, state: &State, pts: &[f32]) -> RowOutcome<LANES> {
+        let o = self.run(state, pts, EVENTS);
+        println!(
+            "{what}: {} tracks, {} points, {} events, {} patterns, approximated {}, failed {}",
+            state.len(),
+            pts.len(),
+            o.events,
+            o.patterns,
+            o.approximated,
+            o.failed
+        );
+        o
+    }
+}
+
+/// The reference's input of a row (state and points in f64), after one reference row step
+/// whose event count it prints under `what`.
+fn reference_row(
+    what: &str,
+    state: &State,
+    pts: &[f32],
+    href: &DMatrix<f64>,
+    rparams: &jpda::RowParams,
+) -> (DVector<f64>, DMatrix<f64>, Vec<f64>) {
+    let (x, p) = to_f64(state);
+    let z: Vec<f64> = pts.iter().map(|v| f64::from(*v)).collect();
+    let r = jpda::row_step(&x, &p, href, &z, rparams).expect("reference row");
+    println!("{what} (reference): {} events", r.events.len());
+    (x, p, z)
 }
 
 fn rows(c: &mut Criterion) {
-    let mut rng = ChaCha8Rng::seed_from_u64(2024);
-    let params = core_params();
+    let [(_, typical), (_, worst), (_, heavy), (_, dense), (_, exact)] = row_inputs();
+    let (typical, pts) = (typical.state, typical.points);
+    let (broad, worst) = (worst.state, worst.points);
+    let heavy = heavy.points;
+    let (dense_state, dense) = (dense.state, dense.points);
+    let core = CoreRow {
+        hv: h(),
+        params: core_params(),
+    };
     let rparams = ref_params();
-    let hv = h();
     let href = DMatrix::from_row_slice(1, NS, &[1.0, 1.0, 0.0]);
 
     // Typical row: 6 tracked lanes, one point per lane + 2 clutter.
-    let typical = tracked_state(LANES, &mut rng);
-    let mut pts: Vec<f32> = (0..LANES)
-        .map(|t| lane_x(t, LANES) + 0.1 * normal(&mut rng))
-        .collect();
-    pts.extend((0..2).map(|_| (rng.random::<f32>() * 2.0 - 1.0) * 12.0));
-    let mut s = typical;
-    let o = row::update(&mut s, &hv, &pts, &params, EVENTS);
-    println!(
-        "typical row: {} tracks, {} points, {} events, {} patterns, approximated {}, failed {}",
-        typical.len(),
-        pts.len(),
-        o.events,
-        o.patterns,
-        o.approximated,
-        o.failed
-    );
-    let (tx, tp) = to_f64(&typical);
-    let tz: Vec<f64> = pts.iter().map(|v| f64::from(*v)).collect();
-    let r = jpda::row_step(&tx, &tp, &href, &tz, &rparams).expect("reference row");
-    println!("typical row (reference): {} events", r.events.len());
+    core.print("typical row", &typical, &pts);
+    let (tx, tp, tz) = reference_row("typical row", &typical, &pts, &href, &rparams);
 
     let mut g = c.benchmark_group("row_typical_6tracks_8points");
-    g.bench_function("core_f32_E=512", |b| {
-        b.iter(|| {
-            let mut s = typical;
-            row::update(&mut s, &hv, black_box(&pts), &params, EVENTS)
-        })
-    });
+    core.bench(&mut g, "core_f32_E=512", &typical, &pts, EVENTS);
     g.bench_function("reference_f64", |b| {
         b.iter(|| jpda::row_step(&tx, &tp, &href, black_box(&tz), &rparams))
     });
     g.finish();
 
     // Worst-case row: 6 broad tracks, 16 points all valid for all tracks.
-    let broad = broad_state(LANES);
-    let worst = clustered(&mut rng, PER_ROW, 3.0);
-    assert_all_gated(&broad, &worst, params.gamma);
-    let mut s = broad;
-    let o = row::update(&mut s, &hv, &worst, &params, EVENTS);
+    assert_all_gated(&broad, &worst, core.params.gamma);
+    let o = core.run(&broad, &worst, EVENTS);
     println!(
         "worst-case row: {} tracks, {} points (all valid for all), {} events, {} patterns, \
          {} candidates dropped, approximated {}, failed {}",
@@ -236,79 +177,36 @@ fn rows(c: &mut Criterion) {
         o.failed
     );
     let mut g = c.benchmark_group("row_worst_6tracks_16points");
-    g.bench_function("core_f32_E=512", |b| {
-        b.iter(|| {
-            let mut s = broad;
-            row::update(&mut s, &hv, black_box(&worst), &params, EVENTS)
-        })
-    });
+    core.bench(&mut g, "core_f32_E=512", &broad, &worst, EVENTS);
     g.finish();
 
     // Most work the budget allows: 5 tracked lanes with 2 points in their gates, one with 1 (no
     // point shared): 3⁵ · 2 = 486 ≤ 512 events, all 2⁶ = 64 patterns, nothing pruned.
-    let mut heavy: Vec<f32> = (0..LANES - 1)
-        .flat_map(|t| [lane_x(t, LANES) - 0.15, lane_x(t, LANES) + 0.15])
-        .collect();
-    heavy.push(lane_x(LANES - 1, LANES) + 0.05);
-    let mut s = typical;
-    let o = row::update(&mut s, &hv, &heavy, &params, EVENTS);
-    println!(
-        "max-work row: {} tracks, {} points, {} events, {} patterns, approximated {}, failed {}",
-        typical.len(),
-        heavy.len(),
-        o.events,
-        o.patterns,
-        o.approximated,
-        o.failed
-    );
+    let o = core.print("max-work row", &typical, &heavy);
     assert!(o.events == 486 && o.patterns == 64 && !o.approximated);
     let mut g = c.benchmark_group("row_maxwork_6tracks_11points");
-    g.bench_function("core_f32_E=512", |b| {
-        b.iter(|| {
-            let mut s = typical;
-            row::update(&mut s, &hv, black_box(&heavy), &params, EVENTS)
-        })
-    });
+    core.bench(&mut g, "core_f32_E=512", &typical, &heavy, EVENTS);
     g.finish();
 
     // Dense row the reference can enumerate: 4 broad tracks, 8 points all valid for all.
-    let dense_state = broad_state(4);
-    let dense = clustered(&mut rng, 8, 2.0);
-    assert_all_gated(&dense_state, &dense, params.gamma);
-    let exact_budget = 4096;
+    assert_all_gated(&dense_state, &dense, core.params.gamma);
+    let exact_budget = exact.budget;
     for e in [EVENTS, exact_budget] {
-        let mut s = dense_state;
-        let o = row::update(&mut s, &hv, &dense, &params, e);
+        let o = core.run(&dense_state, &dense, e);
         println!(
             "dense row, core E={e}: {} events, approximated {}, failed {}",
             o.events, o.approximated, o.failed
         );
     }
-    let (dx, dp) = to_f64(&dense_state);
-    let dz: Vec<f64> = dense.iter().map(|v| f64::from(*v)).collect();
-    let r = jpda::row_step(&dx, &dp, &href, &dz, &rparams).expect("reference row");
-    println!("dense row (reference): {} events", r.events.len());
+    let (dx, dp, dz) = reference_row("dense row", &dense_state, &dense, &href, &rparams);
     let mut g = c.benchmark_group("row_dense_4tracks_8points");
-    g.bench_function("core_f32_E=512", |b| {
-        b.iter(|| {
-            let mut s = dense_state;
-            row::update(&mut s, &hv, black_box(&dense), &params, EVENTS)
-        })
-    });
-    g.bench_function("core_f32_exact_E=4096", |b| {
-        b.iter(|| {
-            let mut s = dense_state;
-            row::update(&mut s, &hv, black_box(&dense), &params, exact_budget)
-        })
-    });
+    core.bench(&mut g, "core_f32_E=512", &dense_state, &dense, EVENTS);
+    let name = "core_f32_exact_E=4096";
+    core.bench(&mut g, name, &dense_state, &dense, exact_budget);
     g.bench_function("reference_f64", |b| {
         b.iter(|| jpda::row_step(&dx, &dp, &href, black_box(&dz), &rparams))
     });
     g.finish();
-}
-
-fn empty_out() -> [LaneObservation<POINTS>; LANES] {
-    [LaneObservation::EMPTY; LANES]
 }
 
 fn run_core(f: &mut Filter, pts: &[[f32; 2]]) -> (usize, SpatialReport) {
@@ -342,54 +240,12 @@ fn reference_setup() -> (Model, refspatial::Config) {
     (model, cfg)
 }
 
-/// Rows of the worst-case frame that hold only the 6 lane points (they let all 6 tracks start:
-/// at most `max_tentative = 2` tentative tracks at once, confirmed after `confirm_hits = 6`).
-const LEAD_IN_ROWS: usize = 16;
-
-/// M = 256 points: `LEAD_IN_ROWS` rows with one point per lane (6 straight lanes 3.6 m apart),
-/// then `(256 − 6·LEAD_IN_ROWS)/16 = 10` consecutive full rows of 16 points: the 6 lane points
-/// plus 10 clutter points each within ±0.4 m of a random lane (inside its gate).
-fn worst_frame(rng: &mut ChaCha8Rng) -> Vec<[f32; 2]> {
-    let du = (DEFAULT.hyper.u_max - DEFAULT.hyper.u_min) / 60.0;
-    let mut pts = Vec::with_capacity(MEAS);
-    let full_rows = (MEAS - LANES * LEAD_IN_ROWS) / PER_ROW;
-    for r in 0..LEAD_IN_ROWS + full_rows {
-        let u = DEFAULT.hyper.u_min + r as f32 * du;
-        for t in 0..LANES {
-            pts.push([u, lane_x(t, LANES) + 0.1 * normal(rng)]);
-        }
-        if r < LEAD_IN_ROWS {
-            continue;
-        }
-        for _ in LANES..PER_ROW {
-            let t = rng.random_range(0..LANES);
-            pts.push([
-                u,
-                lane_x(t, LANES) + (rng.random::<f32>() * 2.0 - 1.0) * 0.4,
-            ]);
-        }
-    }
-    pts
-}
-
 fn frames(c: &mut Criterion) {
     let mut f = Box::new(Filter::new());
     let (model, rcfg) = reference_setup();
 
-    let scfg = ScenarioConfig {
-        shape: Shape::Rbf {
-            variance: 4.0,
-            lengthscale: 35.0,
-        },
-        clutter_density: 0.05,
-        ..ScenarioConfig::default()
-    };
-    let sc = Scenario::generate(&scfg, 4);
-    let typical: Vec<[f32; 2]> = sc
-        .points
-        .iter()
-        .map(|&(u, x)| [u as f32, x as f32])
-        .collect();
+    let sc = typical_scenario();
+    let typical = to_f32(&sc);
     assert!(typical.len() <= MEAS);
     let (n, rep) = run_core(&mut f, &typical);
     println!(

@@ -25,256 +25,34 @@
 
 use std::hint::black_box;
 
-use nalgebra::{SMatrix, SVector};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use stjpdacf::probe::{Probe, Stage};
-use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter, SpatialReport};
-use stjpdacf::spatial::row::{self, RowOutcome, RowParams};
-use stjpdacf::spatial::Stacked;
+use stjpdacf::spatial::filter::{Config, SpatialReport};
+use stjpdacf::spatial::row::{self, RowOutcome};
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_tools::scenario::{Scenario, ScenarioConfig, Shape};
+use stjpdacf_bench::inputs::{self, Frame};
+use stjpdacf_bench::spatial::{
+    core_params as params, empty_out, h, row_inputs, to_f32, typical_scenario, worst_frame, Filter,
+    Obs, RowInput, State, LANES, MEAS,
+};
 
-const NS: usize = 3;
-const LANES: usize = 6;
-const ROWS: usize = 64;
-const PER_ROW: usize = 16;
-const POINTS: usize = 16;
-const MEAS: usize = 256;
-const EVENTS: usize = 512;
-const SPACING: f32 = 3.6;
-
-type Filter = SpatialFilter<NS, LANES, ROWS, PER_ROW>;
-type State = Stacked<NS, LANES>;
-type Obs = [LaneObservation<POINTS>; LANES];
-
-fn normal(rng: &mut ChaCha8Rng) -> f32 {
-    let u1: f32 = 1.0 - rng.random::<f32>();
-    let u2: f32 = rng.random::<f32>();
-    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f32::consts::PI * u2).cos()
-}
-
-fn embed(m: &SMatrix<f32, 2, 2>, corner: f32) -> SMatrix<f32, NS, NS> {
-    SMatrix::from_fn(|i, j| match (i, j) {
-        (0, 0) => corner,
-        (0, _) | (_, 0) => 0.0,
-        _ => m[(i - 1, j - 1)],
-    })
-}
-
-fn h() -> SVector<f32, NS> {
-    SVector::from([1.0, 1.0, 0.0])
-}
-
-fn lane_x(t: usize, n: usize) -> f32 {
-    (t as f32 - (n as f32 - 1.0) / 2.0) * SPACING
-}
-
-fn broad_state(n: usize) -> State {
-    let pinf = &DEFAULT.spatial.model.p_inf;
-    let b = &DEFAULT.coreg;
-    let mut s = State::new();
-    for t in 0..n {
-        let p = embed(&(pinf * b[(t, t)]), DEFAULT.hyper.offset_variance);
-        s.push(SVector::from([lane_x(t, n), 0.0, 0.0]), &p)
-            .expect("fewer than LANES tracks");
-    }
-    for i in 0..n {
-        for j in i + 1..n {
-            s.set_cross(i, j, &embed(&(pinf * b[(i, j)]), 0.0));
-        }
-    }
-    s
-}
-
-fn tracked_state(n: usize, rng: &mut ChaCha8Rng) -> State {
-    let f = embed(&DEFAULT.spatial.f, 1.0);
-    let q = embed(&DEFAULT.spatial.q, 0.0);
-    let mut s = broad_state(n);
-    for r in 0..12 {
-        if r > 0 {
-            s.predict(&f, &q, &DEFAULT.coreg);
-        }
-        for t in 0..n {
-            let z = lane_x(t, n) + 0.1 * normal(rng);
-            assert!(s.update_single(t, &h(), z, DEFAULT.hyper.meas_noise));
-        }
-    }
-    s.predict(&f, &q, &DEFAULT.coreg);
-    s
-}
-
-fn params() -> RowParams {
-    let c = Config::DEFAULT;
-    RowParams {
-        pd: c.pd,
-        pg: c.pg,
-        gamma: c.gamma,
-        clutter_density: c.clutter_density,
-        r: DEFAULT.hyper.meas_noise,
-        miss: row::MissModel::Gated,
-    }
-}
-
-fn clustered(rng: &mut ChaCha8Rng, m: usize, half_width: f32) -> Vec<f32> {
-    (0..m)
-        .map(|_| (rng.random::<f32>() * 2.0 - 1.0) * half_width)
-        .collect()
-}
-
-/// A row input: the predicted state, the points and the event budget.
-struct RowInput {
-    state: State,
-    points: Vec<f32>,
-    budget: usize,
-}
-
-/// The rows of `bench/benches/spatial.rs`, drawn in the bench's order from its seed.
-fn row_inputs() -> Vec<(&'static str, RowInput)> {
-    let mut rng = ChaCha8Rng::seed_from_u64(2024);
-    let typical = tracked_state(LANES, &mut rng);
-    let mut pts: Vec<f32> = (0..LANES)
-        .map(|t| lane_x(t, LANES) + 0.1 * normal(&mut rng))
-        .collect();
-    pts.extend((0..2).map(|_| (rng.random::<f32>() * 2.0 - 1.0) * 12.0));
-    let broad = broad_state(LANES);
-    let worst = clustered(&mut rng, PER_ROW, 3.0);
-    let mut heavy: Vec<f32> = (0..LANES - 1)
-        .flat_map(|t| [lane_x(t, LANES) - 0.15, lane_x(t, LANES) + 0.15])
-        .collect();
-    heavy.push(lane_x(LANES - 1, LANES) + 0.05);
-    let dense_state = broad_state(4);
-    let dense = clustered(&mut rng, 8, 2.0);
-    vec![
-        (
-            "row_typical",
-            RowInput {
-                state: typical,
-                points: pts,
-                budget: EVENTS,
-            },
-        ),
-        (
-            "row_worst",
-            RowInput {
-                state: broad,
-                points: worst,
-                budget: EVENTS,
-            },
-        ),
-        (
-            "row_maxwork",
-            RowInput {
-                state: typical,
-                points: heavy,
-                budget: EVENTS,
-            },
-        ),
-        (
-            "row_dense512",
-            RowInput {
-                state: dense_state,
-                points: dense.clone(),
-                budget: EVENTS,
-            },
-        ),
-        (
-            "row_dense_exact",
-            RowInput {
-                state: dense_state,
-                points: dense,
-                budget: 4096,
-            },
-        ),
-    ]
-}
-
-const LEAD_IN_ROWS: usize = 16;
-
-fn worst_frame(rng: &mut ChaCha8Rng) -> Vec<[f32; 2]> {
-    let du = (DEFAULT.hyper.u_max - DEFAULT.hyper.u_min) / 60.0;
-    let mut pts = Vec::with_capacity(MEAS);
-    let full_rows = (MEAS - LANES * LEAD_IN_ROWS) / PER_ROW;
-    for r in 0..LEAD_IN_ROWS + full_rows {
-        let u = DEFAULT.hyper.u_min + r as f32 * du;
-        for t in 0..LANES {
-            pts.push([u, lane_x(t, LANES) + 0.1 * normal(rng)]);
-        }
-        if r < LEAD_IN_ROWS {
-            continue;
-        }
-        for _ in LANES..PER_ROW {
-            let t = rng.random_range(0..LANES);
-            pts.push([
-                u,
-                lane_x(t, LANES) + (rng.random::<f32>() * 2.0 - 1.0) * 0.4,
-            ]);
-        }
-    }
-    pts
-}
-
-fn to32(sc: &Scenario) -> Vec<[f32; 2]> {
-    sc.points
-        .iter()
-        .map(|&(u, x)| [u as f32, x as f32])
-        .collect()
-}
-
-/// The frame sequences of `bench/benches/tracker.rs` (`frames(cfg, seed, n)`), cut to M points.
-fn sequence(cfg: &ScenarioConfig, seed: u64, n: u64) -> Vec<Vec<[f32; 2]>> {
-    (0..n)
-        .map(|k| {
-            let mut p = to32(&Scenario::generate(cfg, seed * 1000 + k));
-            p.truncate(MEAS);
-            p
-        })
-        .collect()
+/// The frame sequences of `bench/benches/tracker.rs`, cut to M points.
+fn sequence(frames: &[Frame]) -> Vec<Vec<[f32; 2]>> {
+    frames.iter().map(|f| f.truncated(MEAS).p32).collect()
 }
 
 fn frame_inputs(name: &str) -> Option<Vec<Vec<[f32; 2]>>> {
     Some(match name {
-        "frame_typical" => {
-            let scfg = ScenarioConfig {
-                shape: Shape::Rbf {
-                    variance: 4.0,
-                    lengthscale: 35.0,
-                },
-                clutter_density: 0.05,
-                ..ScenarioConfig::default()
-            };
-            vec![to32(&Scenario::generate(&scfg, 4))]
-        }
+        "frame_typical" => vec![to_f32(&typical_scenario())],
         "frame_worst" => vec![worst_frame(&mut ChaCha8Rng::seed_from_u64(7))],
-        "seq_typical" => sequence(
-            &ScenarioConfig {
-                clutter_density: 0.02,
-                ..ScenarioConfig::default()
-            },
-            4,
-            20,
-        ),
-        "seq_worst" => sequence(
-            &ScenarioConfig {
-                lanes: 6,
-                spacing: (3.6, 3.6),
-                left: -9.0,
-                row_step: 77.0 / 40.0,
-                clutter_density: 0.04,
-                ..ScenarioConfig::default()
-            },
-            9,
-            8,
-        ),
+        "seq_typical" => sequence(&inputs::typical()),
+        "seq_worst" => sequence(&inputs::worst()),
         _ => return None,
     })
 }
 
 const FRAMES: [&str; 4] = ["frame_typical", "frame_worst", "seq_typical", "seq_worst"];
-
-fn empty_out() -> Obs {
-    [LaneObservation::EMPTY; LANES]
-}
 
 /// The measured region of row inputs: `iters` row steps on copies of the predicted state.
 #[inline(never)]

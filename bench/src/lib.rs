@@ -16,3 +16,4 @@ pub mod harness;
 pub mod inputs;
 pub mod probes;
 pub mod report;
+pub mod spatial;
