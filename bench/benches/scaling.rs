@@ -1,5 +1,5 @@
 //! Scaling curves: `Tracker::step` time per frame against each capacity, the others at the
-//! reference configuration (DESIGN 2: D = 6, N = 16, M = 256, E = 512, L = 4; spatial order 2,
+//! reference configuration (docs/design.md §2: D = 6, N = 16, M = 256, E = 512, L = 4; spatial order 2,
 //! 16 points a row, 64 rows).
 //!
 //! ```sh

@@ -18,7 +18,7 @@
 //! ```
 //!
 //! * `window` — the BEV range tracked, metres ahead of the camera; `index_points` (N) are spread
-//!   evenly over it (DESIGN 4.0).
+//!   evenly over it (docs/design.md §4.0).
 //! * `spatial` — RBF kernel of a lane's curve `g(u)`: Taylor `order` N_T (2..=6), `variance` σ_u²,
 //!   `lengthscale` ℓ_u (m); `offset_variance` is the prior variance of the lane offset `c` (m²);
 //!   `row_step` is the nominal spacing of BEV rows (m) for which `F_u`, `Q_u` are tabulated; the

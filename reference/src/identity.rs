@@ -1,4 +1,4 @@
-//! Lane identity in f64 (DESIGN 1 step 3), straight from the definition: the normalised squared
+//! Lane identity in f64 (docs/design.md §4.3), straight from the definition: the normalised squared
 //! curve-space distance over the common index points, the gate, and the optimal assignment found by
 //! brute force over every injective partial map from observations to live lanes. Unbounded and
 //! plain on purpose; it shares no code with the core.

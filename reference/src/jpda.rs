@@ -1,4 +1,4 @@
-//! Spatial JPDA and the coupled JPDACF, one row step, in f64 (DESIGN 4.1).
+//! Spatial JPDA and the coupled JPDACF, one row step, in f64 (docs/design.md §4.1).
 //!
 //! This is the oracle for the embedded core: it enumerates **all** joint association events (no
 //! bound `E`, no clustering), so it is exact and only meant for small scenarios. Measurements are
@@ -25,7 +25,7 @@ use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 pub enum MissConvention {
     /// Textbook JPDA: `1 − P_D`.
     Textbook,
-    /// `1 − P_D P_G`, which accounts for a detection that fell outside the gate (DESIGN 4.1 uses
+    /// `1 − P_D P_G`, which accounts for a detection that fell outside the gate (docs/design.md §4.1 uses
     /// this; Stone Soup too).
     Pg,
 }
@@ -69,7 +69,7 @@ pub struct Estimate {
     pub p: DMatrix<f64>,
 }
 
-/// Per-track gating on the marginal of each track (DESIGN 4.1 step 2).
+/// Per-track gating on the marginal of each track (docs/design.md §4.1 step 2).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Gating {
     /// Predicted measurement `ẑ_d = H x̄_d` per track.
@@ -91,7 +91,7 @@ pub struct RowResult {
     pub sbar: DMatrix<f64>,
     /// All joint events, in the order described in the module documentation.
     pub events: Vec<Event>,
-    /// Unnormalised log weight of each event (DESIGN 4.1 step 3).
+    /// Unnormalised log weight of each event (docs/design.md §4.1 step 3).
     pub log_weights: Vec<f64>,
     /// Normalised event probabilities `β_A`.
     pub event_probs: Vec<f64>,
@@ -105,9 +105,9 @@ pub struct RowResult {
     pub vbar: DVector<f64>,
     /// `P_c = P̄ − G S̄ Gᵀ`, the covariance after a full detection of every track.
     pub pc: DMatrix<f64>,
-    /// Exact moment matching of the event mixture (DESIGN 4.1 step 4; the design's update).
+    /// Exact moment matching of the event mixture (docs/design.md §4.1 step 4; the design's update).
     pub mixture: Estimate,
-    /// The paper's update (Eqs. 29–31 carried to the stacked state, DESIGN 9): `x̄ + G v̄` and
+    /// The paper's update (Eqs. 29–31 carried to the stacked state, docs/design.md §9): `x̄ + G v̄` and
     /// `β₀ P̄ + (1 − β₀) P_c + G (Σ_A β_A ν_A ν_Aᵀ − v̄ v̄ᵀ) Gᵀ` with `β₀` = all missed.
     pub paper: Estimate,
     /// The stacked gain masked per event: each event uses `K_A = G M_A` (`M_A = diag(δ(A))`),
@@ -161,7 +161,7 @@ pub fn block_diagonal(pbar: &DMatrix<f64>, nx: usize) -> DMatrix<f64> {
     })
 }
 
-/// DESIGN 4.1 step 1: `x̄ ← (I_D ⊗ F) x̄`, `P̄ ← (I_D ⊗ F) P̄ (I_D ⊗ F)ᵀ + B ⊗ Q`.
+/// docs/design.md §4.1 step 1: `x̄ ← (I_D ⊗ F) x̄`, `P̄ ← (I_D ⊗ F) P̄ (I_D ⊗ F)ᵀ + B ⊗ Q`.
 pub fn predict(
     xbar: &DVector<f64>,
     pbar: &DMatrix<f64>,
@@ -177,7 +177,7 @@ pub fn predict(
     }
 }
 
-/// DESIGN 4.1 step 2: gate every measurement against every track on the track's marginal.
+/// docs/design.md §4.1 step 2: gate every measurement against every track on the track's marginal.
 /// `h` is the `1 × nx` measurement row of one track.
 pub fn gate(
     xbar: &DVector<f64>,
@@ -209,7 +209,7 @@ pub fn gate(
     g
 }
 
-/// DESIGN 4.1 step 3: every joint event given the validation matrix `valid[d][j]` (each track takes
+/// docs/design.md §4.1 step 3: every joint event given the validation matrix `valid[d][j]` (each track takes
 /// at most one valid measurement, each measurement at most one track), in lexicographic order
 /// (track 0 most significant; miss first, then measurements ascending).
 pub fn enumerate_events(valid: &[Vec<bool>]) -> Vec<Event> {
@@ -328,7 +328,7 @@ fn log_normal(pat: &Pattern, nu: &DVector<f64>) -> f64 {
     }
 }
 
-/// One exact row step of the coupled JPDACF (DESIGN 4.1 steps 2–4), after the prediction.
+/// One exact row step of the coupled JPDACF (docs/design.md §4.1 steps 2–4), after the prediction.
 ///
 /// `xbar`, `pbar`: predicted stacked state and covariance (`D·nx`); `h`: the `1 × nx` measurement
 /// row of one track; `zs`: the row's measurements. A block-diagonal `pbar` gives the independent

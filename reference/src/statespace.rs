@@ -1,4 +1,4 @@
-//! Kernels and their state-space forms in f64 (DESIGN 3).
+//! Kernels and their state-space forms in f64 (docs/design.md §3).
 
 use nalgebra::{DMatrix, DVector};
 use num_complex::Complex64;

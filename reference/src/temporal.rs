@@ -1,5 +1,5 @@
-//! The temporal coupled filter and the fixed-lag coupled RTS smoother in dense f64 (DESIGN 4.2, 5;
-//! paper Eqs. 32 and 45–51 as corrected by DESIGN 9).
+//! The temporal coupled filter and the fixed-lag coupled RTS smoother in dense f64 (docs/design.md §4.2, §5;
+//! paper Eqs. 32 and 45–51 as corrected by docs/design.md §9).
 //!
 //! Three layers:
 //!
@@ -11,7 +11,7 @@
 //!    sliding-window fixed-lag smoother [`FixedLagSmoother`] (and its batch driver
 //!    [`fixed_lag_smooth`]), which keeps only the last `L + 1` steps, as the embedded core does.
 //! 3. The coupled temporal model [`CoupledTemporalModel`]: the stacked `F̄`, `Q̄`, `P̄₀`, `H̄`, `R` of
-//!    DESIGN 4.2 for `D` active lanes and `N` index points, with a Matérn-3/2 temporal kernel
+//!    docs/design.md §4.2 for `D` active lanes and `N` index points, with a Matérn-3/2 temporal kernel
 //!    discretised exactly for any frame step `T` (dropped frames).
 //!
 //! Everything is dense and straightforward on purpose: this is the oracle the structured f32 core is
@@ -317,7 +317,7 @@ pub fn rts_smooth(steps: &[FilterStep]) -> Result<RtsResult> {
     Ok(RtsResult { smoothed, gains })
 }
 
-/// Fixed-lag RTS smoother with lag `L` as a sliding window (DESIGN 5): it keeps the filter moments of
+/// Fixed-lag RTS smoother with lag `L` as a sliding window (docs/design.md §5): it keeps the filter moments of
 /// the last `L + 1` steps, and after each new step runs the RTS recursion back over the window, so
 /// that the oldest entry is `x_{k−L|k}`. It never looks at steps that left the window, which is
 /// exact: `x_{j|k}` depends on steps before `j` only through `x_{j|j}`.
@@ -437,7 +437,7 @@ pub struct StackedMeasurement {
     pub z: Vec<Option<f64>>,
 }
 
-/// The coupled temporal model of DESIGN 4.2.
+/// The coupled temporal model of docs/design.md §4.2.
 ///
 /// **State ordering** (lane-major, then index-point-major, then the Matérn state): for lane
 /// `d ∈ 0..D`, index point `i ∈ 0..N` and component `c ∈ {0: f, 1: ḟ}` the entry is at

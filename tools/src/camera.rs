@@ -1,5 +1,5 @@
 //! Flat-road pinhole inverse perspective mapping (IPM) between image pixels and the bird's-eye view
-//! (DESIGN 4.0, 8).
+//! (docs/design.md §4.0, §8).
 //!
 //! The camera looks straight down the road (no roll, no yaw; the principal column is the vanishing
 //! point's column) from height `h` above a flat road. An image point (col, row) below the horizon

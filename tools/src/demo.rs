@@ -5,7 +5,7 @@
 //!    animated into 20-frame clips at each noise preset (low, mid, high; seed 1), each tracked
 //!    twice by the `ReferenceTracker` ([`crate::track`]): with the default tables (B as trained,
 //!    lanes coupled) and with the ablation tables of `data/hyper/ablation_diag_b.json`
-//!    (diag(B), DESIGN 4.0: no coupling, same per-lane variances). Scored on the labelled last
+//!    (diag(B), docs/design.md §4.0: no coupling, same per-lane variances). Scored on the labelled last
 //!    frame of each clip (what TuSimple scores) and on every frame against the replay's per-frame
 //!    ground truth.
 //! 2. **Real frames**: the 10 bundled 512×288 TuSimple frames

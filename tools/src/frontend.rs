@@ -1,4 +1,4 @@
-//! The image front end (`stjpdacf frontend`, DESIGN 1 step 1): camera image → inverse
+//! The image front end (`stjpdacf frontend`, docs/design.md §1 step 1): camera image → inverse
 //! perspective mapping (IPM) to a bird's-eye-view grid → colour and ridge filtering → region of
 //! interest → non-maximum suppression per BEV row → feature points, written back as image pixels
 //! in the [`Frame`] format.

@@ -7,7 +7,7 @@
 //! carry `h_samples`, each lane seen within the last `MAX_REPORT_MISSES` frames is written at
 //! those rows ([`lane_x`]): inside the BEV window by the tracker's GP evaluation
 //! (`Tracker::lane_at`), beyond either end by extending the lane linearly from its two outermost
-//! index points (DESIGN 4.0: rows near the horizon are extrapolated, never left out), −2 outside
+//! index points (docs/design.md §4.0: rows near the horizon are extrapolated, never left out), −2 outside
 //! the lane's observed extent (one index interval of margin) and outside the image. Lanes are
 //! written left to right (by their position at the nearest index point); a lane with no point in
 //! the image is left out. `run_time` is the milliseconds spent on that frame from its points to
@@ -122,7 +122,7 @@ pub fn tables_from_hyper(h: &HyperFile) -> Result<&'static ReferenceTables> {
 /// Lateral gap (metres) that separates two feature-point clusters in one BEV row.
 pub const CLUSTER_GAP: f64 = 0.25;
 
-/// Preprocessing the core expects (DESIGN 1: "on the MCU the feature points arrive
+/// Preprocessing the core expects (docs/design.md §1: "on the MCU the feature points arrive
 /// preprocessed"): BEV points are binned to the spatial filter's rows (K = 4 rows per index
 /// interval) and, within a row, points closer than [`CLUSTER_GAP`] laterally are merged into their
 /// mean. An edge detector returns many points per marking in near rows (one BEV row spans tens of
@@ -192,7 +192,7 @@ fn inside(tables: &ReferenceTables, u: f64) -> bool {
 
 /// Where a lane is at `u` metres ahead, by the rules of the predictions: inside the BEV window
 /// the tracker's GP evaluation ([`ReferenceTracker::lane_at`], with its variance); beyond either
-/// end of the window the line through the two nearest index points (no variance; DESIGN 4.0:
+/// end of the window the line through the two nearest index points (no variance; docs/design.md §4.0:
 /// rows outside the window are extrapolated, never left out) — at the far end only for a lane
 /// observed up to it, at the near end only for a lane observed down to it. `None` outside the
 /// lane's observed extent (one index interval of margin) or for a free slot.

@@ -1,15 +1,15 @@
 //! Training the spatial kernel, the coregionalisation `B` and the temporal length-scale from
-//! labelled lanes (DESIGN 6, the paper's Algorithm 2), in f64 on the host.
+//! labelled lanes (docs/design.md §6, the paper's Algorithm 2), in f64 on the host.
 //!
 //! # Spatial model (intrinsic coregionalisation, ICM)
 //! A frame holds lanes `d = 0..D_f` (slots = rank from the left at the bottom of the BEV window,
-//! DESIGN 4.0), each observed as lateral positions `x` at longitudinal positions `u` (metres).
+//! docs/design.md §4.0), each observed as lateral positions `x` at longitudinal positions `u` (metres).
 //! The lanes of one frame are jointly Gaussian with zero mean and
 //!
 //! `cov(x_d(u), x_d'(u')) = B[d,d']·σ²·exp(−(u−u')²/(2ℓ²)) + [d = d']·σ_c² + [same point]·noise`
 //!
 //! where `B = W Wᵀ + diag(κ)` (W is D×R, R ≤ D), `σ_c²` is the prior variance of the per-lane
-//! offset `c` of DESIGN 4.0 (marginalised analytically; `σ_c² = 0` disables it) and `noise` the
+//! offset `c` of docs/design.md §4.0 (marginalised analytically; `σ_c² = 0` disables it) and `noise` the
 //! label noise. A frame with `D_f < D` lanes uses the leading `D_f×D_f` block of `B`. Frames are
 //! independent: the objective is the sum of per-frame log marginal likelihoods (LML).
 //!
