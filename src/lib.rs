@@ -41,3 +41,8 @@ pub mod tables;
 pub mod temporal;
 pub mod tracker;
 pub mod wire;
+
+/// The README's firmware example, compiled and run as a doctest (`cargo test --doc -p stjpdacf`).
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
