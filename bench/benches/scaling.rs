@@ -27,7 +27,6 @@
 //! `target/stjpdacf-bench/scaling.json`.
 
 use std::hint::black_box;
-use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkGroup, BenchmarkId, Criterion};
 use stjpdacf::probe::NoProbe;
@@ -37,10 +36,10 @@ use stjpdacf::tracker::{ReferenceTracker, Tracker, TrackerConfig};
 use stjpdacf_bench::config::{
     hyper_with_lanes, hyper_with_points, rows_per_interval, D_AXIS, E_AXIS, M_AXIS, N_AXIS,
 };
-use stjpdacf_bench::cputime::ThreadCpuTime;
+use stjpdacf_bench::cputime::{self, ThreadCpuTime};
 use stjpdacf_bench::harness::{Driver, Step};
 use stjpdacf_bench::inputs::{self, Frame};
-use stjpdacf_bench::report::{self, Machine, ScalingInput, ScalingOut};
+use stjpdacf_bench::report::{self, Machine, ScalingInput, ScalingOut, Span};
 use stjpdacf_tools::tablegen::static_tables;
 
 /// One point of a curve: warm the tracker up on `frames`, record what a pass does, time it.
@@ -252,8 +251,7 @@ fn scaling(c: &mut Criterion<ThreadCpuTime>) {
     report::write_side_file(
         "scaling.json",
         &ScalingOut {
-            machine_start,
-            machine_end: Machine::now(),
+            span: Span::since(machine_start),
             points: out,
         },
     )
@@ -262,11 +260,7 @@ fn scaling(c: &mut Criterion<ThreadCpuTime>) {
 
 criterion_group! {
     name = benches;
-    config = Criterion::default()
-        .with_measurement(ThreadCpuTime)
-        .sample_size(10)
-        .warm_up_time(Duration::from_millis(500))
-        .measurement_time(Duration::from_secs(2));
+    config = cputime::criterion();
     targets = scaling
 }
 criterion_main!(benches);

@@ -16,7 +16,7 @@ use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::ReferenceTracker;
 use stjpdacf_bench::harness::profile;
 use stjpdacf_bench::inputs;
-use stjpdacf_bench::report::{self, Machine, StagesOut};
+use stjpdacf_bench::report::{self, Machine, Span, StagesOut};
 
 /// Timed passes over each sequence.
 const PASSES: usize = 101;
@@ -60,8 +60,7 @@ fn main() {
         profiles.push(p);
     }
     let out = StagesOut {
-        machine_start,
-        machine_end: Machine::now(),
+        span: Span::since(machine_start),
         profiles,
     };
     if filter.is_empty() {

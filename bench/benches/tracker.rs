@@ -43,11 +43,11 @@ use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf::tracker::ReferenceTracker;
-use stjpdacf_bench::cputime::ThreadCpuTime;
+use stjpdacf_bench::cputime::{self, ThreadCpuTime};
 use stjpdacf_bench::harness::Driver;
 use stjpdacf_bench::inputs::{self, Frame, STEP_US};
 use stjpdacf_bench::probes::{CallCounter, StageGroup, StageTimer};
-use stjpdacf_bench::report::{self, Machine, SequenceMeta, TrackerMeta};
+use stjpdacf_bench::report::{self, Machine, SequenceMeta, Span, TrackerMeta};
 use stjpdacf_reference::identity::{self, Curve, Gate};
 use stjpdacf_reference::pipeline::{PipelineConfig, ReferencePipeline};
 use stjpdacf_reference::spatial::{self as refspatial, FrameResult, Model};
@@ -223,6 +223,23 @@ fn in_step(
     });
 }
 
+/// Benches `f(k)` as `name`, `k` cycling through `1, 2, …, n − 1, 0, 1, …` (one step per
+/// iteration).
+fn bench_cycling<R>(
+    g: &mut criterion::BenchmarkGroup<'_, ThreadCpuTime>,
+    name: &str,
+    n: usize,
+    mut f: impl FnMut(usize) -> R,
+) {
+    let mut k = 0usize;
+    g.bench_function(name, |b| {
+        b.iter(|| {
+            k = (k + 1) % n;
+            black_box(f(k))
+        })
+    });
+}
+
 #[allow(clippy::too_many_lines)]
 fn tracker(c: &mut Criterion<ThreadCpuTime>) {
     let machine_start = Machine::now();
@@ -322,30 +339,17 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         let mut g = c.benchmark_group(format!("stage_spatial_{name}"));
         let mut sf = Box::new(SpatialFilter::<3, 6, 64, 16>::new());
         let scfg = Config::default();
-        let mut s1 = 0usize;
-        g.bench_function("core_f32", |b| {
-            b.iter(|| {
-                s1 = (s1 + 1) % frames.len();
-                let mut obs = [EMPTY_OBS; 6];
-                let p = &frames[s1].p32;
-                let r = sf.run(&DEFAULT, &scfg, black_box(&p[..p.len().min(256)]), &mut obs);
-                black_box((r, obs))
-            })
+        bench_cycling(&mut g, "core_f32", frames.len(), |s1| {
+            let mut obs = [EMPTY_OBS; 6];
+            let p = &frames[s1].p32;
+            let r = sf.run(&DEFAULT, &scfg, black_box(&p[..p.len().min(256)]), &mut obs);
+            (r, obs)
         });
         in_step(&mut g, &mut core, frames, StageGroup::Spatial);
         if with_reference {
-            let mut s2 = 0usize;
-            g.bench_function("reference_f64", |b| {
-                b.iter(|| {
-                    s2 = (s2 + 1) % frames.len();
-                    let p = &frames[s2].p64;
-                    black_box(refspatial::run_frame(
-                        &model,
-                        &rcfg,
-                        black_box(&p[..p.len().min(256)]),
-                        PER_ROW,
-                    ))
-                })
+            bench_cycling(&mut g, "reference_f64", frames.len(), |s2| {
+                let p = &frames[s2].p64;
+                refspatial::run_frame(&model, &rcfg, black_box(&p[..p.len().min(256)]), PER_ROW)
             });
         }
         g.finish();
@@ -353,16 +357,8 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         let mut g = c.benchmark_group(format!("stage_identity_{name}"));
         in_step(&mut g, &mut core, frames, StageGroup::Identity);
         if let Some(rs) = rs.as_ref() {
-            let mut k = 0usize;
-            g.bench_function("reference_f64", |b| {
-                b.iter(|| {
-                    k = (k + 1) % rs.curves.len();
-                    black_box(identity::assign(
-                        black_box(&rs.curves[k]),
-                        &rs.preds[k],
-                        gate,
-                    ))
-                })
+            bench_cycling(&mut g, "reference_f64", rs.curves.len(), |k| {
+                identity::assign(black_box(&rs.curves[k]), &rs.preds[k], gate)
             });
         }
         g.finish();
@@ -370,16 +366,10 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         let mut g = c.benchmark_group(format!("stage_temporal_{name}"));
         in_step(&mut g, &mut core, frames, StageGroup::Temporal);
         if let Some(rs) = rs.as_ref() {
-            let mut k = 0usize;
-            g.bench_function("reference_f64_predict_update", |b| {
-                b.iter(|| {
-                    k = (k + 1) % rs.meas.len();
-                    black_box(
-                        dense
-                            .step(&rs.before[k], Some(0.05), black_box(&rs.meas[k]))
-                            .expect("dense step"),
-                    )
-                })
+            bench_cycling(&mut g, "reference_f64_predict_update", rs.meas.len(), |k| {
+                dense
+                    .step(&rs.before[k], Some(0.05), black_box(&rs.meas[k]))
+                    .expect("dense step")
             });
         }
         g.finish();
@@ -410,8 +400,7 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         sequences.push(m);
     }
     let meta = TrackerMeta {
-        machine_start,
-        machine_end: Machine::now(),
+        span: Span::since(machine_start),
         sequences,
     };
     report::write_side_file("tracker.json", &meta).expect("writing tracker.json");
@@ -480,11 +469,7 @@ fn temporal_3lanes(c: &mut Criterion<ThreadCpuTime>, t: &ModelTables, frames: &[
 
 criterion_group! {
     name = benches;
-    config = Criterion::default()
-        .with_measurement(ThreadCpuTime)
-        .sample_size(10)
-        .warm_up_time(Duration::from_millis(500))
-        .measurement_time(Duration::from_secs(2));
+    config = cputime::criterion();
     targets = tracker
 }
 criterion_main!(benches);

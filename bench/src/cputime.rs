@@ -28,6 +28,16 @@ pub fn ran_throughout(wall: Duration, cpu: Duration) -> bool {
     wall <= cpu + cpu / 100 + Duration::from_micros(5)
 }
 
+/// The criterion set-up of the tracker and scaling benches: thread CPU time, 10 samples, 0.5 s
+/// warm-up, 2 s of measurement.
+pub fn criterion() -> criterion::Criterion<ThreadCpuTime> {
+    criterion::Criterion::default()
+        .with_measurement(ThreadCpuTime)
+        .sample_size(10)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(2))
+}
+
 /// Criterion measurement: the bench thread's CPU time.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct ThreadCpuTime;

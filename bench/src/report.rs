@@ -67,6 +67,34 @@ impl Machine {
     }
 }
 
+/// The machine at the start and at the end of a bench.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Span {
+    /// At the start.
+    pub machine_start: Machine,
+    /// At the end.
+    pub machine_end: Machine,
+}
+
+impl Span {
+    /// From `machine_start` to now.
+    pub fn since(machine_start: Machine) -> Self {
+        Self {
+            machine_start,
+            machine_end: Machine::now(),
+        }
+    }
+
+    /// The machine and its load at the start and the end, for the report.
+    fn line(&self) -> String {
+        let (m, end) = (&self.machine_start, &self.machine_end);
+        format!(
+            "{} × {}, {}; load average {:.1} at the start, {:.1} at the end",
+            m.cpus, m.cpu, m.rustc, m.load[0], end.load[0]
+        )
+    }
+}
+
 /// What one sequence of the tracker bench did.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SequenceMeta {
@@ -97,10 +125,9 @@ pub struct SequenceMeta {
 /// `target/stjpdacf-bench/tracker.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrackerMeta {
-    /// At the start.
-    pub machine_start: Machine,
-    /// At the end.
-    pub machine_end: Machine,
+    /// The machine at the start and at the end.
+    #[serde(flatten)]
+    pub span: Span,
     /// The sequences.
     pub sequences: Vec<SequenceMeta>,
 }
@@ -108,10 +135,9 @@ pub struct TrackerMeta {
 /// `target/stjpdacf-bench/stages.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StagesOut {
-    /// At the start.
-    pub machine_start: Machine,
-    /// At the end.
-    pub machine_end: Machine,
+    /// The machine at the start and at the end.
+    #[serde(flatten)]
+    pub span: Span,
     /// One profile per sequence.
     pub profiles: Vec<StageProfile>,
 }
@@ -140,10 +166,9 @@ pub struct ScalingInput {
 /// `target/stjpdacf-bench/scaling.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ScalingOut {
-    /// At the start.
-    pub machine_start: Machine,
-    /// At the end.
-    pub machine_end: Machine,
+    /// The machine at the start and at the end.
+    #[serde(flatten)]
+    pub span: Span,
     /// The points.
     pub points: Vec<ScalingInput>,
 }
@@ -412,6 +437,17 @@ fn fmt_est(e: Option<Estimate>) -> String {
     e.map_or_else(|| "—".to_string(), |e| fmt_ns(e.median_ns))
 }
 
+/// One cell of a per-stage table: a figure of a profile.
+type ProfileCell = dyn Fn(&StageProfile) -> String;
+
+/// The 95 % interval of an estimate's median, `[lo, hi]`, or `—`.
+fn fmt_ci(e: Option<Estimate>) -> String {
+    e.map_or_else(
+        || "—".to_string(),
+        |e| format!("[{}, {}]", fmt_ns(e.median_lo_ns), fmt_ns(e.median_hi_ns)),
+    )
+}
+
 fn ratio(a: Option<Estimate>, b: Option<Estimate>) -> String {
     match (a, b) {
         (Some(a), Some(b)) if a.median_ns > 0.0 => format!("{:.1}×", b.median_ns / a.median_ns),
@@ -436,13 +472,6 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
     } else {
         s / n as f64
     }
-}
-
-fn machine_line(m: &Machine, end: &Machine) -> String {
-    format!(
-        "{} × {}, {}; load average {:.1} at the start, {:.1} at the end",
-        m.cpus, m.cpu, m.rustc, m.load[0], end.load[0]
-    )
 }
 
 /// Start of the generated part of `docs/bench/README.md`.
@@ -482,7 +511,7 @@ pub fn render_markdown(r: &Results) -> Result<String> {
         writeln!(
             s,
             "`cargo bench -p stjpdacf-bench --bench tracker` — {}.\n",
-            machine_line(&t.machine_start, &t.machine_end)
+            t.span.line()
         )?;
         writeln!(
             s,
@@ -497,10 +526,7 @@ pub fn render_markdown(r: &Results) -> Result<String> {
             };
             let core = r.est(&format!("{g}/core_f32"));
             let reference = r.est(&format!("{g}/reference_f64"));
-            let ci = core.map_or_else(
-                || "—".to_string(),
-                |e| format!("[{}, {}]", fmt_ns(e.median_lo_ns), fmt_ns(e.median_hi_ns)),
-            );
+            let ci = fmt_ci(core);
             let ref_info = if q.reference_run {
                 let lanes = range(q.reference_lanes.iter().map(|&v| v as u32));
                 let done = q
@@ -620,115 +646,80 @@ pub fn render_markdown(r: &Results) -> Result<String> {
             s,
             "`cargo bench -p stjpdacf-bench --bench stages` — {}. Mean over the sequence's \
              frames of each frame's median over the timed passes, µs per frame.\n",
-            machine_line(&st.machine_start, &st.machine_end)
+            st.span.line()
         )?;
         let names: Vec<&str> = st.profiles.iter().map(|p| p.sequence.as_str()).collect();
         writeln!(s, "| stage | {} |", names.join(" | "))?;
         writeln!(s, "|---|{}", "---:|".repeat(names.len()))?;
-        let stage_names: Vec<String> = st
-            .profiles
-            .first()
-            .map(|p| p.stage_us.iter().map(|(n, _)| n.clone()).collect())
-            .unwrap_or_default();
         let cell = |v: f64, total: f64| format!("{v:.1} ({:.0} %)", 100.0 * v / total);
-        for n in &stage_names {
-            let cells: Vec<String> = st
+        // One row per name of `split` (stages, then groups of stages): each profile's time and
+        // its share of the profile's total.
+        let split_rows = |s: &mut String,
+                          split: fn(&StageProfile) -> &[(String, f64)],
+                          label: &dyn Fn(&str) -> String|
+         -> Result<()> {
+            let names: Vec<String> = st
                 .profiles
-                .iter()
-                .map(|p| {
-                    let v = p
-                        .stage_us
-                        .iter()
-                        .find(|(m, _)| m == n)
-                        .map_or(f64::NAN, |x| x.1);
-                    let total: f64 = p.stage_us.iter().map(|x| x.1).sum();
-                    cell(v, total)
-                })
-                .collect();
-            writeln!(s, "| {n} | {} |", cells.join(" | "))?;
-        }
-        let group_names: Vec<String> = st
-            .profiles
-            .first()
-            .map(|p| p.group_us.iter().map(|(n, _)| n.clone()).collect())
-            .unwrap_or_default();
-        for n in &group_names {
-            let cells: Vec<String> = st
-                .profiles
-                .iter()
-                .map(|p| {
-                    let v = p
-                        .group_us
-                        .iter()
-                        .find(|(m, _)| m == n)
-                        .map_or(f64::NAN, |x| x.1);
-                    let total: f64 = p.group_us.iter().map(|x| x.1).sum();
-                    cell(v, total)
-                })
-                .collect();
-            writeln!(s, "| **= {n}** | {} |", cells.join(" | "))?;
-        }
-        let row = |label: &str, f: &dyn Fn(&StageProfile) -> String| -> String {
-            let cells: Vec<String> = st.profiles.iter().map(f).collect();
-            format!("| {label} | {} |", cells.join(" | "))
+                .first()
+                .map(|p| split(p).iter().map(|(n, _)| n.clone()).collect())
+                .unwrap_or_default();
+            for n in &names {
+                let cells: Vec<String> = st
+                    .profiles
+                    .iter()
+                    .map(|p| {
+                        let v = split(p)
+                            .iter()
+                            .find(|(m, _)| m == n)
+                            .map_or(f64::NAN, |x| x.1);
+                        let total: f64 = split(p).iter().map(|x| x.1).sum();
+                        cell(v, total)
+                    })
+                    .collect();
+                writeln!(s, "| {} | {} |", label(n), cells.join(" | "))?;
+            }
+            Ok(())
         };
-        writeln!(
-            s,
-            "{}",
-            row("sum of stages", &|p| format!(
-                "{:.1}",
-                p.stage_us.iter().map(|x| x.1).sum::<f64>()
-            ))
-        )?;
-        writeln!(
-            s,
-            "{}",
-            row("step, no probe", &|p| format!("{:.1}", p.total_no_probe_us))
-        )?;
-        writeln!(
-            s,
-            "{}",
-            row("step, counting probe", &|p| format!(
-                "{:.1} ({:+.1} %)",
-                p.total_count_probe_us,
-                100.0 * (p.total_count_probe_us / p.total_no_probe_us - 1.0)
-            ))
-        )?;
-        writeln!(
-            s,
-            "{}",
-            row("step, timing probe", &|p| format!(
-                "{:.1} ({:+.1} %)",
-                p.total_timing_probe_us,
-                100.0 * (p.total_timing_probe_us / p.total_no_probe_us - 1.0)
-            ))
-        )?;
-        writeln!(
-            s,
-            "{}",
-            row("probe calls per frame", &|p| format!(
-                "{:.0}",
-                p.calls_per_frame
-            ))
-        )?;
-        writeln!(
-            s,
-            "{}",
-            row("timing probe cost (calls × one call)", &|p| format!(
-                "{:.1} ({:.1} ns a call, {:.1} % of the step)",
-                p.calls_per_frame * p.timer_call_ns * 1e-3,
-                p.timer_call_ns,
-                100.0 * p.calls_per_frame * p.timer_call_ns * 1e-3 / p.total_no_probe_us
-            ))
-        )?;
-        writeln!(
-            s,
-            "{}",
-            row("frames × timed passes", &|p| format!(
-                "{} × {}",
-                p.frames, p.passes
-            ))
-        )?;
+        split_rows(&mut s, |p| &p.stage_us, &|n| n.to_string())?;
+        split_rows(&mut s, |p| &p.group_us, &|n| format!("**= {n}**"))?;
+        let totals: [(&str, &ProfileCell); 7] = [
+            ("sum of stages", &|p| {
+                format!("{:.1}", p.stage_us.iter().map(|x| x.1).sum::<f64>())
+            }),
+            ("step, no probe", &|p| format!("{:.1}", p.total_no_probe_us)),
+            ("step, counting probe", &|p| {
+                format!(
+                    "{:.1} ({:+.1} %)",
+                    p.total_count_probe_us,
+                    100.0 * (p.total_count_probe_us / p.total_no_probe_us - 1.0)
+                )
+            }),
+            ("step, timing probe", &|p| {
+                format!(
+                    "{:.1} ({:+.1} %)",
+                    p.total_timing_probe_us,
+                    100.0 * (p.total_timing_probe_us / p.total_no_probe_us - 1.0)
+                )
+            }),
+            ("probe calls per frame", &|p| {
+                format!("{:.0}", p.calls_per_frame)
+            }),
+            ("timing probe cost (calls × one call)", &|p| {
+                format!(
+                    "{:.1} ({:.1} ns a call, {:.1} % of the step)",
+                    p.calls_per_frame * p.timer_call_ns * 1e-3,
+                    p.timer_call_ns,
+                    100.0 * p.calls_per_frame * p.timer_call_ns * 1e-3 / p.total_no_probe_us
+                )
+            }),
+            ("frames × timed passes", &|p| {
+                format!("{} × {}", p.frames, p.passes)
+            }),
+        ];
+        for (label, f) in totals {
+            let cells: Vec<String> = st.profiles.iter().map(f).collect();
+            writeln!(s, "| {label} | {} |", cells.join(" | "))?;
+        }
         writeln!(s)?;
     }
     if let Some(sc) = &r.scaling {
@@ -738,7 +729,7 @@ pub fn render_markdown(r: &Results) -> Result<String> {
             "`cargo bench -p stjpdacf-bench --bench scaling` — {}. The other parameters at the \
              reference configuration (D = 6, N = 16, M = 256, E = 512, L = 4); **bold** = the \
              reference configuration. Plot: `docs/bench/scaling.png`.\n",
-            machine_line(&sc.machine_start, &sc.machine_end)
+            sc.span.line()
         )?;
         writeln!(
             s,
@@ -748,10 +739,7 @@ pub fn render_markdown(r: &Results) -> Result<String> {
         for p in &r.scaling_points {
             let i = &p.input;
             let b = if i.reference { "**" } else { "" };
-            let ci = p.time.map_or_else(
-                || "—".to_string(),
-                |e| format!("[{}, {}]", fmt_ns(e.median_lo_ns), fmt_ns(e.median_hi_ns)),
-            );
+            let ci = fmt_ci(p.time);
             writeln!(
                 s,
                 "| {} | {b}{}{b} | {b}{}{b} | {} | {} | {} | {} | {:.0} | {:.1} | {} |",
