@@ -356,27 +356,7 @@ impl Results {
             &target_dir().join("criterion"),
             &["tracker_step_", "stage_", "scaling_"],
         )?;
-        let scaling_points = scaling
-            .as_ref()
-            .map(|s| {
-                s.points
-                    .iter()
-                    .map(|p| ScalingPoint {
-                        input: p.clone(),
-                        time: criterion.get(&p.id).copied(),
-                    })
-                    .collect()
-            })
-            .unwrap_or_default();
-        Ok(Self {
-            schema: SCHEMA.to_string(),
-            tracker,
-            stages,
-            scaling,
-            icount,
-            scaling_points,
-            criterion,
-        })
+        Ok(Self::assemble(tracker, stages, scaling, icount, criterion))
     }
 
     /// `self`, with what it lacks taken from `old` (benches that were not run again keep their
@@ -391,6 +371,23 @@ impl Results {
                 !id.starts_with("scaling_") || sc.points.iter().any(|p| &p.id == id)
             });
         }
+        Self::assemble(
+            self.tracker.or(old.tracker),
+            self.stages.or(old.stages),
+            scaling,
+            self.icount.or(old.icount),
+            criterion,
+        )
+    }
+
+    /// The results of the side files and the estimates, with each scaling point's time.
+    fn assemble(
+        tracker: Option<TrackerMeta>,
+        stages: Option<StagesOut>,
+        scaling: Option<ScalingOut>,
+        icount: Option<IcountOut>,
+        criterion: BTreeMap<String, Estimate>,
+    ) -> Self {
         let scaling_points = scaling
             .as_ref()
             .map(|s| {
@@ -403,12 +400,12 @@ impl Results {
                     .collect()
             })
             .unwrap_or_default();
-        Results {
+        Self {
             schema: SCHEMA.to_string(),
-            tracker: self.tracker.or(old.tracker),
-            stages: self.stages.or(old.stages),
+            tracker,
+            stages,
             scaling,
-            icount: self.icount.or(old.icount),
+            icount,
             scaling_points,
             criterion,
         }
