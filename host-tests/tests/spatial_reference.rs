@@ -154,6 +154,26 @@ fn match_lanes(res: &FrameResult, sc: &Scenario, model: &Model) -> Vec<(usize, f
 
 /// Easy scene: every true lane is found once, in left-to-right order, and the pseudo-measurements
 /// are within `4 sd + 0.1 m` of the true curve.
+/// The reference walk over the scenario's points, its invariants checked.
+fn run_checked(model: &Model, cfg: &Config, sc: &Scenario) -> FrameResult {
+    let res = run_frame(model, cfg, &sc.points, PER_ROW);
+    check_invariants(&res, model, cfg);
+    res
+}
+
+/// All lanes missing for 5 rows (40.5–46.5 m), `P_D = 1` elsewhere.
+fn all_lanes_gap() -> ScenarioConfig {
+    ScenarioConfig {
+        pd: 1.0,
+        gaps: vec![Gap {
+            lane: None,
+            u0: 40.5,
+            u1: 46.5,
+        }],
+        ..ScenarioConfig::default()
+    }
+}
+
 fn assert_finds_all(sc: &Scenario, res: &FrameResult, model: &Model, name: &str) {
     let m = match_lanes(res, sc, model);
     let lanes: Vec<usize> = m.iter().map(|x| x.0).collect();
@@ -238,8 +258,7 @@ fn parallel_straight_lanes() {
     let (model, cfg) = setup();
     for seed in [1, 2] {
         let sc = Scenario::generate(&ScenarioConfig::default(), seed);
-        let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-        check_invariants(&res, &model, &cfg);
+        let res = run_checked(&model, &cfg, &sc);
         assert_finds_all(&sc, &res, &model, &format!("parallel seed {seed}"));
         assert!(res.tracks.iter().all(|t| t.status == Status::Confirmed));
         assert_eq!(res.counters.merged, 0);
@@ -287,8 +306,7 @@ fn curved_lanes_with_clutter() {
             sc.source.iter().any(Option::is_none),
             "{name}: no clutter drawn"
         );
-        let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-        check_invariants(&res, &model, &cfg);
+        let res = run_checked(&model, &cfg, &sc);
         assert_finds_all(&sc, &res, &model, name);
         assert!(res.counters.clutter_points > 0);
     }
@@ -299,18 +317,9 @@ fn short_gap_is_bridged_long_gap_ends_the_track() {
     let (model, cfg) = setup();
     // All lanes missing for 5 rows: no track ends, and the pseudo-measurement uncertainty grows
     // in the gap (index point 8 sits at u = 44.07 m, inside 40.5–46.5 m).
-    let short = ScenarioConfig {
-        pd: 1.0,
-        gaps: vec![Gap {
-            lane: None,
-            u0: 40.5,
-            u1: 46.5,
-        }],
-        ..ScenarioConfig::default()
-    };
+    let short = all_lanes_gap();
     let sc = Scenario::generate(&short, 5);
-    let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-    check_invariants(&res, &model, &cfg);
+    let res = run_checked(&model, &cfg, &sc);
     assert_finds_all(&sc, &res, &model, "short gap");
     assert_eq!(res.counters.ended, 0);
     for t in &res.tracks {
@@ -331,8 +340,7 @@ fn short_gap_is_bridged_long_gap_ends_the_track() {
         ..ScenarioConfig::default()
     };
     let sc = Scenario::generate(&long, 5);
-    let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-    check_invariants(&res, &model, &cfg);
+    let res = run_checked(&model, &cfg, &sc);
     assert_finds_all(&sc, &res, &model, "long gap");
     let m = match_lanes(&res, &sc, &model);
     for (t, &(lane, _)) in res.tracks.iter().zip(&m) {
@@ -372,8 +380,7 @@ fn merge_and_split() {
         ..ScenarioConfig::default()
     };
     let sc = Scenario::generate(&merge, 2);
-    let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-    check_invariants(&res, &model, &cfg);
+    let res = run_checked(&model, &cfg, &sc);
     // Beyond the merge one track (not two) carries the shared lane.
     let far = model.points - 1;
     let at_far: Vec<f64> = res
@@ -405,8 +412,7 @@ fn merge_and_split() {
         ..merge
     };
     let sc = Scenario::generate(&split, 2);
-    let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-    check_invariants(&res, &model, &cfg);
+    let res = run_checked(&model, &cfg, &sc);
     assert_eq!(res.tracks.len(), 3);
     let m = match_lanes(&res, &sc, &model);
     assert_eq!(m.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0, 1, 2]);
@@ -429,8 +435,7 @@ fn more_lanes_than_slots() {
         },
         9,
     );
-    let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-    check_invariants(&res, &model, &cfg);
+    let res = run_checked(&model, &cfg, &sc);
     assert_eq!(res.tracks.len(), 3);
     assert!(res.counters.no_slot > 0, "{:?}", res.counters);
     let m = match_lanes(&res, &sc, &model);
@@ -457,8 +462,7 @@ fn clutter_alone_confirms_nothing() {
         4,
     );
     assert!(sc.points.len() > 10);
-    let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-    check_invariants(&res, &model, &cfg);
+    let res = run_checked(&model, &cfg, &sc);
     assert!(res.tracks.is_empty(), "{} tracks", res.tracks.len());
 }
 
@@ -681,18 +685,9 @@ fn initiation_update_pins_the_new_track_at_its_point() {
     }
     assert_sym_psd(&post.p, "conditioned");
 
-    let scfg = ScenarioConfig {
-        pd: 1.0,
-        gaps: vec![Gap {
-            lane: None,
-            u0: 40.5,
-            u1: 46.5,
-        }],
-        ..ScenarioConfig::default()
-    };
+    let scfg = all_lanes_gap();
     let sc = Scenario::generate(&scfg, 5);
-    let res = run_frame(&model, &cfg, &sc.points, PER_ROW);
-    check_invariants(&res, &model, &cfg);
+    let res = run_checked(&model, &cfg, &sc);
     assert_finds_all(&sc, &res, &model, "σ_c² = offset_variance");
     let mut seen = 0;
     for d in &res.rows {

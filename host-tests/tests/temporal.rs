@@ -106,6 +106,14 @@ impl MaxErr {
             None => self.0.push((key.to_string(), e)),
         }
     }
+    /// Checks `got`'s mean and covariance against `mean` and `cov` (messages `{key} mean {k}`,
+    /// `{key} cov {k}`) and records the errors under `{key} mean` and `{key} cov`.
+    fn gaussian(&mut self, key: &str, k: usize, got: &Gaussian, mean: &Value, cov: &Value) {
+        let e = check_vec(&format!("{key} mean {k}"), &got.mean, &vector(mean));
+        self.add(&format!("{key} mean"), e);
+        let e = check(&format!("{key} cov {k}"), &got.cov, &mat(cov));
+        self.add(&format!("{key} cov"), e);
+    }
     fn print(&self, model: &str) {
         for (k, e) in &self.0 {
             eprintln!("golden rts.json [{model}] {k}: max abs error {e:.3e}");
@@ -146,48 +154,18 @@ fn golden_check_model(name: &str) {
     let steps = run_filter(&model, &prior, &z).expect("filter");
     assert_eq!(steps.len(), n);
     for (k, s) in steps.iter().enumerate() {
-        let e = check_vec(
-            &format!("predicted mean {k}"),
-            &s.predicted.mean,
-            &vector(&m["predicted_mean"][k]),
-        );
-        errs.add("predicted mean", e);
-        let e = check(
-            &format!("predicted cov {k}"),
-            &s.predicted.cov,
-            &mat(&m["predicted_cov"][k]),
-        );
-        errs.add("predicted cov", e);
-        let e = check_vec(
-            &format!("filtered mean {k}"),
-            &s.filtered.mean,
-            &vector(&m["filtered_mean"][k]),
-        );
-        errs.add("filtered mean", e);
-        let e = check(
-            &format!("filtered cov {k}"),
-            &s.filtered.cov,
-            &mat(&m["filtered_cov"][k]),
-        );
-        errs.add("filtered cov", e);
+        let (pm, pc) = (&m["predicted_mean"][k], &m["predicted_cov"][k]);
+        errs.gaussian("predicted", k, &s.predicted, pm, pc);
+        let (fm, fc) = (&m["filtered_mean"][k], &m["filtered_cov"][k]);
+        errs.gaussian("filtered", k, &s.filtered, fm, fc);
     }
 
     let rts = rts_smooth(&steps).expect("rts");
     assert_eq!(rts.smoothed.len(), n);
     assert_eq!(rts.gains.len(), n);
     for k in 0..n {
-        let e = check_vec(
-            &format!("rts mean {k}"),
-            &rts.smoothed[k].mean,
-            &vector(&m["rts_mean"][k]),
-        );
-        errs.add("rts mean", e);
-        let e = check(
-            &format!("rts cov {k}"),
-            &rts.smoothed[k].cov,
-            &mat(&m["rts_cov"][k]),
-        );
-        errs.add("rts cov", e);
+        let (rm, rc) = (&m["rts_mean"][k], &m["rts_cov"][k]);
+        errs.gaussian("rts", k, &rts.smoothed[k], rm, rc);
         let e = check(
             &format!("rts gain {k}"),
             &rts.gains[k],
@@ -195,18 +173,8 @@ fn golden_check_model(name: &str) {
         );
         errs.add("rts gain", e);
         if let Some(fm) = m.get("filterpy_rts_mean") {
-            let e = check_vec(
-                &format!("filterpy rts mean {k}"),
-                &rts.smoothed[k].mean,
-                &vector(&fm[k]),
-            );
-            errs.add("filterpy rts mean", e);
-            let e = check(
-                &format!("filterpy rts cov {k}"),
-                &rts.smoothed[k].cov,
-                &mat(&m["filterpy_rts_cov"][k]),
-            );
-            errs.add("filterpy rts cov", e);
+            let fc = &m["filterpy_rts_cov"][k];
+            errs.gaussian("filterpy rts", k, &rts.smoothed[k], &fm[k], fc);
         }
     }
 

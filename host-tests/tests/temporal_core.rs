@@ -26,6 +26,20 @@ fn model() -> (ModelTables, CoupledTemporalModel) {
     (t, m)
 }
 
+/// A confirmed lane's observation over 3–80 m with no index point present.
+fn confirmed_empty() -> LaneObservation<16> {
+    LaneObservation {
+        status: Status::Confirmed,
+        present: [false; 16],
+        z: SVector::zeros(),
+        cov: SMatrix::zeros(),
+        u_first: 3.0,
+        u_last: 80.0,
+        existence: 1.0,
+        rank: 0,
+    }
+}
+
 /// A lane's pseudo-measurement: positions near `x0 + slope·u + curve·u²`, an exponentially
 /// correlated covariance, some index points missing.
 fn observation(
@@ -45,16 +59,7 @@ fn observation(
         .iter()
         .map(|u| x0 + 0.3 * t + 0.01 * u + 2e-4 * u * u + rng.random_range(-0.1..0.1))
         .collect();
-    let mut obs = LaneObservation {
-        status: Status::Confirmed,
-        present: [false; 16],
-        z: SVector::zeros(),
-        cov: SMatrix::zeros(),
-        u_first: 3.0,
-        u_last: 80.0,
-        existence: 1.0,
-        rank: 0,
-    };
+    let mut obs = confirmed_empty();
     for i in 0..N {
         if present[i] {
             obs.present[i] = true;
@@ -73,6 +78,74 @@ fn observation(
     (obs, m)
 }
 
+/// Starts lanes 0, 1 and 2 with ranks 0, 1 and 2 through `start(slot, rank, ranks)`.
+fn start_three_lanes(mut start: impl FnMut(usize, u8, &[u8; 6])) {
+    let mut ranks = [0u8; 6];
+    for (s, r) in [(0usize, 0u8), (1, 1), (2, 2)] {
+        ranks[s] = r;
+        start(s, r, &ranks);
+    }
+}
+
+/// Frame `k` at `time`: one pseudo-measurement per lane of `offsets` (lane 1 unseen in frames
+/// 4–6); the seen ones go to `update(lane, observation)`, all to the reference's list.
+fn frame_measurements(
+    rng: &mut ChaCha8Rng,
+    index_u: &[f64],
+    offsets: &[f64],
+    k: usize,
+    time: f64,
+    mut update: impl FnMut(usize, &LaneObservation<16>),
+) -> Vec<Option<LaneMeasurement>> {
+    let mut meas: Vec<Option<LaneMeasurement>> = Vec::new();
+    for (d, &x0) in offsets.iter().enumerate() {
+        let seen = !(d == 1 && (4..7).contains(&k));
+        let (obs, m) = observation(rng, index_u, x0, time);
+        if seen {
+            update(d, &obs);
+            meas.push(Some(m));
+        } else {
+            meas.push(None);
+        }
+    }
+    meas
+}
+
+/// Compares the core's per-point mean and variance of each lane (`core(lane)`) with the
+/// reference's `estimate`: means within 2e-3 m, variances within 2e-3 relative + 1e-5 m²; keeps
+/// the largest differences in `max`. `what` names the estimate in the messages.
+fn assert_lanes_match(
+    k: usize,
+    lanes: usize,
+    what: &str,
+    reference: &CoupledTemporalModel,
+    estimate: &Gaussian,
+    core: impl Fn(usize) -> (SVector<f32, 16>, SVector<f32, 16>),
+    max: &mut (f64, f64),
+) {
+    for d in 0..lanes {
+        let (mean, var) = core(d);
+        for i in 0..N {
+            let ix = reference.state_index(d, i, 0);
+            let (wm, wv) = (estimate.mean[ix], estimate.cov[(ix, ix)]);
+            let dm = (mean[i] as f64 - wm).abs();
+            let dv = (var[i] as f64 - wv).abs();
+            max.0 = max.0.max(dm);
+            max.1 = max.1.max(dv / wv.max(1e-12));
+            assert!(
+                dm <= 2e-3,
+                "frame {k} lane {d} point {i}: {what}mean {} vs {wm}",
+                mean[i]
+            );
+            assert!(
+                dv <= 2e-3 * wv + 1e-5,
+                "frame {k} lane {d} point {i}: {what}var {} vs {wv}",
+                var[i]
+            );
+        }
+    }
+}
+
 #[test]
 fn core_matches_dense_reference_with_truncation() {
     let (t, reference) = model();
@@ -81,61 +154,32 @@ fn core_matches_dense_reference_with_truncation() {
     let offsets = [-5.4, -1.8, 1.8];
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let mut core = Box::new(Filter::new());
-    let mut ranks = [0u8; 6];
-    for (s, r) in [(0usize, 0u8), (1, 1), (2, 2)] {
-        ranks[s] = r;
-        core.start_lane(&DEFAULT, s, r, &ranks).unwrap();
-    }
+    start_three_lanes(|s, r, ranks| {
+        core.start_lane(&DEFAULT, s, r, ranks).unwrap();
+    });
     let mut state = reference
         .prior(lanes, nalgebra::DVector::zeros(2 * lanes * N))
         .unwrap();
     // 20 fps, with dropped frames (2× and 5×) and a lane missing for a few frames.
     let steps = [0.0, 0.05, 0.05, 0.1, 0.05, 0.25, 0.05, 0.05, 0.05, 0.1];
-    let (mut max_dm, mut max_dv) = (0.0f64, 0.0f64);
+    let mut max = (0.0f64, 0.0f64);
     let mut time = 0.0;
     for (k, &dt) in steps.iter().enumerate() {
         time += dt;
         if dt > 0.0 {
             core.predict(&DEFAULT, dt as f32).unwrap();
         }
-        let mut meas: Vec<Option<LaneMeasurement>> = Vec::new();
-        for (d, &x0) in offsets.iter().enumerate().take(lanes) {
-            let seen = !(d == 1 && (4..7).contains(&k));
-            let (obs, m) = observation(&mut rng, &index_u, x0, time);
-            if seen {
-                core.update(&DEFAULT, d, &obs).unwrap();
-                meas.push(Some(m));
-            } else {
-                meas.push(None);
-            }
-        }
+        let meas = frame_measurements(&mut rng, &index_u, &offsets[..lanes], k, time, |d, obs| {
+            core.update(&DEFAULT, d, obs).unwrap();
+        });
         let step = reference
             .step(&state, (dt > 0.0).then_some(dt), &meas)
             .unwrap();
         state = Gaussian::new(step.filtered.mean.clone(), step.filtered.cov.clone()).unwrap();
-        for d in 0..lanes {
-            let (mean, var) = core.lane(&DEFAULT, d).unwrap();
-            for i in 0..N {
-                let ix = reference.state_index(d, i, 0);
-                let (wm, wv) = (state.mean[ix], state.cov[(ix, ix)]);
-                let dm = (mean[i] as f64 - wm).abs();
-                let dv = (var[i] as f64 - wv).abs();
-                max_dm = max_dm.max(dm);
-                max_dv = max_dv.max(dv / wv.max(1e-12));
-                assert!(
-                    dm <= 2e-3,
-                    "frame {k} lane {d} point {i}: mean {} vs {wm}",
-                    mean[i]
-                );
-                assert!(
-                    dv <= 2e-3 * wv + 1e-5,
-                    "frame {k} lane {d} point {i}: var {} vs {wv}",
-                    var[i]
-                );
-            }
-        }
+        let core_lane = |d| core.lane(&DEFAULT, d).unwrap();
+        assert_lanes_match(k, lanes, "", &reference, &state, core_lane, &mut max);
     }
-    println!("temporal core (rank {} of 16) vs dense f64: max |Δmean| = {max_dm:.2e} m, max rel |Δvar| = {max_dv:.2e}", DEFAULT.gram_rank);
+    println!("temporal core (rank {} of 16) vs dense f64: max |Δmean| = {:.2e} m, max rel |Δvar| = {:.2e}", DEFAULT.gram_rank, max.0, max.1);
     // The stacked covariance stays symmetric PSD.
     let p = core.covariance();
     let pd = DMatrix::from_fn(84, 84, |i, j| p[(i, j)] as f64);
@@ -166,16 +210,7 @@ fn bad_inputs_leave_the_state_untouched() {
         core.start_lane(&DEFAULT, 1, 0, &ranks),
         Err(TemporalError::BadRanks)
     );
-    let mut obs = LaneObservation {
-        status: Status::Confirmed,
-        present: [false; 16],
-        z: SVector::zeros(),
-        cov: SMatrix::zeros(),
-        u_first: 3.0,
-        u_last: 80.0,
-        existence: 1.0,
-        rank: 0,
-    };
+    let mut obs = confirmed_empty();
     assert_eq!(core.update(&DEFAULT, 0, &obs), Err(TemporalError::NoData));
     assert_eq!(core.update(&DEFAULT, 3, &obs), Err(TemporalError::BadSlot));
     obs.present = [true; 16];
@@ -203,11 +238,9 @@ fn fixed_lag_smoother_matches_dense_rts() {
     let offsets = [-5.4, -1.8, 1.8];
     let mut rng = ChaCha8Rng::seed_from_u64(12);
     let mut core = Box::new(Temporal::<6, 16, 7, 84, 42, LAG>::new());
-    let mut ranks = [0u8; 6];
-    for (s, r) in [(0usize, 0u8), (1, 1), (2, 2)] {
-        ranks[s] = r;
-        core.start_lane(&DEFAULT, s, r, &ranks).unwrap();
-    }
+    start_three_lanes(|s, r, ranks| {
+        core.start_lane(&DEFAULT, s, r, ranks).unwrap();
+    });
     let mut state = reference
         .prior(lanes, nalgebra::DVector::zeros(2 * lanes * N))
         .unwrap();
@@ -215,7 +248,7 @@ fn fixed_lag_smoother_matches_dense_rts() {
     let steps = [
         0.0, 0.05, 0.05, 0.1, 0.05, 0.25, 0.05, 0.05, 0.05, 0.1, 0.05, 0.05,
     ];
-    let (mut max_dm, mut max_dv, mut compared) = (0.0f64, 0.0f64, 0);
+    let (mut max, mut compared) = ((0.0f64, 0.0f64), 0);
     let mut time = 0.0;
     let mut filtered_var: Vec<Vec<SVector<f32, 16>>> = Vec::new();
     for (k, &dt) in steps.iter().enumerate() {
@@ -223,17 +256,9 @@ fn fixed_lag_smoother_matches_dense_rts() {
         if dt > 0.0 {
             core.predict(&DEFAULT, dt as f32).unwrap();
         }
-        let mut meas: Vec<Option<LaneMeasurement>> = Vec::new();
-        for (d, &x0) in offsets.iter().enumerate().take(lanes) {
-            let seen = !(d == 1 && (4..7).contains(&k));
-            let (obs, m) = observation(&mut rng, &index_u, x0, time);
-            if seen {
-                core.update(&DEFAULT, d, &obs).unwrap();
-                meas.push(Some(m));
-            } else {
-                meas.push(None);
-            }
-        }
+        let meas = frame_measurements(&mut rng, &index_u, &offsets[..lanes], k, time, |d, obs| {
+            core.update(&DEFAULT, d, obs).unwrap();
+        });
         filtered_var.push(
             (0..lanes)
                 .map(|d| core.filter().lane(&DEFAULT, d).unwrap().1)
@@ -251,27 +276,17 @@ fn fixed_lag_smoother_matches_dense_rts() {
             continue;
         };
         assert_eq!(lagged.target_step + LAG, k);
-        for d in 0..lanes {
-            let (mean, var) = core.lagged(&DEFAULT, d, LAG).unwrap();
-            for i in 0..N {
-                let ix = reference.state_index(d, i, 0);
-                let (wm, wv) = (lagged.estimate.mean[ix], lagged.estimate.cov[(ix, ix)]);
-                let dm = (mean[i] as f64 - wm).abs();
-                let dv = (var[i] as f64 - wv).abs();
-                max_dm = max_dm.max(dm);
-                max_dv = max_dv.max(dv / wv.max(1e-12));
-                assert!(
-                    dm <= 2e-3,
-                    "frame {k} lane {d} point {i}: smoothed mean {} vs {wm}",
-                    mean[i]
-                );
-                assert!(
-                    dv <= 2e-3 * wv + 1e-5,
-                    "frame {k} lane {d} point {i}: smoothed var {} vs {wv}",
-                    var[i]
-                );
-            }
-        }
+        let core_lane = |d| core.lagged(&DEFAULT, d, LAG).unwrap();
+        let estimate = &lagged.estimate;
+        assert_lanes_match(
+            k,
+            lanes,
+            "smoothed ",
+            &reference,
+            estimate,
+            core_lane,
+            &mut max,
+        );
         compared += 1;
         // Smoothing uses later data: the lagged variance is at most the filtered variance of then.
         for (d, then) in filtered_var[k - LAG].iter().enumerate() {
@@ -287,7 +302,7 @@ fn fixed_lag_smoother_matches_dense_rts() {
         }
     }
     assert_eq!(compared, steps.len() - LAG);
-    println!("fixed-lag L = {LAG} core vs dense RTS: max |Δmean| = {max_dm:.2e} m, max rel |Δvar| = {max_dv:.2e} over {compared} frames");
+    println!("fixed-lag L = {LAG} core vs dense RTS: max |Δmean| = {:.2e} m, max rel |Δvar| = {:.2e} over {compared} frames", max.0, max.1);
 }
 
 /// The filter with its smoother window: an update whose products would overflow f32 (a
@@ -303,14 +318,10 @@ fn overflowing_update_leaves_filter_and_window_untouched() {
         core.start_lane(&DEFAULT, s, r, &ranks).unwrap();
     }
     let mut obs = LaneObservation {
-        status: Status::Confirmed,
         present: [true; 16],
         z: SVector::from_element(-1.8),
         cov: SMatrix::identity() * 0.01,
-        u_first: 3.0,
-        u_last: 80.0,
-        existence: 1.0,
-        rank: 0,
+        ..confirmed_empty()
     };
     for _ in 0..5 {
         core.predict(&DEFAULT, 0.05).unwrap();
