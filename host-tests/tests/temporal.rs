@@ -142,6 +142,20 @@ fn model_inputs(m: &Value) -> (LinearGaussianModel, Gaussian, Vec<Vec<Option<f64
     (model, prior, z)
 }
 
+/// The coupled model of the golden `stacked_coupled` parameters `p` (N = 1, `K_u = [1]`).
+fn stacked_model(p: &Value) -> CoupledTemporalModel {
+    CoupledTemporalModel::new(
+        Matern32 {
+            variance: num(&p["sigma2"]),
+            lengthscale: num(&p["lengthscale"]),
+        },
+        DMatrix::from_element(1, 1, 1.0),
+        mat(&p["B"]),
+        num(&p["R"]),
+    )
+    .expect("model")
+}
+
 // ---------------------------------------------------------------- golden tests
 
 fn golden_check_model(name: &str) {
@@ -245,16 +259,7 @@ fn golden_inputs_match_model_builder() {
     let m = golden_model(&g, "stacked_coupled");
     let p = &m["model_params"];
     let d = num(&p["D"]) as usize;
-    let model = CoupledTemporalModel::new(
-        Matern32 {
-            variance: num(&p["sigma2"]),
-            lengthscale: num(&p["lengthscale"]),
-        },
-        DMatrix::from_element(1, 1, 1.0),
-        mat(&p["B"]),
-        num(&p["R"]),
-    )
-    .expect("model");
+    let model = stacked_model(p);
     let ts = num(&p["Ts"]);
     check(
         "stacked F",
@@ -285,16 +290,7 @@ fn golden_stacked_through_coupled_step() {
     let g = load_golden("rts.json");
     let m = golden_model(&g, "stacked_coupled");
     let p = &m["model_params"];
-    let model = CoupledTemporalModel::new(
-        Matern32 {
-            variance: num(&p["sigma2"]),
-            lengthscale: num(&p["lengthscale"]),
-        },
-        DMatrix::from_element(1, 1, 1.0),
-        mat(&p["B"]),
-        num(&p["R"]),
-    )
-    .expect("model");
+    let model = stacked_model(p);
     let ts = num(&p["Ts"]);
     let z = measurements(&m["inputs"]["z"]);
     let mut state = model

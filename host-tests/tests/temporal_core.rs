@@ -11,6 +11,7 @@ use rand_chacha::ChaCha8Rng;
 use stjpdacf::spatial::filter::{LaneObservation, Status};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::temporal::filter::{TemporalError, TemporalFilter};
+use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf_reference::hyper::HyperFile;
 use stjpdacf_reference::temporal::{CoupledTemporalModel, Gaussian, LaneMeasurement};
 use stjpdacf_tools::repo_root;
@@ -87,22 +88,53 @@ fn start_three_lanes(mut start: impl FnMut(usize, u8, &[u8; 6])) {
     }
 }
 
-/// Frame `k` at `time`: one pseudo-measurement per lane of `offsets` (lane 1 unseen in frames
-/// 4–6); the seen ones go to `update(lane, observation)`, all to the reference's list.
+/// The core's filter, alone or with its smoother window.
+trait Core {
+    fn predict(&mut self, dt: f32);
+    fn update(&mut self, lane: usize, obs: &LaneObservation<16>);
+}
+
+impl Core for Filter {
+    fn predict(&mut self, dt: f32) {
+        Filter::predict(self, &DEFAULT, dt).unwrap();
+    }
+    fn update(&mut self, lane: usize, obs: &LaneObservation<16>) {
+        Filter::update(self, &DEFAULT, lane, obs).unwrap();
+    }
+}
+
+impl<const LAG: usize> Core for Temporal<6, 16, 7, 84, 42, LAG> {
+    fn predict(&mut self, dt: f32) {
+        Temporal::predict(self, &DEFAULT, dt).unwrap();
+    }
+    fn update(&mut self, lane: usize, obs: &LaneObservation<16>) {
+        Temporal::update(self, &DEFAULT, lane, obs).unwrap();
+    }
+}
+
+/// Frame `k`, `dt` after the previous one (`time` advances by it): the core predicts (when
+/// `dt > 0`), then one pseudo-measurement per lane of `offsets` (lane 1 unseen in frames 4–6);
+/// the seen ones update the core, all go to the reference's list.
+#[allow(clippy::too_many_arguments)]
 fn frame_measurements(
+    core: &mut impl Core,
     rng: &mut ChaCha8Rng,
     index_u: &[f64],
     offsets: &[f64],
     k: usize,
-    time: f64,
-    mut update: impl FnMut(usize, &LaneObservation<16>),
+    dt: f64,
+    time: &mut f64,
 ) -> Vec<Option<LaneMeasurement>> {
+    *time += dt;
+    if dt > 0.0 {
+        core.predict(dt as f32);
+    }
     let mut meas: Vec<Option<LaneMeasurement>> = Vec::new();
     for (d, &x0) in offsets.iter().enumerate() {
         let seen = !(d == 1 && (4..7).contains(&k));
-        let (obs, m) = observation(rng, index_u, x0, time);
+        let (obs, m) = observation(rng, index_u, x0, *time);
         if seen {
-            update(d, &obs);
+            core.update(d, &obs);
             meas.push(Some(m));
         } else {
             meas.push(None);
@@ -165,13 +197,8 @@ fn core_matches_dense_reference_with_truncation() {
     let mut max = (0.0f64, 0.0f64);
     let mut time = 0.0;
     for (k, &dt) in steps.iter().enumerate() {
-        time += dt;
-        if dt > 0.0 {
-            core.predict(&DEFAULT, dt as f32).unwrap();
-        }
-        let meas = frame_measurements(&mut rng, &index_u, &offsets[..lanes], k, time, |d, obs| {
-            core.update(&DEFAULT, d, obs).unwrap();
-        });
+        let offsets = &offsets[..lanes];
+        let meas = frame_measurements(&mut *core, &mut rng, &index_u, offsets, k, dt, &mut time);
         let step = reference
             .step(&state, (dt > 0.0).then_some(dt), &meas)
             .unwrap();
@@ -229,7 +256,6 @@ fn bad_inputs_leave_the_state_untouched() {
 /// fixed-lag RTS on the dense model, L = 4, with dropped frames and a lane unseen for 3 frames.
 #[test]
 fn fixed_lag_smoother_matches_dense_rts() {
-    use stjpdacf::temporal::smoother::Temporal;
     use stjpdacf_reference::temporal::FixedLagSmoother;
     const LAG: usize = 4;
     let (t, reference) = model();
@@ -252,13 +278,8 @@ fn fixed_lag_smoother_matches_dense_rts() {
     let mut time = 0.0;
     let mut filtered_var: Vec<Vec<SVector<f32, 16>>> = Vec::new();
     for (k, &dt) in steps.iter().enumerate() {
-        time += dt;
-        if dt > 0.0 {
-            core.predict(&DEFAULT, dt as f32).unwrap();
-        }
-        let meas = frame_measurements(&mut rng, &index_u, &offsets[..lanes], k, time, |d, obs| {
-            core.update(&DEFAULT, d, obs).unwrap();
-        });
+        let offsets = &offsets[..lanes];
+        let meas = frame_measurements(&mut *core, &mut rng, &index_u, offsets, k, dt, &mut time);
         filtered_var.push(
             (0..lanes)
                 .map(|d| core.filter().lane(&DEFAULT, d).unwrap().1)
@@ -310,7 +331,6 @@ fn fixed_lag_smoother_matches_dense_rts() {
 /// lag of the window are bit-for-bit what they were; a sane update afterwards works.
 #[test]
 fn overflowing_update_leaves_filter_and_window_untouched() {
-    use stjpdacf::temporal::smoother::Temporal;
     let mut core = Box::new(Temporal::<6, 16, 7, 84, 42, 4>::new());
     let mut ranks = [0u8; 6];
     for (s, r) in [(0usize, 0u8), (1, 1)] {
