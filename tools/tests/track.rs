@@ -213,6 +213,23 @@ fn run_cli(args: &[&std::ffi::OsStr]) -> std::process::Output {
         .unwrap()
 }
 
+/// `stjpdacf track --frames <frames> --out <out> <extra>`.
+fn run_track(
+    frames: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&std::ffi::OsStr],
+) -> std::process::Output {
+    let mut args: Vec<&std::ffi::OsStr> = vec![
+        "track".as_ref(),
+        "--frames".as_ref(),
+        frames.as_ref(),
+        "--out".as_ref(),
+        out.as_ref(),
+    ];
+    args.extend_from_slice(extra);
+    run_cli(&args)
+}
+
 #[test]
 fn track_cli_camera_file_scale_and_bad_files() {
     let d = temp_dir("cli");
@@ -235,25 +252,9 @@ fn track_cli_camera_file_scale_and_bad_files() {
     let cam_file = d.join("cam.json");
     std::fs::write(&cam_file, serde_json::to_string(&small).unwrap()).unwrap();
     let (p1, p2, p3) = (d.join("p1.jsonl"), d.join("p2.jsonl"), d.join("p3.jsonl"));
-    let o = run_cli(&[
-        "track".as_ref(),
-        "--frames".as_ref(),
-        fpath.as_ref(),
-        "--out".as_ref(),
-        p1.as_ref(),
-        "--scale".as_ref(),
-        "0.4".as_ref(),
-    ]);
+    let o = run_track(&fpath, &p1, &["--scale".as_ref(), "0.4".as_ref()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = run_cli(&[
-        "track".as_ref(),
-        "--frames".as_ref(),
-        fpath.as_ref(),
-        "--out".as_ref(),
-        p2.as_ref(),
-        "--camera".as_ref(),
-        cam_file.as_ref(),
-    ]);
+    let o = run_track(&fpath, &p2, &["--camera".as_ref(), cam_file.as_ref()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (a, b) = (
         read_predictions(&p1).unwrap(),
@@ -272,13 +273,7 @@ fn track_cli_camera_file_scale_and_bad_files() {
         a[0].lanes[0]
     );
     // Without the scale the 512×288 points are read as 1280×720 pixels: different lanes.
-    let o = run_cli(&[
-        "track".as_ref(),
-        "--frames".as_ref(),
-        fpath.as_ref(),
-        "--out".as_ref(),
-        p3.as_ref(),
-    ]);
+    let o = run_track(&fpath, &p3, &[]);
     assert!(o.status.success());
     assert_ne!(read_predictions(&p3).unwrap()[0].lanes, a[0].lanes);
     // A camera file with a missing field, and one with a zero focal length.
@@ -288,15 +283,7 @@ fn track_cli_camera_file_scale_and_bad_files() {
         r#"{"width": 512, "height": 288, "vp_col": 261.6, "vp_row": 95.4, "height_m": 1.67}"#,
     )
     .unwrap();
-    let o = run_cli(&[
-        "track".as_ref(),
-        "--frames".as_ref(),
-        fpath.as_ref(),
-        "--out".as_ref(),
-        p3.as_ref(),
-        "--camera".as_ref(),
-        bad.as_ref(),
-    ]);
+    let o = run_track(&fpath, &p3, &["--camera".as_ref(), bad.as_ref()]);
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(!o.status.success());
     assert!(
@@ -304,15 +291,7 @@ fn track_cli_camera_file_scale_and_bad_files() {
         "{err}"
     );
     std::fs::write(&bad, r#"{"width": 512, "height": 288, "vp_col": 261.6, "vp_row": 95.4, "height_m": 1.67, "focal_px": 0}"#).unwrap();
-    let o = run_cli(&[
-        "track".as_ref(),
-        "--frames".as_ref(),
-        fpath.as_ref(),
-        "--out".as_ref(),
-        p3.as_ref(),
-        "--camera".as_ref(),
-        bad.as_ref(),
-    ]);
+    let o = run_track(&fpath, &p3, &["--camera".as_ref(), bad.as_ref()]);
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(err.contains("badcam.json: camera sizes"), "{err}");
     // A frames file whose time goes backwards names the file and the line.
@@ -320,13 +299,7 @@ fn track_cli_camera_file_scale_and_bad_files() {
     text.push_str(r#"{"clip": "c", "t": 0.01, "points": []}"#);
     text.push('\n');
     std::fs::write(&fpath, text).unwrap();
-    let o = run_cli(&[
-        "track".as_ref(),
-        "--frames".as_ref(),
-        fpath.as_ref(),
-        "--out".as_ref(),
-        p3.as_ref(),
-    ]);
+    let o = run_track(&fpath, &p3, &[]);
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert!(!o.status.success());
     assert!(err.contains("f.jsonl:4: time 0.01 s of clip c"), "{err}");
