@@ -8,7 +8,7 @@ use std::process::Command;
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::metric::bench_one_submit;
 use stjpdacf_tools::synth::{synth_clip, synthesize, NoiseLevel, SynthOutput, SynthParams};
-use stjpdacf_tools::tusimple::{read_labels, write_jsonl_to, TuSimpleRecord};
+use stjpdacf_tools::tusimple::{as_predictions, read_labels, write_jsonl_to, TuSimpleRecord};
 
 fn labels() -> Vec<TuSimpleRecord> {
     read_labels(&stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json")).unwrap()
@@ -26,12 +26,7 @@ fn bytes(o: &SynthOutput) -> Vec<u8> {
 }
 
 fn as_pred(gts: &[TuSimpleRecord]) -> Vec<TuSimpleRecord> {
-    gts.iter()
-        .map(|g| TuSimpleRecord {
-            run_time: Some(1.0),
-            ..g.clone()
-        })
-        .collect()
+    as_predictions(gts, 1.0)
 }
 
 /// No structured clutter, no dashes, no occlusion, no merges, no pixel noise.

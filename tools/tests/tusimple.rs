@@ -6,7 +6,7 @@ use std::process::Command;
 
 use approx::assert_relative_eq;
 use stjpdacf_tools::metric::{self, bench, bench_one_submit, lane_angle, lane_threshold};
-use stjpdacf_tools::tusimple::{read_labels, write_records, TuSimpleRecord};
+use stjpdacf_tools::tusimple::{self, read_labels, write_records, TuSimpleRecord};
 
 fn labels_path() -> PathBuf {
     stjpdacf_tools::repo_root().join("data/tusimple/sample_512x288/label_data.json")
@@ -18,12 +18,7 @@ fn labels() -> Vec<TuSimpleRecord> {
 
 /// The ground truth as predictions (run_time 0 ms).
 fn as_predictions(gts: &[TuSimpleRecord]) -> Vec<TuSimpleRecord> {
-    gts.iter()
-        .map(|g| TuSimpleRecord {
-            run_time: Some(0.0),
-            ..g.clone()
-        })
-        .collect()
+    tusimple::as_predictions(gts, 0.0)
 }
 
 fn temp_dir(tag: &str) -> PathBuf {
@@ -45,9 +40,14 @@ fn eval_cli(pred: &Path, gt: &Path, json: bool) -> std::process::Output {
 fn bundled_labels_are_ten_frames_of_48_rows() {
     let g = labels();
     assert_eq!(g.len(), 10);
-    assert!(g
-        .iter()
-        .all(|r| r.h_samples.len() == 48 && r.run_time.is_none()));
+    for r in &g {
+        assert_eq!(
+            (r.h_samples.len(), r.run_time),
+            (48, None),
+            "{}",
+            r.raw_file
+        );
+    }
 }
 
 #[test]
