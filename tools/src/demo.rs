@@ -291,23 +291,13 @@ fn smoothed_prediction(
     let (raw, rows) = (then.raw_file.as_ref()?, then.h_samples.as_ref()?);
     let ids = published.get(k)?;
     let cam = Camera::tusimple();
-    let mut lanes: Vec<(f64, Vec<f64>)> = out
-        .smoothed
-        .iter()
-        .filter_map(|l| {
-            ids.get(&l.id.0)?;
-            let xs = track::lane_columns(&cam, rows, |u| track::lane_x_from_points(tables, l, u));
-            Some((f64::from(l.z[0]), xs))
-        })
-        .filter(|(_, xs)| xs.iter().any(|x| *x >= 0.0))
-        .collect();
-    lanes.sort_by(|a, b| a.0.total_cmp(&b.0));
-    Some(TuSimpleRecord {
-        raw_file: raw.clone(),
-        lanes: lanes.into_iter().map(|(_, xs)| xs).collect(),
-        h_samples: rows.clone(),
-        run_time: v.prediction.and_then(|p| p.run_time),
-    })
+    let lanes = out.smoothed.iter().filter_map(|l| {
+        ids.get(&l.id.0)?;
+        let xs = track::lane_columns(&cam, rows, |u| track::lane_x_from_points(tables, l, u));
+        Some((f64::from(l.z[0]), xs))
+    });
+    let run_time = v.prediction.and_then(|p| p.run_time);
+    Some(track::lanes_record(raw, rows, lanes, run_time))
 }
 
 /// Scores the filter and the smoother on the frames that have a smoothed prediction.

@@ -118,50 +118,7 @@ enum Command {
     },
     /// Train the spatial kernel, B and the noise (and fit the temporal length-scale) from
     /// TuSimple labels; writes a complete hyperparameter file.
-    Train {
-        /// TuSimple label files (JSON lines).
-        #[arg(long, num_args = 1.., required = true)]
-        labels: Vec<PathBuf>,
-        /// Output hyperparameter file.
-        #[arg(long)]
-        out: PathBuf,
-        /// Base hyperparameter file (window, D, N and every field not trained).
-        #[arg(long, default_value = tablegen::DEFAULT_HYPER)]
-        base: PathBuf,
-        /// L-BFGS starts (the first from the base values, the others random around them).
-        #[arg(long, default_value_t = 4)]
-        restarts: usize,
-        /// Seed of the frame selection and the random starts.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// At most this many frames, evenly spread over the usable ones.
-        #[arg(long, default_value_t = 300)]
-        max_frames: usize,
-        /// Minimum spacing of the points kept per lane, metres.
-        #[arg(long, default_value_t = 3.0)]
-        spacing: f64,
-        /// L-BFGS iterations per start.
-        #[arg(long, default_value_t = 300)]
-        max_iters: u64,
-        /// Per-lane offset variance σ_c² (m²); default: the base file's.
-        #[arg(long)]
-        offset_variance: Option<f64>,
-        /// Train σ_c² as well.
-        #[arg(long)]
-        train_offset: bool,
-        /// Write the fitted temporal length-scale (default: keep the base value, record the fit).
-        #[arg(long)]
-        fit_temporal: bool,
-        /// Cut temporal series where labelled clips are further apart than this, seconds.
-        #[arg(long, default_value_t = 10.0)]
-        max_gap: f64,
-        /// Camera of the labels, a JSON file with the fields of `Camera` (default: TuSimple).
-        #[arg(long)]
-        camera: Option<PathBuf>,
-        /// Write a report (B heat map PNG, summary.json, summary.md) into this folder.
-        #[arg(long)]
-        report: Option<PathBuf>,
-    },
+    Train(TrainArgs),
     /// Real-geometry replay: animate TuSimple labels into 20-frame clips of noisy feature points,
     /// with ground truth for the last frame (and optionally every frame).
     Synth {
@@ -226,6 +183,53 @@ enum Command {
         #[arg(long)]
         overlay: Option<PathBuf>,
     },
+}
+
+/// The arguments of `stjpdacf train`.
+#[derive(clap::Args)]
+struct TrainArgs {
+    /// TuSimple label files (JSON lines).
+    #[arg(long, num_args = 1.., required = true)]
+    labels: Vec<PathBuf>,
+    /// Output hyperparameter file.
+    #[arg(long)]
+    out: PathBuf,
+    /// Base hyperparameter file (window, D, N and every field not trained).
+    #[arg(long, default_value = tablegen::DEFAULT_HYPER)]
+    base: PathBuf,
+    /// L-BFGS starts (the first from the base values, the others random around them).
+    #[arg(long, default_value_t = 4)]
+    restarts: usize,
+    /// Seed of the frame selection and the random starts.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// At most this many frames, evenly spread over the usable ones.
+    #[arg(long, default_value_t = 300)]
+    max_frames: usize,
+    /// Minimum spacing of the points kept per lane, metres.
+    #[arg(long, default_value_t = 3.0)]
+    spacing: f64,
+    /// L-BFGS iterations per start.
+    #[arg(long, default_value_t = 300)]
+    max_iters: u64,
+    /// Per-lane offset variance σ_c² (m²); default: the base file's.
+    #[arg(long)]
+    offset_variance: Option<f64>,
+    /// Train σ_c² as well.
+    #[arg(long)]
+    train_offset: bool,
+    /// Write the fitted temporal length-scale (default: keep the base value, record the fit).
+    #[arg(long)]
+    fit_temporal: bool,
+    /// Cut temporal series where labelled clips are further apart than this, seconds.
+    #[arg(long, default_value_t = 10.0)]
+    max_gap: f64,
+    /// Camera of the labels, a JSON file with the fields of `Camera` (default: TuSimple).
+    #[arg(long)]
+    camera: Option<PathBuf>,
+    /// Write a report (B heat map PNG, summary.json, summary.md) into this folder.
+    #[arg(long)]
+    report: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -315,39 +319,25 @@ fn main() -> Result<()> {
                 println!("  FN        {:.6}", s.fn_);
             }
         }
-        Command::Train {
-            labels,
-            out,
-            base,
-            restarts,
-            seed,
-            max_frames,
-            spacing,
-            max_iters,
-            offset_variance,
-            train_offset,
-            fit_temporal,
-            max_gap,
-            camera,
-            report,
-        } => {
-            let camera = match camera {
+        Command::Train(a) => {
+            let camera = match a.camera {
                 Some(p) => Camera::from_spec(&p.to_string_lossy())?,
                 None => Camera::tusimple(),
             };
+            let (out, report, restarts) = (a.out, a.report, a.restarts);
             let opts = trainrun::TrainOptions {
-                labels,
-                base,
+                labels: a.labels,
+                base: a.base,
                 camera,
                 restarts,
-                seed,
-                max_frames,
-                spacing,
-                max_iters,
-                offset_variance,
-                train_offset,
-                use_fitted_temporal: fit_temporal,
-                max_gap,
+                seed: a.seed,
+                max_frames: a.max_frames,
+                spacing: a.spacing,
+                max_iters: a.max_iters,
+                offset_variance: a.offset_variance,
+                train_offset: a.train_offset,
+                use_fitted_temporal: a.fit_temporal,
+                max_gap: a.max_gap,
             };
             let bar = indicatif::ProgressBar::new(restarts as u64);
             bar.set_style(

@@ -232,6 +232,26 @@ pub fn lane_x_from_points(
     Some(x0 + (x1 - x0) * (u - u0) / (u1 - u0))
 }
 
+/// The TuSimple record of image `raw_file` sampled at `h_samples`, from lanes `(offset,
+/// columns)`: the lanes with at least one point, left to right by offset.
+pub fn lanes_record(
+    raw_file: &str,
+    h_samples: &[f64],
+    lanes: impl Iterator<Item = (f64, Vec<f64>)>,
+    run_time: Option<f64>,
+) -> TuSimpleRecord {
+    let mut lanes: Vec<(f64, Vec<f64>)> = lanes
+        .filter(|(_, xs)| xs.iter().any(|v| *v >= 0.0))
+        .collect();
+    lanes.sort_by(|a, b| a.0.total_cmp(&b.0));
+    TuSimpleRecord {
+        raw_file: raw_file.to_string(),
+        lanes: lanes.into_iter().map(|(_, xs)| xs).collect(),
+        h_samples: h_samples.to_vec(),
+        run_time,
+    }
+}
+
 /// A lane's columns at image rows `rows` through the camera, `x_at(u)` giving its lateral
 /// position at `u` metres ahead; −2 where it gives none, above the horizon and outside the
 /// image.
@@ -393,7 +413,7 @@ pub fn track_with(
         };
         let prediction = match (&output, &f.raw_file, &f.h_samples) {
             (Some(output), Some(raw), Some(rows)) => {
-                let mut lanes: Vec<(f64, Vec<f64>)> = output
+                let lanes = output
                     .filtered
                     .iter()
                     .filter(|l| l.misses <= MAX_REPORT_MISSES)
@@ -402,16 +422,8 @@ pub fn track_with(
                             f64::from(l.z[0]),
                             lane_columns(cam, rows, |u| lane_x(tr, tables, l, u).map(|(x, _)| x)),
                         )
-                    })
-                    .filter(|(_, xs)| xs.iter().any(|v| *v >= 0.0))
-                    .collect();
-                lanes.sort_by(|a, b| a.0.total_cmp(&b.0));
-                Some(TuSimpleRecord {
-                    raw_file: raw.clone(),
-                    lanes: lanes.into_iter().map(|(_, xs)| xs).collect(),
-                    h_samples: rows.clone(),
-                    run_time: None,
-                })
+                    });
+                Some(lanes_record(raw, rows, lanes, None))
             }
             _ => None,
         };

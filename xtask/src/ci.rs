@@ -103,27 +103,11 @@ pub fn run() -> Result<()> {
 
     step("no_std core cross-builds (built alone: no feature unification)");
     for t in CROSS_TARGETS {
-        cargo(&["build", "-p", "stjpdacf", "--target", t, "--release"])?;
-        cargo(&[
-            "build",
-            "-p",
-            "stjpdacf",
-            "--target",
-            t,
-            "--release",
-            "--features",
-            "defmt",
-        ])?;
-        cargo(&[
-            "build",
-            "-p",
-            "stjpdacf",
-            "--target",
-            t,
-            "--release",
-            "--features",
-            "fast-math",
-        ])?;
+        let build = ["build", "-p", "stjpdacf", "--target", t, "--release"];
+        cargo(&build)?;
+        for feature in ["defmt", "fast-math"] {
+            cargo(&[&build[..], &["--features", feature]].concat())?;
+        }
     }
     cargo(&[
         "clippy",
