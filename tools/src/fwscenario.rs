@@ -166,27 +166,37 @@ fn lead_in(rng: &mut ChaCha8Rng, pts: &mut Vec<[f32; 2]>) {
     }
 }
 
-fn worst() -> Scenario {
-    let mut rng = ChaCha8Rng::seed_from_u64(9);
-    let frames = (0..12)
+/// 12 frames from `seed`: each the lead-in, then the rows `fill(rng, pts, r)` adds from row
+/// `r = LEAD_IN_ROWS` on.
+fn after_lead_in(
+    seed: u64,
+    mut fill: impl FnMut(&mut ChaCha8Rng, &mut Vec<[f32; 2]>, usize),
+) -> Vec<Vec<[f32; 2]>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..12)
         .map(|_| {
             let mut pts = Vec::with_capacity(MEAS);
             lead_in(&mut rng, &mut pts);
-            let mut r = LEAD_IN_ROWS;
-            while pts.len() + PER_ROW <= MEAS {
-                let u = row_u(r);
-                for t in 0..LANES {
-                    pts.push([u, lane_x(t) + 0.1 * normal(&mut rng)]);
-                }
-                for _ in LANES..PER_ROW {
-                    let t = rng.random_range(0..LANES);
-                    pts.push([u, lane_x(t) + (rng.random::<f32>() * 2.0 - 1.0) * 0.4]);
-                }
-                r += 1;
-            }
+            fill(&mut rng, &mut pts, LEAD_IN_ROWS);
             pts
         })
-        .collect();
+        .collect()
+}
+
+fn worst() -> Scenario {
+    let frames = after_lead_in(9, |rng, pts, mut r| {
+        while pts.len() + PER_ROW <= MEAS {
+            let u = row_u(r);
+            for t in 0..LANES {
+                pts.push([u, lane_x(t) + 0.1 * normal(rng)]);
+            }
+            for _ in LANES..PER_ROW {
+                let t = rng.random_range(0..LANES);
+                pts.push([u, lane_x(t) + (rng.random::<f32>() * 2.0 - 1.0) * 0.4]);
+            }
+            r += 1;
+        }
+    });
     Scenario {
         name: "worst",
         frames,
@@ -194,35 +204,28 @@ fn worst() -> Scenario {
 }
 
 fn worst_patterns() -> Scenario {
-    let mut rng = ChaCha8Rng::seed_from_u64(10);
-    let frames = (0..12)
-        .map(|_| {
-            let mut pts = Vec::with_capacity(MEAS);
-            lead_in(&mut rng, &mut pts);
-            let mut r = LEAD_IN_ROWS;
-            while pts.len() + 2 * LANES - 1 <= MEAS && r <= 60 {
-                let u = row_u(r);
-                let single = r % LANES;
-                for t in 0..LANES {
-                    let x = lane_x(t);
-                    if t == single {
-                        pts.push([u, x + 0.1 * normal(&mut rng)]);
-                    } else {
-                        pts.push([u, x - 0.3 * rng.random::<f32>()]);
-                        pts.push([u, x + 0.3 * rng.random::<f32>()]);
-                    }
+    let frames = after_lead_in(10, |rng, pts, mut r| {
+        while pts.len() + 2 * LANES - 1 <= MEAS && r <= 60 {
+            let u = row_u(r);
+            let single = r % LANES;
+            for t in 0..LANES {
+                let x = lane_x(t);
+                if t == single {
+                    pts.push([u, x + 0.1 * normal(rng)]);
+                } else {
+                    pts.push([u, x - 0.3 * rng.random::<f32>()]);
+                    pts.push([u, x + 0.3 * rng.random::<f32>()]);
                 }
-                r += 1;
             }
-            while pts.len() + LANES <= MEAS && r <= 60 {
-                for t in 0..LANES {
-                    pts.push([row_u(r), lane_x(t) + 0.1 * normal(&mut rng)]);
-                }
-                r += 1;
+            r += 1;
+        }
+        while pts.len() + LANES <= MEAS && r <= 60 {
+            for t in 0..LANES {
+                pts.push([row_u(r), lane_x(t) + 0.1 * normal(rng)]);
             }
-            pts
-        })
-        .collect();
+            r += 1;
+        }
+    });
     Scenario {
         name: "worst_patterns",
         frames,

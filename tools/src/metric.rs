@@ -118,6 +118,23 @@ pub const PENALTY: FrameScore = FrameScore {
     fn_: 1.0,
 };
 
+/// Fails when a lane of `lanes` does not have one value per row of `y_samples`; the message
+/// starts with `what`.
+fn check_lane_lengths(lanes: &[Vec<f64>], y_samples: &[f64], what: &str) -> Result<()> {
+    if let Some((i, l)) = lanes
+        .iter()
+        .enumerate()
+        .find(|(_, l)| l.len() != y_samples.len())
+    {
+        bail!(
+            "{what} lane {i} has {} values, h_samples has {} rows",
+            l.len(),
+            y_samples.len()
+        );
+    }
+    Ok(())
+}
+
 /// Score one frame: `LaneEval.bench(pred, gt, y_samples, running_time)`, in the original's order
 /// (length check, penalty, angles and thresholds, best match per ground-truth lane, FP, the
 /// more-than-4-lanes adjustments, the divisions). Errors: a predicted lane whose length is not
@@ -129,32 +146,12 @@ pub fn bench(
     y_samples: &[f64],
     running_time: f64,
 ) -> Result<FrameScore> {
-    if let Some((i, p)) = pred
-        .iter()
-        .enumerate()
-        .find(|(_, p)| p.len() != y_samples.len())
-    {
-        bail!(
-            "format of lanes error: predicted lane {i} has {} values, h_samples has {} rows",
-            p.len(),
-            y_samples.len()
-        );
-    }
+    check_lane_lengths(pred, y_samples, "format of lanes error: predicted")?;
     if running_time > MAX_RUN_TIME_MS || gt.len() + MAX_EXTRA_LANES < pred.len() {
         return Ok(PENALTY);
     }
     ensure!(!y_samples.is_empty(), "ground truth h_samples is empty");
-    if let Some((i, g)) = gt
-        .iter()
-        .enumerate()
-        .find(|(_, g)| g.len() != y_samples.len())
-    {
-        bail!(
-            "ground-truth lane {i} has {} values, h_samples has {} rows",
-            g.len(),
-            y_samples.len()
-        );
-    }
+    check_lane_lengths(gt, y_samples, "ground-truth")?;
     let threshs: Vec<f64> = gt
         .iter()
         .map(|x_gts| lane_threshold(lane_angle(x_gts, y_samples)))
@@ -259,35 +256,27 @@ pub fn bench_one_submit(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
 /// `raw_file` is in the ground truth, and every ground-truth frame has a prediction. Inputs that pass are scored by [`bench_one_submit`] exactly as the
 /// original scores them.
 pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Result<()> {
-    let mut gt_files = HashSet::new();
-    for g in gts {
-        ensure!(
-            gt_files.insert(g.raw_file.as_str()),
-            "ground truth lists {} more than once",
-            g.raw_file
-        );
-    }
-    let mut pred_files = HashSet::new();
-    for p in preds {
-        ensure!(
-            pred_files.insert(p.raw_file.as_str()),
-            "predictions list {} more than once",
-            p.raw_file
-        );
-    }
-    if let Some(p) = preds
-        .iter()
-        .find(|p| !gt_files.contains(p.raw_file.as_str()))
-    {
+    // The files of `records`, each once.
+    let files = |records: &'_ [TuSimpleRecord], what: &str| -> Result<HashSet<String>> {
+        let mut files = HashSet::new();
+        for r in records {
+            ensure!(
+                files.insert(r.raw_file.clone()),
+                "{what} {} more than once",
+                r.raw_file
+            );
+        }
+        Ok(files)
+    };
+    let gt_files = files(gts, "ground truth lists")?;
+    let pred_files = files(preds, "predictions list")?;
+    if let Some(p) = preds.iter().find(|p| !gt_files.contains(&p.raw_file)) {
         bail!(
             "prediction for {}: raw_file not in the ground truth",
             p.raw_file
         );
     }
-    if let Some(missing) = gts
-        .iter()
-        .find(|g| !pred_files.contains(g.raw_file.as_str()))
-    {
+    if let Some(missing) = gts.iter().find(|g| !pred_files.contains(&g.raw_file)) {
         bail!("no prediction for ground-truth frame {}", missing.raw_file);
     }
     Ok(())
