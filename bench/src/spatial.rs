@@ -1,5 +1,5 @@
 //! The inputs of the spatial JPDACF benches (`benches/spatial.rs`) and of their callgrind driver
-//! (`examples/spatial_icount.rs`), at the reference configuration (DESIGN 2: D = 6, N = 16,
+//! (`examples/spatial_icount.rs`), at the reference configuration (docs/design.md §2: D = 6, N = 16,
 //! M = 256 with at most 16 per row, R_max = 64, E = 512): the same seeds and the same
 //! construction in both, so that their counts tie together.
 
@@ -10,7 +10,7 @@ use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::spatial::row::{self, RowParams};
 use stjpdacf::spatial::Stacked;
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_tools::scenario::{Scenario, ScenarioConfig, Shape};
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig};
 
 /// State entries per lane (offset + order-2 RBF state).
 pub const NS: usize = 3;
@@ -202,15 +202,7 @@ pub fn worst_frame(rng: &mut ChaCha8Rng) -> Vec<[f32; 2]> {
 /// The typical frame: 3 curved lanes (RBF shape, σ² = 4 m², ℓ = 35 m), clutter 0.05 /m over
 /// ±12 m, 61 rows (≈ 240 points), seed 4.
 pub fn typical_scenario() -> Scenario {
-    let scfg = ScenarioConfig {
-        shape: Shape::Rbf {
-            variance: 4.0,
-            lengthscale: 35.0,
-        },
-        clutter_density: 0.05,
-        ..ScenarioConfig::default()
-    };
-    Scenario::generate(&scfg, 4)
+    Scenario::generate(&ScenarioConfig::curved(), 4)
 }
 
 /// A scenario's points in f32, `[u, x]`.

@@ -5,7 +5,7 @@
 use nalgebra::DMatrix;
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_tools::scenario::{Scenario, ScenarioConfig, Shape};
+use stjpdacf_tools::scenario::{Scenario, ScenarioConfig};
 
 type Filter = SpatialFilter<3, 6, 64, 16>;
 
@@ -74,14 +74,7 @@ fn finds_parallel_lanes() {
 #[test]
 fn finds_curved_lanes_in_clutter() {
     for seed in [4, 5] {
-        let cfg = ScenarioConfig {
-            shape: Shape::Rbf {
-                variance: 4.0,
-                lengthscale: 35.0,
-            },
-            clutter_density: 0.05,
-            ..ScenarioConfig::default()
-        };
+        let cfg = ScenarioConfig::curved();
         let sc = Scenario::generate(&cfg, seed);
         let (lanes, rep) = run(&sc.points);
         println!("seed {seed}: {} lanes, {rep:?}", lanes.len());

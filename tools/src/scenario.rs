@@ -102,6 +102,21 @@ pub struct ScenarioConfig {
     pub lane_ranges: Vec<Option<(f64, f64)>>,
 }
 
+impl ScenarioConfig {
+    /// The default lanes curved (RBF shape, σ² = 4 m², ℓ = 35 m), with clutter 0.05 /m over
+    /// ±12 m: the typical frame of the spatial benches and tests.
+    pub fn curved() -> Self {
+        Self {
+            shape: Shape::Rbf {
+                variance: 4.0,
+                lengthscale: 35.0,
+            },
+            clutter_density: 0.05,
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for ScenarioConfig {
     /// Three straight lanes 3.5–3.7 m apart from x = −5.4 m over 3–80 m, rows every 77/60 m,
     /// `P_D = 0.9`, σ = 0.1 m, no clutter, no gaps, no junction.
