@@ -210,6 +210,12 @@ fn check_events(err: &mut MaxErr, tag: &str, res: &RowResult, g: &Value) {
     );
 }
 
+/// The association probabilities and the PDA estimates of `res` against the section `g`.
+fn check_beta_pda(err: &mut MaxErr, tag: &str, res: &RowResult, g: &Value) {
+    err.nested(&format!("{tag}.beta"), &res.beta, &vec2(get(g, "beta")));
+    check_pda(err, tag, &res.pda, g);
+}
+
 /// Stacks the per-track PDA estimates of the reference back into per-target lists.
 fn check_pda(err: &mut MaxErr, tag: &str, pda: &[Estimate], g: &Value) {
     let xs = arr(get(g, "x_upd"));
@@ -235,6 +241,14 @@ fn for_each_scenario(mut f: impl FnMut(&Scenario<'_>)) -> usize {
     scenarios.len()
 }
 
+/// Runs `f` on every scenario with one running maximum of the scaled errors, printed under
+/// `what` at the end.
+fn max_error_over_scenarios(what: &str, mut f: impl FnMut(&mut MaxErr, &Scenario<'_>)) {
+    let mut err = MaxErr::default();
+    for_each_scenario(|sc| f(&mut err, sc));
+    println!("{what}: max scaled error {:e}", err.0);
+}
+
 // ---------------------------------------------------------------- golden tests
 
 #[test]
@@ -251,50 +265,42 @@ fn golden_conventions_are_the_ones_implemented() {
 
 #[test]
 fn independent_jpda_textbook_matches_golden() {
-    let mut err = MaxErr::default();
-    for_each_scenario(|sc| {
+    max_error_over_scenarios("jpda_textbook", |err, sc| {
         let g = get(sc.v, "jpda_textbook");
         let tag = format!("scenario {} jpda_textbook", sc.id);
         let res = sc.run_independent(MissConvention::Textbook);
-        check_gating(&mut err, &tag, &res, g, true);
-        check_events(&mut err, &tag, &res, g);
-        err.nested(&format!("{tag}.beta"), &res.beta, &vec2(get(g, "beta")));
-        check_pda(&mut err, &tag, &res.pda, g);
+        check_gating(err, &tag, &res, g, true);
+        check_events(err, &tag, &res, g);
+        check_beta_pda(err, &tag, &res, g);
     });
-    println!("jpda_textbook: max scaled error {:e}", err.0);
 }
 
 #[test]
 fn independent_jpda_pg_matches_golden_and_stonesoup() {
-    let mut err = MaxErr::default();
-    for_each_scenario(|sc| {
+    max_error_over_scenarios("jpda_pg + stonesoup_pg", |err, sc| {
         let tag = format!("scenario {} jpda_pg", sc.id);
         let res = sc.run_independent(MissConvention::Pg);
         let g = get(sc.v, "jpda_pg");
-        check_gating(&mut err, &tag, &res, g, true);
+        check_gating(err, &tag, &res, g, true);
         let n = get(g, "n_events").as_u64().expect("n_events") as usize;
         assert_eq!(res.events.len(), n, "{tag}: n_events");
         // The pg section has no `events`: the event set depends only on gating, which it shares
         // with the textbook section.
         let tb = get(sc.v, "jpda_textbook");
         assert_eq!(res.events, events_of(get(tb, "events")), "{tag}: events");
-        err.nested(&format!("{tag}.beta"), &res.beta, &vec2(get(g, "beta")));
-        check_pda(&mut err, &tag, &res.pda, g);
+        check_beta_pda(err, &tag, &res, g);
         // Stone Soup 1.9.1 (an independent implementation of the same convention).
         let ss = get(sc.v, "stonesoup_pg");
         let tag = format!("scenario {} stonesoup_pg", sc.id);
-        err.nested(&format!("{tag}.beta"), &res.beta, &vec2(get(ss, "beta")));
-        check_pda(&mut err, &tag, &res.pda, ss);
+        check_beta_pda(err, &tag, &res, ss);
     });
-    println!("jpda_pg + stonesoup_pg: max scaled error {:e}", err.0);
 }
 
 #[test]
 fn independent_mixture_equals_pda_on_each_block() {
     // With a block-diagonal prior the exact mixture update is the PDA update on each block, and the
     // cross-covariances it creates are the only difference (golden self-check, here on our own code).
-    let mut err = MaxErr::default();
-    for_each_scenario(|sc| {
+    max_error_over_scenarios("independent mixture vs pda", |err, sc| {
         for miss in [MissConvention::Textbook, MissConvention::Pg] {
             let res = sc.run_independent(miss);
             let tag = format!("scenario {} {miss:?} mixture vs pda", sc.id);
@@ -308,24 +314,22 @@ fn independent_mixture_equals_pda_on_each_block() {
             }
         }
     });
-    println!("independent mixture vs pda: max scaled error {:e}", err.0);
 }
 
 #[test]
 fn coupled_textbook_matches_golden() {
-    let mut err = MaxErr::default();
-    for_each_scenario(|sc| {
+    max_error_over_scenarios("coupled_textbook", |err, sc| {
         let g = get(sc.v, "coupled_textbook");
         let tag = format!("scenario {} coupled_textbook", sc.id);
         let res = sc.run_coupled();
-        check_gating(&mut err, &tag, &res, g, false);
+        check_gating(err, &tag, &res, g, false);
         err.slice(
             &format!("{tag}.S_diag"),
             &res.gating.s,
             &vec1(get(g, "S_diag")),
         );
         err.mat(&format!("{tag}.Sbar"), &res.sbar, &dmat(get(g, "Sbar")));
-        check_events(&mut err, &tag, &res, g);
+        check_events(err, &tag, &res, g);
         err.nested(&format!("{tag}.beta"), &res.beta, &vec2(get(g, "beta")));
         err.scalar(
             &format!("{tag}.beta0_all_missed"),
@@ -356,15 +360,13 @@ fn coupled_textbook_matches_golden() {
             );
         }
     });
-    println!("coupled_textbook: max scaled error {:e}", err.0);
 }
 
 #[test]
 fn coupled_with_block_diagonal_prior_is_independent_jpda() {
     // Dropping the cross-covariances of the golden P̄ must give exactly the independent JPDA on
     // those blocks: same events, probabilities, beta and per-track update.
-    let mut err = MaxErr::default();
-    for_each_scenario(|sc| {
+    max_error_over_scenarios("block-diagonal vs independent", |err, sc| {
         let xbar = dvec(get(sc.inputs, "xbar"));
         let pbar = block_diagonal(&dmat(get(sc.inputs, "Pbar")), sc.nx);
         let p = sc.params(MissConvention::Textbook);
@@ -383,10 +385,6 @@ fn coupled_with_block_diagonal_prior_is_independent_jpda() {
             err.mat(&format!("{tag}.P[{t}]"), &a.p, &b.p);
         }
     });
-    println!(
-        "block-diagonal vs independent: max scaled error {:e}",
-        err.0
-    );
 }
 
 // ---------------------------------------------------------------- unit properties

@@ -30,6 +30,20 @@ fn matf(v: &Value) -> Vec<Vec<f64>> {
     serde_json::from_value(v.clone()).unwrap()
 }
 
+/// The `2d × 2d` block-diagonal covariance of per-target 2×2 blocks (a JSON list).
+fn block_diag(v: &Value, d: usize) -> Vec<Vec<f64>> {
+    let ps: Vec<Vec<Vec<f64>>> = serde_json::from_value(v.clone()).unwrap();
+    let mut p = vec![vec![0.0; 2 * d]; 2 * d];
+    for (t, pt) in ps.iter().enumerate() {
+        for a in 0..2 {
+            for b in 0..2 {
+                p[2 * t + a][2 * t + b] = pt[a][b];
+            }
+        }
+    }
+    p
+}
+
 /// Loads a stacked mean and covariance (nx = 2) into the core's block form.
 fn stacked(x: &[f64], p: &[Vec<f64>], d: usize) -> Stacked<2, LANES> {
     let mut s = Stacked::<2, LANES>::new();
@@ -93,16 +107,7 @@ fn check(
     let (xw, pw): (Vec<f64>, Vec<Vec<f64>>) = if xkey.is_empty() {
         // Independent JPDA: per-target x_upd / P_upd.
         let xs = matf(&want["x_upd"]);
-        let ps: Vec<Vec<Vec<f64>>> = serde_json::from_value(want["P_upd"].clone()).unwrap();
-        let mut p = vec![vec![0.0; 2 * d]; 2 * d];
-        for (t, pt) in ps.iter().enumerate() {
-            for a in 0..2 {
-                for b in 0..2 {
-                    p[2 * t + a][2 * t + b] = pt[a][b];
-                }
-            }
-        }
-        (xs.concat(), p)
+        (xs.concat(), block_diag(&want["P_upd"], d))
     } else {
         (vecf(&want[xkey]), matf(&want[pkey]))
     };
@@ -177,15 +182,7 @@ fn independent_row_step_matches_golden_jpda_both_conventions() {
         let inp = &sc["inputs"];
         let d = inp["D"].as_u64().unwrap() as usize;
         let xs: Vec<Vec<f64>> = matf(&inp["x_pred"]);
-        let ps: Vec<Vec<Vec<f64>>> = serde_json::from_value(inp["P_pred"].clone()).unwrap();
-        let mut p = vec![vec![0.0; 2 * d]; 2 * d];
-        for (t, pt) in ps.iter().enumerate() {
-            for a in 0..2 {
-                for b in 0..2 {
-                    p[2 * t + a][2 * t + b] = pt[a][b];
-                }
-            }
-        }
+        let p = block_diag(&inp["P_pred"], d);
         let zs: Vec<f32> = vecf(&inp["zs"]).iter().map(|v| *v as f32).collect();
         let h = SVector::from([1.0f32, 0.0]);
         for (key, miss) in [

@@ -168,14 +168,8 @@ fn run(seq: &Sequence, tables: &ModelTables, tol: Tol) -> Result<Dev, String> {
                     r.slot, c.existence, r.existence
                 )));
             }
-            compare_lane(
-                tol,
-                &at(&format!("filtered slot {}", r.slot)),
-                c,
-                r,
-                &mut dev.mean,
-                &mut dev.var_rel,
-            )?;
+            let what = at(&format!("filtered slot {}", r.slot));
+            compare_lane(tol, &what, c, r, &mut dev.mean, &mut dev.var_rel)?;
             dev.compared += 1;
         }
         if reference.window_comparable() == Some(false) {
@@ -198,14 +192,8 @@ fn run(seq: &Sequence, tables: &ModelTables, tol: Tol) -> Result<Dev, String> {
                 if c2r.get(&c.id.0) != Some(&r.id) {
                     return Err(at(&format!("smoothed id {} vs {}", c.id.0, r.id)));
                 }
-                compare_lane(
-                    tol,
-                    &at(&format!("smoothed slot {}", r.slot)),
-                    c,
-                    r,
-                    &mut dev.sm_mean,
-                    &mut dev.sm_var_rel,
-                )?;
+                let what = at(&format!("smoothed slot {}", r.slot));
+                compare_lane(tol, &what, c, r, &mut dev.sm_mean, &mut dev.sm_var_rel)?;
                 dev.smoothed_compared += 1;
             }
         }
