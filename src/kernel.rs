@@ -4,7 +4,7 @@
 //!   closed-form transition `F(T)` and process noise `Q(T)` for any frame step `T > 0`
 //!   (frames can be dropped). `Q(T)` is evaluated by a series where `P∞ − F P∞ Fᵀ` would cancel.
 //! * [`RbfStateSpace`] — the Taylor-order-`NT` state-space approximation of the RBF spatial kernel
-//!   (DESIGN 3). Its companion matrix `A`, `Qc` and `P∞` come from the offline tables (the spectral
+//!   (docs/design.md §3). Its companion matrix `A`, `Qc` and `P∞` come from the offline tables (the spectral
 //!   factorisation needs polynomial roots, which the core never computes); the core discretises it
 //!   exactly for any row step `Δu` with [`crate::math::discretize`].
 //!

@@ -1,7 +1,7 @@
 //! Fixed-capacity spatio-temporal JPDA coupled filter (ST-JPDACF) for tracking lane lines on a
 //! microcontroller. No heap, no `unsafe`, no panics, bounded work per frame.
 //!
-//! The model (see `DESIGN.md` in the repository for the mathematics):
+//! The model (see `docs/design.md` in the repository for the mathematics):
 //!
 //! * a lane is a curve `x = c + g(u)` in bird's-eye-view (BEV) coordinates, `u` metres ahead and
 //!   `x` metres lateral; `g` has an RBF Gaussian-process prior along `u`, run as a Taylor-order-`NT`
@@ -17,7 +17,7 @@
 //! * `NT` — spatial state size (Taylor order of the RBF approximation).
 //! * `LANES` (D) — lane slots; `POINTS` (N) — index points per lane; `MEAS` (M) — feature points per
 //!   frame; `ROWS` (R_max) — BEV rows walked per frame; `EVENTS` (E) — joint events per row;
-//!   `LAG` (L) — smoother lag in frames.
+//!   `LAG` (L) — smoother lag in frames, 1..=[`temporal::smoother::MAX_LAG`] (7).
 //!
 //! # Contract
 //! No function in this crate panics, for any finite or non-finite input: numerical failure is
@@ -34,11 +34,14 @@
 #![deny(missing_docs)]
 
 pub mod kernel;
+pub mod linalg;
 pub mod math;
+pub mod observation;
 pub mod probe;
 pub mod spatial;
 pub mod tables;
 pub mod temporal;
+pub mod time;
 pub mod tracker;
 pub mod wire;
 

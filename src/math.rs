@@ -177,58 +177,6 @@ pub fn expm<const N: usize>(A: &SMatrix<f32, N, N>, t: f32) -> Option<SMatrix<f3
     }
 }
 
-/// Modified Cholesky of the leading `n×n` block of `a` (lower triangle read and replaced by `L`):
-/// a pivot `d` below `floor` becomes `max(|d|, target)` and the amount added is written to `load`, so
-/// `L Lᵀ = A + diag(load)`. Returns the number of raised pivots, or `u8::MAX` when a pivot or an
-/// entry is not finite (or `target` is not positive).
-pub(crate) fn cholesky_loaded<const N: usize>(
-    a: &mut SMatrix<f32, N, N>,
-    n: usize,
-    floor: f32,
-    target: f32,
-    load: &mut [f32; N],
-) -> u8 {
-    if !(target.is_finite() && target > 0.0) {
-        return u8::MAX;
-    }
-    let mut raised = 0u8;
-    for j in 0..n.min(N) {
-        let mut d = a.get((j, j)).copied().unwrap_or(0.0);
-        for k in 0..j {
-            let v = a.get((j, k)).copied().unwrap_or(0.0);
-            d -= v * v;
-        }
-        if !d.is_finite() {
-            return u8::MAX;
-        }
-        if d < floor {
-            // Reflected and floored (|d| keeps the scale of a badly indefinite matrix, so the
-            // repaired noise is not spuriously informative along the directions it was wrong).
-            let new = d.abs().max(target);
-            if let Some(l) = load.get_mut(j) {
-                *l = new - d;
-            }
-            d = new;
-            raised = raised.saturating_add(1);
-        }
-        let d = sqrt(d);
-        if let Some(e) = a.get_mut((j, j)) {
-            *e = d;
-        }
-        for i in j + 1..n.min(N) {
-            let mut acc = a.get((i, j)).copied().unwrap_or(0.0);
-            for k in 0..j {
-                acc -=
-                    a.get((i, k)).copied().unwrap_or(0.0) * a.get((j, k)).copied().unwrap_or(0.0);
-            }
-            if let Some(e) = a.get_mut((i, j)) {
-                *e = acc / d;
-            }
-        }
-    }
-    raised.min(u8::MAX - 1)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

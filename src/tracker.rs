@@ -1,6 +1,6 @@
 //! The per-frame facade: feature points in, lanes out.
 //!
-//! `Tracker::step(now, points)` runs the whole pipeline of DESIGN 1 on one frame: the spatial
+//! `Tracker::step(now, points)` runs the whole pipeline of docs/design.md §1 on one frame: the spatial
 //! JPDACF ([`crate::spatial::filter`]) turns the BEV points into confirmed lanes with
 //! pseudo-measurements at the index points; lane identity ([`crate::temporal::identity`]) matches
 //! them to the temporal lanes; the temporal coupled filter with its fixed-lag smoother
@@ -31,36 +31,16 @@
 use heapless::Vec;
 use nalgebra::SVector;
 
+use crate::linalg::{get, set};
+use crate::observation::LaneObservation;
 use crate::probe::{NoProbe, Probe, Stage};
-use crate::spatial::filter::{
-    Config as SpatialConfig, LaneObservation, SpatialFilter, SpatialReport,
-};
-use crate::spatial::{get, set};
+use crate::spatial::filter::{Config as SpatialConfig, SpatialFilter, SpatialReport};
 use crate::tables::Tables;
 use crate::temporal::identity::{
-    IdentityConfig, IdentityReport, LaneId, LanePrediction, LaneTable, SlotFate,
+    IdentityConfig, IdentityOutcome, IdentityReport, LaneId, LanePrediction, LaneTable, SlotFate,
 };
-use crate::temporal::smoother::Temporal;
-
-/// A point in time, integer microseconds (the core never reads a clock).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Instant(i64);
-
-impl Instant {
-    /// From microseconds.
-    pub const fn from_micros(us: i64) -> Self {
-        Self(us)
-    }
-    /// From milliseconds.
-    pub const fn from_millis(ms: i64) -> Self {
-        Self(ms.saturating_mul(1000))
-    }
-    /// Microseconds.
-    pub const fn as_micros(self) -> i64 {
-        self.0
-    }
-}
+use crate::temporal::smoother::{Temporal, MAX_LAG};
+pub use crate::time::Instant;
 
 /// Error of [`Tracker::step`]; the tracker's state is untouched.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -185,6 +165,9 @@ impl Default for SlotInfo {
     }
 }
 
+/// Frames of extent history the tracker keeps: `2·LAG + 1` at the largest lag.
+const EXTENT_HISTORY: usize = 2 * MAX_LAG + 1;
+
 /// The tracker. Type parameters: `NT` spatial Taylor order, `NS = NT + 1`, `LANES`, `POINTS`
 /// index points, `ROWS`/`PER_ROW` the spatial filter's capacities, `MEAS` points per frame,
 /// `RANK` retained Gram components, `NX = 2·LANES·RANK`, `NA = LANES·RANK`, `LAG` frames. Use the
@@ -210,19 +193,19 @@ pub struct Tracker<
     ids: LaneTable<LANES>,
     temporal: Temporal<LANES, POINTS, RANK, NX, NA, LAG>,
     info: [SlotInfo; LANES],
-    /// Extent history per slot: `[u_first, u_last]` of the last `LAG + 1` frames' observations.
-    /// The last `2·LAG + 1` frames are used: the filtered lanes' extents cover frames `k−LAG..=k`,
-    /// the smoothed lanes' (frame `k − LAG`) frames `k−2·LAG..=k−LAG`.
-    extent: [[[f32; 2]; LANES]; 16],
-    /// Slot → id `j` frames back (for the smoothed output).
-    id_hist: [[Option<LaneId>; LANES]; 17],
+    /// Extent history per slot: `[u_first, u_last]` of the last `2·LAG + 1` frames'
+    /// observations: the filtered lanes' extents cover frames `k−LAG..=k`, the smoothed lanes'
+    /// (frame `k − LAG`) frames `k−2·LAG..=k−LAG`.
+    extent: [[[f32; 2]; LANES]; EXTENT_HISTORY],
+    /// Slot → id `j` frames back, `j = 0..=LAG` (for the smoothed output).
+    id_hist: [[Option<LaneId>; LANES]; MAX_LAG + 1],
     /// B slot (rank from the left) of each active lane after the last step.
     ranks: [u8; LANES],
     last: Option<Instant>,
     frames: u32,
 }
 
-/// The reference configuration (DESIGN 2): D = 6, N = 16, M = 256 (16 per row), R_max = 64,
+/// The reference configuration (docs/design.md §2): D = 6, N = 16, M = 256 (16 per row), R_max = 64,
 /// E = 512, L = 4, spatial order 2, Gram rank ≤ 7.
 pub type ReferenceTracker = Tracker<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>;
 
@@ -252,7 +235,7 @@ impl<
         tables: &'static Tables<NT, LANES, POINTS>,
         cfg: TrackerConfig,
     ) -> Self {
-        const { assert!(LAG >= 1 && LAG < 8, "LAG must be 1..=7") };
+        const { assert!(LAG >= 1 && LAG <= MAX_LAG, "LAG must be 1..=MAX_LAG") };
         const { assert!(MEAS >= 1, "MEAS must be at least 1") };
         Self {
             tables,
@@ -262,8 +245,8 @@ impl<
             ids: LaneTable::new(),
             temporal: Temporal::new(),
             info: [NO_INFO; LANES],
-            extent: [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; 16],
-            id_hist: [[None; LANES]; 17],
+            extent: [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; EXTENT_HISTORY],
+            id_hist: [[None; LANES]; MAX_LAG + 1],
             ranks: [0; LANES],
             last: None,
             frames: 0,
@@ -305,7 +288,6 @@ impl<
     ///
     /// # Complexity
     /// As [`Tracker::step`], plus one `probe.enter` per stage transition (a few per BEV row).
-    #[allow(clippy::too_many_lines)]
     pub fn step_probed<P: Probe>(
         &mut self,
         now: Instant,
@@ -317,7 +299,6 @@ impl<
         out
     }
 
-    #[allow(clippy::too_many_lines)]
     fn step_inner<P: Probe>(
         &mut self,
         now: Instant,
@@ -364,6 +345,30 @@ impl<
         }
         probe.enter(Stage::Identity);
         // 3. Identity against the predictions.
+        let outcome = self.associate(n_obs);
+        report.identity = outcome.report;
+        probe.enter(Stage::Temporal);
+        // 4.–5. Removed lanes leave the temporal filter, new lanes start, seen lanes are updated.
+        self.temporal_stage(&outcome.slots, &mut report, probe);
+        // 6. Extent and id histories.
+        self.push_histories();
+        // 7. Output.
+        probe.enter(Stage::Output);
+        let mut filtered = Vec::new();
+        let mut smoothed = Vec::new();
+        self.estimates(&mut filtered, &mut smoothed);
+        self.last = Some(now);
+        self.frames = self.frames.saturating_add(1);
+        Ok(StepOutput {
+            filtered,
+            smoothed,
+            report,
+        })
+    }
+
+    /// Step 3: this frame's observations against the temporal predictions.
+    #[inline(always)]
+    fn associate(&mut self, n_obs: usize) -> IdentityOutcome<LANES> {
         let mut preds = [LanePrediction::<POINTS>::EMPTY; LANES];
         for (s, p) in preds.iter_mut().enumerate() {
             if let Some((z, var)) = self.temporal.filter().lane(self.tables, s) {
@@ -374,15 +379,25 @@ impl<
                 };
             }
         }
-        let outcome = self.ids.associate(
+        self.ids.associate(
             &preds,
             self.obs.get(..n_obs).unwrap_or(&[]),
             &self.cfg.identity,
-        );
-        report.identity = outcome.report;
-        probe.enter(Stage::Temporal);
-        // 4. Removed lanes leave the temporal filter.
-        for (s, fate) in outcome.slots.iter().enumerate() {
+        )
+    }
+
+    /// Steps 4 and 5: removed lanes leave the temporal filter; new lanes start in rank order among
+    /// the lanes present (B's slots); the seen lanes are updated; the covariance is repaired and
+    /// the lanes present are re-ranked (slots = rank from the left at the bottom of the window).
+    /// Inlined: the stages of one step share its stack frame, as before they were split.
+    #[inline(always)]
+    fn temporal_stage<P: Probe>(
+        &mut self,
+        slots: &[SlotFate; LANES],
+        report: &mut StepReport,
+        probe: &mut P,
+    ) {
+        for (s, fate) in slots.iter().enumerate() {
             let removed = matches!(fate, SlotFate::Removed { .. })
                 || matches!(
                     fate,
@@ -399,22 +414,20 @@ impl<
                 }
             }
         }
-        // 5. New lanes start in rank order among the lanes present (B's slots), then the seen
-        //    lanes are updated.
-        for (s, fate) in outcome.slots.iter().enumerate() {
+        for (s, fate) in slots.iter().enumerate() {
             if let SlotFate::New { obs, .. } = fate {
                 let x = self.bottom_position(s, Some(usize::from(*obs)));
-                let (rank, ranks) = self.ranks_with(s, x);
+                let ranks = self.ranks_of(Some((s, x)));
                 if self
                     .temporal
-                    .start_lane(self.tables, s, rank, &ranks)
+                    .start_lane(self.tables, s, get(&ranks, s), &ranks)
                     .is_err()
                 {
                     report.temporal_failures += 1;
                 }
             }
         }
-        for (s, fate) in outcome.slots.iter().enumerate() {
+        for (s, fate) in slots.iter().enumerate() {
             let o = match fate {
                 SlotFate::Matched { obs } | SlotFate::New { obs, .. } => Some(usize::from(*obs)),
                 _ => None,
@@ -444,11 +457,18 @@ impl<
         }
         probe.enter(Stage::Temporal);
         report.temporal_cov_repairs = self.temporal.repair_covariance(self.tables);
-        // Re-rank the lanes present (slots = rank from the left at the bottom of the window).
-        let ranks = self.current_ranks();
-        let _ = self.temporal.set_ranks(&ranks);
-        self.ranks = ranks;
-        // 6. Extent and id histories.
+        // The ranks of the active lanes are a permutation by construction, so this does not fail;
+        // if it did, the filter would keep its ranks and the failure would be counted.
+        let ranks = self.ranks_of(None);
+        match self.temporal.set_ranks(&ranks) {
+            Ok(()) => self.ranks = ranks,
+            Err(_) => report.temporal_failures += 1,
+        }
+    }
+
+    /// Step 6: this frame's extents and ids enter the histories (newest first).
+    #[inline(always)]
+    fn push_histories(&mut self) {
         for j in (1..self.extent.len()).rev() {
             if let Some(prev) = self.extent.get(j - 1).copied() {
                 if let Some(h) = self.extent.get_mut(j) {
@@ -473,10 +493,15 @@ impl<
                 *e = self.ids.lane(s).map(|l| l.id);
             }
         }
-        // 7. Output.
-        probe.enter(Stage::Output);
-        let mut filtered = Vec::new();
-        let mut smoothed = Vec::new();
+    }
+
+    /// Step 7: the filtered lanes of this frame and the smoothed lanes `LAG` frames back.
+    #[inline(always)]
+    fn estimates(
+        &self,
+        filtered: &mut Vec<LaneEstimate<POINTS>, LANES>,
+        smoothed: &mut Vec<LaneEstimate<POINTS>, LANES>,
+    ) {
         for s in 0..LANES {
             if let (Some(lane), Some((z, var))) = (
                 self.ids.lane(s),
@@ -484,18 +509,24 @@ impl<
             ) {
                 let (u_first, u_last) = self.extent_of(s, 0);
                 let info = get(&self.info, s);
-                let _ = filtered.push(LaneEstimate {
-                    id: lane.id,
-                    slot: s as u8,
-                    z,
-                    var,
-                    u_first,
-                    u_last,
-                    existence: info.existence,
-                    misses: lane.misses,
-                    age: lane.age,
-                    hits: lane.hits,
-                });
+                // At most one estimate per slot: the vectors hold `LANES`, so no push fails.
+                if filtered
+                    .push(LaneEstimate {
+                        id: lane.id,
+                        slot: s as u8,
+                        z,
+                        var,
+                        u_first,
+                        u_last,
+                        existence: info.existence,
+                        misses: lane.misses,
+                        age: lane.age,
+                        hits: lane.hits,
+                    })
+                    .is_err()
+                {
+                    break;
+                }
             }
             let id_then = self
                 .id_hist
@@ -508,27 +539,25 @@ impl<
                 // The same lane's counters at the current frame (0 once it is gone).
                 let now = self.ids.lane(s).filter(|l| l.id == id);
                 let (u_first, u_last) = self.extent_of(s, LAG);
-                let _ = smoothed.push(LaneEstimate {
-                    id,
-                    slot: s as u8,
-                    z,
-                    var,
-                    u_first,
-                    u_last,
-                    existence: get(&self.info, s).existence,
-                    misses: 0,
-                    age: now.map_or(0, |l| l.age),
-                    hits: now.map_or(0, |l| l.hits),
-                });
+                if smoothed
+                    .push(LaneEstimate {
+                        id,
+                        slot: s as u8,
+                        z,
+                        var,
+                        u_first,
+                        u_last,
+                        existence: get(&self.info, s).existence,
+                        misses: 0,
+                        age: now.map_or(0, |l| l.age),
+                        hits: now.map_or(0, |l| l.hits),
+                    })
+                    .is_err()
+                {
+                    break;
+                }
             }
         }
-        self.last = Some(now);
-        self.frames = self.frames.saturating_add(1);
-        Ok(StepOutput {
-            filtered,
-            smoothed,
-            report,
-        })
     }
 
     /// Union of slot `s`'s observed extents over the history frames `from..=from + LAG` (0 is
@@ -562,17 +591,20 @@ impl<
             .unwrap_or(0.0)
     }
 
-    /// Ranks of the active lanes plus a new lane in slot `s` at lateral `x` (a permutation of
-    /// `0..=active`), ties broken by slot.
-    fn ranks_with(&self, s: usize, x: f32) -> (u8, [u8; LANES]) {
+    /// Ranks (0 = leftmost at the bottom of the window) of the active lanes, plus a new lane in
+    /// slot `s` at lateral `x` when `new = Some((s, x))`: a permutation of `0..lanes`, ties broken
+    /// by slot, a lane without a position ranked after those with one.
+    fn ranks_of(&self, new: Option<(usize, f32)>) -> [u8; LANES] {
+        let on = |t: usize| new.is_some_and(|(s, _)| s == t) || self.temporal.filter().is_active(t);
         let mut pos = [f32::NAN; LANES];
-        for t in 0..LANES {
+        for (t, p) in pos.iter_mut().enumerate() {
             if self.temporal.filter().is_active(t) {
-                set(&mut pos, t, self.bottom_position(t, None));
+                *p = self.bottom_position(t, None);
             }
         }
-        set(&mut pos, s, x);
-        let on = |t: usize| t == s || self.temporal.filter().is_active(t);
+        if let Some((s, x)) = new {
+            set(&mut pos, s, x);
+        }
         let mut ranks = [0u8; LANES];
         for t in (0..LANES).filter(|&t| on(t)) {
             let pt = get(&pos, t);
@@ -580,30 +612,6 @@ impl<
                 let po = get(&pos, o);
                 po < pt || (po == pt && o < t) || (pt.is_nan() && !po.is_nan())
             });
-            set(&mut ranks, t, r.count() as u8);
-        }
-        (get(&ranks, s), ranks)
-    }
-
-    fn current_ranks(&self) -> [u8; LANES] {
-        let mut pos = [f32::NAN; LANES];
-        for (t, p) in pos.iter_mut().enumerate() {
-            if self.temporal.filter().is_active(t) {
-                *p = self.bottom_position(t, None);
-            }
-        }
-        let mut ranks = [0u8; LANES];
-        for t in 0..LANES {
-            if !self.temporal.filter().is_active(t) {
-                continue;
-            }
-            let pt = get(&pos, t);
-            let r = (0..LANES)
-                .filter(|&o| o != t && self.temporal.filter().is_active(o))
-                .filter(|&o| {
-                    let po = get(&pos, o);
-                    po < pt || (po == pt && o < t) || (pt.is_nan() && !po.is_nan())
-                });
             set(&mut ranks, t, r.count() as u8);
         }
         ranks

@@ -64,7 +64,7 @@
 
 use embedded_hal::spi::SpiDevice;
 
-use crate::tracker::Instant;
+use crate::time::Instant;
 
 /// First four bytes of every frame.
 pub const MAGIC: [u8; 4] = *b"STJF";

@@ -1,4 +1,4 @@
-//! Per-row and per-frame cost of the spatial JPDACF at the reference configuration (DESIGN 2:
+//! Per-row and per-frame cost of the spatial JPDACF at the reference configuration (docs/design.md §2:
 //! D = 6, N = 16, M = 256 with at most 16 per row, R_max = 64, E = 512), the f32 core next to the
 //! f64 reference in the same run. `cargo bench -p stjpdacf-bench --bench spatial`; the figures
 //! are in `docs/benchmarks.md`.

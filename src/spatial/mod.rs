@@ -1,5 +1,5 @@
 //! The spatial JPDACF: a coupled multi-lane filter that walks the BEV rows near to far
-//! (DESIGN 4.1), with `u` (metres ahead) as its "time" axis.
+//! (docs/design.md §4.1), with `u` (metres ahead) as its "time" axis.
 //!
 //! * [`Stacked`] — the joint Gaussian of up to `LANES` lane tracks, each with `NS` state entries
 //!   (`[c, g, dg/du, …]`: the lane offset and the RBF state, `NS = NT + 1`), kept as `LANES × LANES`
@@ -37,38 +37,6 @@ impl core::fmt::Display for Full {
 }
 
 impl core::error::Error for Full {}
-
-/// Element `i` of a fixed array, or the default past its end (no panicking indexing in the core).
-#[inline]
-pub(crate) fn get<T: Copy + Default, const N: usize>(a: &[T; N], i: usize) -> T {
-    a.get(i).copied().unwrap_or_default()
-}
-
-/// Sets element `i` of a fixed array (no-op past its end).
-#[inline]
-pub(crate) fn set<T, const N: usize>(a: &mut [T; N], i: usize, v: T) {
-    if let Some(s) = a.get_mut(i) {
-        *s = v;
-    }
-}
-
-/// Sorts `v` so that no element is `less` than the one before it: a stable insertion sort,
-/// `O(n²)` comparisons for the short lists of the core (a row's free points, at most `D·m`
-/// candidates when pruning). `sort_unstable_by` keeps a panic branch for inconsistent orders
-/// that the optimiser cannot remove, which the no-panic proof (the `panic-never` firmware)
-/// rejects.
-pub(crate) fn sort_by<T>(v: &mut [T], mut less: impl FnMut(&T, &T) -> bool) {
-    for i in 1..v.len() {
-        let mut k = i;
-        while k > 0 {
-            match v.get_mut(k - 1..=k) {
-                Some([a, b]) if less(b, a) => core::mem::swap(a, b),
-                _ => break,
-            }
-            k -= 1;
-        }
-    }
-}
 
 /// Entry `(r, c)` of a column-major `N×N` array (`m[c][r]`), 0 past its end.
 #[inline(always)]
@@ -193,7 +161,7 @@ impl<const NS: usize, const LANES: usize> Stacked<NS, LANES> {
         }
     }
 
-    /// Prediction along `u` (DESIGN 4.1 step 1): `x_i ← F x_i`,
+    /// Prediction along `u` (docs/design.md §4.1 step 1): `x_i ← F x_i`,
     /// `P_ij ← F P_ij Fᵀ + B_ij Q` for the active tracks, `B_ij` from the leading block of `b`.
     /// Only the upper blocks are computed (the lower ones are their transposes, so the stacked
     /// covariance stays exactly symmetric), and when `F = blockdiag(1, F_u)`,

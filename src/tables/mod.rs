@@ -25,7 +25,7 @@ pub use default::DEFAULT;
 /// Version of the table layout; the generator writes it and [`Tables::validate`] checks it.
 pub const FORMAT_VERSION: u32 = 1;
 
-/// Tables of the reference configuration (DESIGN 2): spatial Taylor order 2, `LANES = 6`,
+/// Tables of the reference configuration (docs/design.md §2): spatial Taylor order 2, `LANES = 6`,
 /// `POINTS = 16`.
 pub type ReferenceTables = Tables<2, 6, 16>;
 
@@ -40,7 +40,7 @@ pub struct Hyper {
     pub spatial_variance: f32,
     /// RBF length-scale `ℓ_u`, metres.
     pub spatial_lengthscale: f32,
-    /// Prior variance of a lane's lateral offset state `c`, m² (DESIGN 4.0).
+    /// Prior variance of a lane's lateral offset state `c`, m² (docs/design.md §4.0).
     pub offset_variance: f32,
     /// Matérn-3/2 variance `σ_t²` (1 in the coupled model).
     pub temporal_variance: f32,

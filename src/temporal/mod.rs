@@ -1,4 +1,4 @@
-//! The temporal side of the tracker (DESIGN 1 steps 3–5, 4.2, 5).
+//! The temporal side of the tracker (docs/design.md §1 steps 3–5, 4.2, 4.3, 5).
 //!
 //! * [`identity`] — lane identity: assigns each frame's spatial lanes
 //!   ([`crate::spatial::filter::LaneObservation`]) to the temporal lanes by gating in curve space

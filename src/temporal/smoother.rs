@@ -1,4 +1,4 @@
-//! The fixed-lag coupled smoother (DESIGN 5), exact, by state augmentation of the lagged lane
+//! The fixed-lag coupled smoother (docs/design.md §5), exact, by state augmentation of the lagged lane
 //! coefficients only.
 //!
 //! For each lag `j = 1..=LAG` the window keeps the lagged position coefficients `a_{k−j}` of every
@@ -20,7 +20,7 @@
 //!
 //! # RAM
 //! `LAG · 4 · (NA + LANES·RANK² + NA·NX)` bytes: 62 KiB at 6 lanes, rank 7, L = 4 — the largest
-//! item of the tracker, as DESIGN 5 expects.
+//! item of the tracker, as docs/design.md §5 expects.
 //!
 //! # Cost
 //! With `p` lanes present in a lag, `n` active now, `r` Gram components: per prediction
@@ -34,10 +34,17 @@ use super::filter::{
     dot, project, repair_psd, times_sym, Spans, TemporalError, TemporalFilter, UpdateInfo,
     UpdateParts,
 };
+use crate::linalg::{get, set};
+use crate::observation::LaneObservation;
 use crate::probe::{NoProbe, Probe, Stage};
-use crate::spatial::filter::LaneObservation;
-use crate::spatial::{get, set};
 use crate::tables::Tables;
+
+/// The largest smoother lag `LAG` (frames) of [`Temporal`] and of the tracker
+/// (`crate::tracker::Tracker`), which keeps `2·LAG + 1` frames of lane extents and `LAG + 1`
+/// frames of lane ids for the smoothed output. RAM grows linearly with `LAG` (see the module
+/// docs: about 15.5 KiB a frame of lag at 6 lanes and rank 7), so a larger lag is rarely wanted
+/// on a microcontroller; raise this constant (and re-measure) if it is.
+pub const MAX_LAG: usize = 7;
 
 /// One lag of the window.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -117,7 +124,7 @@ impl<
     /// No lanes, empty window (`const`).
     pub const fn new() -> Self {
         const { assert!(NA == LANES * RANK, "NA must be LANES·RANK") };
-        const { assert!(LAG >= 1 && LAG <= 16, "LAG must be 1..=16") };
+        const { assert!(LAG >= 1 && LAG <= MAX_LAG, "LAG must be 1..=MAX_LAG") };
         Self {
             filter: TemporalFilter::new(),
             window: [Self::EMPTY; LAG],

@@ -1,4 +1,4 @@
-//! One row step of the coupled JPDACF (DESIGN 4.1 steps 2–5): gating, bounded joint-event
+//! One row step of the coupled JPDACF (docs/design.md §4.1 steps 2–5): gating, bounded joint-event
 //! enumeration, joint-Gaussian event weights in the log domain, and the exact moment-matched update
 //! of the event mixture.
 //!
@@ -11,7 +11,7 @@
 //! `y = Σ_A β_A E_δ S_δ⁻¹ ν_A`, `C = Σ_A β_A E_δ (S_δ⁻¹ − S_δ⁻¹ ν_A ν_Aᵀ S_δ⁻¹) E_δᵀ`,
 //!
 //! where `E_δ` embeds the pattern's `k` tracks among all `D`. This is algebraically identical to
-//! DESIGN's `Σ_A β_A (P_δ + x̄_A x̄_Aᵀ) − x̄⁺ x̄⁺ᵀ`; the state-sized work happens once per row and
+//! the design's (docs/design.md §4.1 step 4) `Σ_A β_A (P_δ + x̄_A x̄_Aᵀ) − x̄⁺ x̄⁺ᵀ`; the state-sized work happens once per row and
 //! only for the tracks that appear in some pattern (`C` and `y` are zero elsewhere).
 //!
 //! # How the events are scored
@@ -36,7 +36,7 @@
 //!   when there are more, (track, point) candidates are dropped in order of increasing
 //!   single-track PDA probability (each track's candidates and its miss normalised among
 //!   themselves, so no track loses its plausible points first), until `Π_t (1 + n_t) ≤
-//!   max_events`, and the row is flagged `approximated` (DESIGN 4.1 step 5: "drop the least
+//!   max_events`, and the row is flagged `approximated` (docs/design.md §4.1 step 5: "drop the least
 //!   likely candidates until it fits"). The coupled likelihood does not factor over clusters, so
 //!   all tracks stay in one enumeration; the sort (a stable insertion sort, no panic branch) costs O(C²) compares for C ≤ D·m candidates;
 //! * at most `2^D` detection patterns, `O(D²)` each; at most `max_events` events, `O(D²)` each;
@@ -54,9 +54,13 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::{get, set, Stacked};
+use super::{Blocks, Means, Stacked};
+use crate::linalg::{dot, get, set};
 use crate::math;
 use crate::probe::{NoProbe, Probe, Stage};
+
+mod events;
+use events::{count_events, Acc, Ctx, WINDOW};
 
 /// Largest number of points one row can hold (the gate masks are `u32`).
 pub const MAX_ROW_POINTS: usize = 32;
@@ -71,7 +75,7 @@ const CANDIDATES: usize = 16 * MAX_ROW_POINTS;
 pub enum MissModel {
     /// `1 − P_D` (textbook JPDA).
     Textbook,
-    /// `1 − P_D P_G`: a detection outside the gate is also a miss (DESIGN 4.1; the default).
+    /// `1 − P_D P_G`: a detection outside the gate is also a miss (docs/design.md §4.1; the default).
     Gated,
 }
 
@@ -152,55 +156,6 @@ impl<const LANES: usize> Default for RowOutcome<LANES> {
     }
 }
 
-/// Counts the joint events (each of the first `n` tracks missed or assigned one point of its
-/// mask, no point twice) up to `limit + 1`: an explicit-stack walk over the tracks (depth ≤ n)
-/// whose last level is counted in one step (`1 + |mask ∖ used|`), stopping once past `limit`.
-///
-/// # Complexity
-/// `O(min(events, limit) / (1 + m_last))` steps, no recursion.
-fn count_events<const L: usize>(valid: &[u32; L], n: usize, limit: u64) -> u64 {
-    const MISS: u64 = 1 << 32;
-    let n = n.min(L);
-    let Some(last) = n.checked_sub(1) else {
-        return 1;
-    };
-    let last_mask = get(valid, last);
-    let mut opt = [0u64; L]; // options left per level: bit 32 = missed, bits 0..32 = points
-    let mut pick = [0u32; L];
-    let mut used = 0u32;
-    let mut depth = 0usize;
-    let mut total = 0u64;
-    set(&mut opt, 0, MISS | u64::from(get(valid, 0)));
-    loop {
-        if depth == last {
-            total += 1 + u64::from((last_mask & !used).count_ones());
-            if total > limit {
-                return limit + 1;
-            }
-        } else {
-            let o = get(&opt, depth);
-            if o != 0 {
-                set(&mut opt, depth, o & o.wrapping_sub(1));
-                let bit = match o.trailing_zeros() {
-                    32 => 0,
-                    b => 1u32.wrapping_shl(b),
-                };
-                set(&mut pick, depth, bit);
-                used |= bit;
-                depth += 1;
-                set(&mut opt, depth, MISS | u64::from(get(valid, depth) & !used));
-                continue;
-            }
-        }
-        // This level is done: back to the previous one.
-        let Some(up) = depth.checked_sub(1) else {
-            return total;
-        };
-        depth = up;
-        used &= !get(&pick, depth);
-    }
-}
-
 /// One row step on `state` with measurement row `h` (`z = hᵀ x_t + noise`, e.g. `[1, 1, 0, …]` for
 /// the offset + curve state) and the row's lateral positions `points`.
 ///
@@ -234,433 +189,12 @@ pub fn update_masked<const NS: usize, const LANES: usize>(
     update_probed(state, h, points, params, max_events, skip, &mut NoProbe)
 }
 
-/// A pass weighs events by `e^{lw − ref}`; when its largest log-weight `lw` ends up more than
-/// this (natural-log units) away from `ref`, the pass is redone with `ref` at that maximum. The
-/// first pass takes `ref` = the all-missed event's log-weight, which no event undercuts by more
-/// than the sum of the per-track detection gains (≈ 6.5 per track with the defaults), so the
-/// redo only happens with extreme parameters.
-const WINDOW: f32 = 60.0;
-
-/// One member of the current detection pattern (its tracks in increasing order): its row of the
-/// `LDLᵀ` factor of `S_δ` and of `L⁻¹`. A pattern's factor is its parent's (the pattern without
-/// its highest track) plus one row, so a pattern costs `O(k²)`, not `O(k³)`.
-#[derive(Clone, Copy)]
-struct Member<const L: usize> {
-    /// Track index.
-    tr: u8,
-    /// Position in the list of eligible tracks.
-    pos: u8,
-    /// Gate mask.
-    mask: u32,
-    /// The tracks of the pattern ending with this member (bit `t` = track `t`).
-    set: u32,
-    /// Predicted measurement `ẑ_t`.
-    zh: f32,
-    /// `1 / d_a`.
-    invd: f32,
-    /// `ln det` of the leading `a + 1` members' `S`.
-    logdet: f32,
-    /// Row `a` of the unit lower factor `L`, in member coordinates (entries `b < a`).
-    l: [f32; L],
-    /// Row `a` of `L⁻¹` in track coordinates (`li[tr_b] = (L⁻¹)_ab`, `li[tr] = 1`, the rest 0).
-    li: [f32; L],
-    /// Total event weight of the patterns in this member's subtree of the pattern tree (the
-    /// pattern ending with this member and its descendants), for `Σ_δ wd_δ S_δ⁻¹`.
-    wsub: f32,
-}
-
-impl<const L: usize> Member<L> {
-    const EMPTY: Self = Self {
-        tr: 0,
-        pos: 0,
-        mask: 0,
-        set: 0,
-        zh: 0.0,
-        invd: 0.0,
-        logdet: 0.0,
-        l: [0.0; L],
-        li: [0.0; L],
-        wsub: 0.0,
-    };
-}
-
-/// One node of a pattern's event tree (members `0..=a` assigned): the candidates left at this
-/// level, the pick, the running forward substitution (`u_a`, `e_a = u_a / d_a`,
-/// `q = Σ u_b e_b`, `r = Σ_b e_b (L⁻¹)_bᵀ`, i.e. `S⁻¹ ν` of the members so far, in track
-/// coordinates) and the weight of the node's finished subtree.
-#[derive(Clone, Copy)]
-struct Level<const L: usize> {
-    rem: u32,
-    pick: u32,
-    u: f32,
-    q: f32,
-    w: f32,
-    r: [f32; L],
-}
-
-impl<const L: usize> Level<L> {
-    const EMPTY: Self = Self {
-        rem: 0,
-        pick: 0,
-        u: 0.0,
-        q: 0.0,
-        w: 0.0,
-        r: [0.0; L],
-    };
-}
-
-/// The mixture sums of a row, in track coordinates and units of `e^{−ref}`:
-/// `wtot = Σ w`, `y = Σ w S_δ⁻¹ ν`, `c = Σ w (S_δ⁻¹ − S_δ⁻¹ ν νᵀ S_δ⁻¹)` (lower triangle, padded
-/// with zeros outside the pattern), `bmiss[t] = Σ_{t missed} w`, `beta[t][j] = Σ_{t→j} w`.
-struct Acc<const L: usize> {
-    wtot: f32,
-    y: [f32; L],
-    c: [[f32; L]; L],
-    bmiss: [f32; L],
-    beta: [[f32; MAX_ROW_POINTS]; L],
-    lwmax: f32,
-    events: u32,
-    patterns: u32,
-}
-
-impl<const L: usize> Acc<L> {
-    const fn new() -> Self {
-        Self {
-            wtot: 0.0,
-            y: [0.0; L],
-            c: [[0.0; L]; L],
-            bmiss: [0.0; L],
-            beta: [[0.0; MAX_ROW_POINTS]; L],
-            lwmax: f32::NEG_INFINITY,
-            events: 0,
-            patterns: 0,
-        }
-    }
-
-    /// `β[t][j] += w` for member `mb` picking point `j` in events of total weight `w`.
-    #[inline(always)]
-    fn pick(&mut self, mb: &Member<L>, j: u32, w: f32) {
-        if let Some(b) = self
-            .beta
-            .get_mut(usize::from(mb.tr))
-            .and_then(|r| r.get_mut(j as usize))
-        {
-            *b += w;
-        }
-    }
-
-    /// Adds an event of weight `w` with `r = S_δ⁻¹ ν`: `y += w r`, `c −= w r rᵀ` over the
-    /// tracks `0..hi` (`r` is zero past the pattern's highest track).
-    #[inline(always)]
-    fn event(&mut self, r: &[f32; L], hi: usize, w: f32) {
-        let r = r.get(..hi).unwrap_or(&[]);
-        for (p, ((yp, crow), rp)) in self
-            .y
-            .iter_mut()
-            .zip(self.c.iter_mut())
-            .zip(r.iter())
-            .enumerate()
-        {
-            let wr = w * rp;
-            *yp += wr;
-            for (cv, rq) in crow.iter_mut().zip(r.iter()).take(p + 1) {
-                *cv -= wr * rq;
-            }
-        }
-    }
-
-    /// Adds `w (L⁻¹)_aᵀ (1/d_a) (L⁻¹)_a` for member `mb` (`w` the weight of the patterns
-    /// containing the member's prefix): summed over the pattern tree, `Σ_δ wd_δ S_δ⁻¹`, at one
-    /// `O(t²)` outer product per pattern instead of `O(k³)`.
-    #[inline(always)]
-    fn inverse_term(&mut self, mb: &Member<L>, w: f32) {
-        if w == 0.0 {
-            return;
-        }
-        let hi = (usize::from(mb.tr) + 1).min(L);
-        let li = mb.li.get(..hi).unwrap_or(&[]);
-        let s = w * mb.invd;
-        for (p, (crow, lip)) in self.c.iter_mut().zip(li.iter()).enumerate() {
-            let a = s * lip;
-            for (cv, liq) in crow.iter_mut().zip(li.iter()).take(p + 1) {
-                *cv += a * liq;
-            }
-        }
-    }
-}
-
-/// What a row's event pass needs: the tracks, their predicted measurements and joint
-/// innovation covariance, gate masks, points and the log-weight constants.
-struct Ctx<'a, const L: usize> {
-    elig: [u8; L],
-    na: usize,
-    sbar: &'a [[f32; L]; L],
-    zhat: &'a [f32; L],
-    valid: &'a [u32; L],
-    points: &'a [f32],
-    ln_2pi: f32,
-    ln_pd_lambda: f32,
-    ln_miss: f32,
-    active: f32,
-    /// The tracks that can be missed (bit `t`): the first `n`, not masked.
-    active_set: u32,
-}
-
-impl<const L: usize> Ctx<'_, L> {
-    /// Log-weight of a pattern with `k` detected tracks and `ln det S_δ = logdet`, before the
-    /// events' Mahalanobis terms (DESIGN 4.1 step 3).
-    fn base(&self, k: usize, logdet: f32) -> f32 {
-        let kf = k as f32;
-        -0.5 * logdet - 0.5 * kf * self.ln_2pi
-            + kf * self.ln_pd_lambda
-            + (self.active - kf) * self.ln_miss
-    }
-
-    /// Appends eligible track `pos` to the pattern `mems[..k]` as member `k` and computes its
-    /// factor row (`f_b = S_tb − Σ_{c<b} l_bc f_c`, `l_kb = f_b / d_b`,
-    /// `d_k = S_tt − Σ_b l_kb f_b`) and its row of `L⁻¹` (`e_t − Σ_b l_kb (L⁻¹)_b`). `false` when
-    /// `d_k` is not positive and finite (`S_δ` not positive definite).
-    fn push(&self, mems: &mut [Member<L>; L], k: usize, pos: usize) -> bool {
-        let t = usize::from(get(&self.elig, pos));
-        let Some((done, rest)) = mems.split_at_mut_checked(k) else {
-            return false;
-        };
-        let (Some(new), Some(srow)) = (rest.first_mut(), self.sbar.get(t)) else {
-            return false;
-        };
-        let mut f = [0.0f32; L];
-        let mut l = [0.0f32; L];
-        let mut dk = get(srow, t);
-        for (b, mb) in done.iter().enumerate() {
-            let mut fb = get(srow, usize::from(mb.tr));
-            for (lbc, fc) in mb.l.iter().zip(f.iter()).take(b) {
-                fb -= lbc * fc;
-            }
-            set(&mut f, b, fb);
-            let lkb = fb * mb.invd;
-            set(&mut l, b, lkb);
-            dk -= lkb * fb;
-        }
-        if !(dk.is_finite() && dk > 0.0) {
-            return false;
-        }
-        let mut li = [0.0f32; L];
-        for (lkb, mb) in l.iter().zip(done.iter()) {
-            let hi = usize::from(mb.tr) + 1;
-            for (v, w) in li.iter_mut().zip(mb.li.iter()).take(hi) {
-                *v -= lkb * w;
-            }
-        }
-        set(&mut li, t, 1.0);
-        *new = Member {
-            tr: t as u8,
-            pos: pos as u8,
-            mask: get(self.valid, t),
-            set: done.last().map_or(0, |m| m.set) | (1 << t),
-            zh: get(self.zhat, t),
-            invd: 1.0 / dk,
-            logdet: done.last().map_or(0.0, |m| m.logdet) + math::ln(dk),
-            l,
-            li,
-            wsub: 0.0,
-        };
-        true
-    }
-
-    /// Scores the events of the pattern `mems` (injective assignments of its members to points
-    /// of their masks; explicit stack, depth ≤ k) into `acc`; returns the number of events and
-    /// their total weight. A member's pick extends `u`, `e`, `q` and `r` by one term; a node's
-    /// sums are added once its subtree is finished ([`Acc::finish`]).
-    fn score(
-        &self,
-        mems: &[Member<L>],
-        base: f32,
-        reference: f32,
-        lev: &mut [Level<L>; L],
-        acc: &mut Acc<L>,
-    ) -> (u32, f32) {
-        let weighted = base.is_finite();
-        let k = mems.len().min(L);
-        let Some(m0) = mems.first() else {
-            // The all-missed event.
-            if !weighted {
-                return (1, 0.0);
-            }
-            acc.lwmax = acc.lwmax.max(base);
-            return (1, math::exp(base - reference));
-        };
-        let levs = lev.get_mut(..k).unwrap_or(&mut []);
-        if let Some(l0) = levs.first_mut() {
-            l0.rem = m0.mask;
-        }
-        let mut events = 0u32;
-        let mut wd = 0.0f32;
-        let mut used = 0u32;
-        let mut depth = 0usize;
-        // Each pass descends (≤ k), takes a candidate or ascends: bounded by the event tree.
-        while let Some((prev, cur)) = levs.split_at_mut_checked(depth) {
-            let (Some((lv, below)), Some(mb)) = (cur.split_first_mut(), mems.get(depth)) else {
-                break;
-            };
-            if lv.rem == 0 {
-                // Every child of the node one level up is done: finish it.
-                let Some((pl, upper)) = prev.split_last_mut() else {
-                    break;
-                };
-                if let Some(pm) = mems.get(depth - 1) {
-                    acc.pick(pm, pl.pick, pl.w);
-                }
-                match upper.last_mut() {
-                    Some(gp) => gp.w += pl.w,
-                    None => wd += pl.w,
-                }
-                used &= !(1u32.wrapping_shl(pl.pick));
-                depth -= 1;
-                continue;
-            }
-            let hi = (usize::from(mb.tr) + 1).min(L);
-            if below.is_empty() {
-                // The last member: every remaining candidate is a leaf (one joint event) and the
-                // forward substitution's prefix `ẑ + Σ_b l_b u_b` is shared by all of them.
-                let mut c = mb.zh;
-                for (lb, pl) in mb.l.iter().zip(prev.iter()) {
-                    c += lb * pl.u;
-                }
-                let (q0, r0) = prev.last().map_or((0.0, [0.0; L]), |p| (p.q, p.r));
-                let mut rem = lv.rem;
-                lv.rem = 0;
-                let mut wsum = 0.0f32;
-                while rem != 0 {
-                    let j = rem.trailing_zeros();
-                    rem &= rem.wrapping_sub(1);
-                    events += 1;
-                    let ua = self.points.get(j as usize).copied().unwrap_or(0.0) - c;
-                    let ea = ua * mb.invd;
-                    let q = q0 + ua * ea;
-                    if !(weighted && q.is_finite()) {
-                        continue; // weight 0 (e.g. ln 0 of a zero miss factor): no contribution
-                    }
-                    let lw = base - 0.5 * q;
-                    acc.lwmax = acc.lwmax.max(lw);
-                    let w = math::exp(lw - reference);
-                    for ((v, pv), li) in lv.r.iter_mut().zip(r0.iter()).zip(mb.li.iter()) {
-                        *v = pv + ea * li;
-                    }
-                    acc.pick(mb, j, w);
-                    acc.event(&lv.r, hi, w);
-                    wsum += w;
-                }
-                match prev.last_mut() {
-                    Some(p) => p.w += wsum,
-                    None => wd += wsum,
-                }
-                continue;
-            }
-            let j = lv.rem.trailing_zeros();
-            lv.rem &= lv.rem.wrapping_sub(1);
-            lv.pick = j;
-            let mut ua = self.points.get(j as usize).copied().unwrap_or(0.0) - mb.zh;
-            for (lb, pl) in mb.l.iter().zip(prev.iter()) {
-                ua -= lb * pl.u;
-            }
-            let ea = ua * mb.invd;
-            lv.u = ua;
-            // All L entries, so that r stays zero past the highest member's track.
-            match prev.last() {
-                Some(p) => {
-                    lv.q = p.q + ua * ea;
-                    for ((v, pv), w) in lv.r.iter_mut().zip(p.r.iter()).zip(mb.li.iter()) {
-                        *v = pv + ea * w;
-                    }
-                }
-                None => {
-                    lv.q = ua * ea;
-                    for (v, w) in lv.r.iter_mut().zip(mb.li.iter()) {
-                        *v = ea * w;
-                    }
-                }
-            }
-            if let Some(next) = below.first_mut() {
-                lv.w = 0.0;
-                used |= 1u32.wrapping_shl(j);
-                depth += 1;
-                next.rem = mems.get(depth).map_or(0, |m| m.mask) & !used;
-            }
-        }
-        (events, wd)
-    }
-
-    /// One pass over the detection patterns (the subsets of the eligible tracks, depth first, so
-    /// that each extends its parent's factor by one row; a pattern without events has no
-    /// descendant with events, so its subtree is skipped), weights `e^{lw − reference}`.
-    /// `false` when some `S_δ` is not positive definite.
-    fn pass(&self, reference: f32, acc: &mut Acc<L>) -> bool {
-        let mut mems = [Member::<L>::EMPTY; L];
-        let mut lev = [Level::<L>::EMPTY; L];
-        let mut k = 0usize;
-        let mut next = 0usize;
-        let mut descend = true;
-        let mut first = true;
-        loop {
-            if first {
-                first = false; // the empty pattern (every track missed)
-            } else if descend && next < self.na {
-                if !self.push(&mut mems, k, next) {
-                    return false;
-                }
-                k += 1;
-            } else {
-                // Pattern tree: the member's subtree is done; add its S⁻¹ term, pass its weight up.
-                let Some(a) = k.checked_sub(1) else {
-                    break;
-                };
-                let Some((head, tail)) = mems.split_at_mut_checked(a) else {
-                    break;
-                };
-                let Some(last) = tail.first() else {
-                    break;
-                };
-                acc.inverse_term(last, last.wsub);
-                if let Some(parent) = head.last_mut() {
-                    parent.wsub += last.wsub;
-                }
-                next = usize::from(last.pos) + 1;
-                k = a;
-                descend = true;
-                continue;
-            }
-            acc.patterns += 1;
-            let pattern = mems.get(..k).unwrap_or(&[]);
-            let base = self.base(k, pattern.last().map_or(0.0, |m| m.logdet));
-            let (events, wd) = self.score(pattern, base, reference, &mut lev, acc);
-            acc.events += events;
-            descend = events > 0;
-            next = pattern.last().map_or(0, |m| usize::from(m.pos) + 1);
-            if wd > 0.0 {
-                let mut missed = self.active_set;
-                if let Some(last) = k.checked_sub(1).and_then(|a| mems.get_mut(a)) {
-                    last.wsub += wd;
-                    missed &= !last.set;
-                }
-                acc.wtot += wd;
-                while missed != 0 {
-                    if let Some(b) = acc.bmiss.get_mut(missed.trailing_zeros() as usize) {
-                        *b += wd;
-                    }
-                    missed &= missed - 1;
-                }
-            }
-        }
-        true
-    }
-}
-
 /// [`update_masked`] reporting its stages ([`Stage::Gating`], [`Stage::Events`],
 /// [`Stage::Update`]) to `probe`.
 ///
 /// # Complexity
 /// As [`update`].
-#[allow(non_snake_case, clippy::too_many_lines)]
+#[allow(non_snake_case)]
 pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     state: &mut Stacked<NS, LANES>,
     h: &SVector<f32, NS>,
@@ -690,51 +224,10 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     let [hv] = h.data.0;
     let mut zhat = [0.0f32; LANES];
     let mut sbar = [[0.0f32; LANES]; LANES];
-    for (t, ((prow, x), (zh, srow))) in ps
-        .iter()
-        .zip(xs.iter())
-        .zip(zhat.iter_mut().zip(sbar.iter_mut()))
-        .enumerate()
-        .take(n)
-    {
-        let [xv] = x.data.0;
-        *zh = dot(&hv, &xv);
-        if let Some(ptt) = prow.get(t) {
-            set(srow, t, dot(&hv, &mat_vec(ptt, &hv)) + params.r);
-        }
-    }
-    let mut any_valid = 0u32;
-    for (t, (srow, (zt, valid))) in sbar
-        .iter()
-        .zip(zhat.iter().zip(out.valid.iter_mut()))
-        .enumerate()
-        .take(n)
-    {
-        let st = get(srow, t);
-        if !(st.is_finite() && st > 0.0) {
-            out.failed = true;
-            return out;
-        }
-        if skip & (1 << t) != 0 {
-            continue;
-        }
-        let mut mask = 0u32;
-        for (j, z) in points.iter().enumerate() {
-            let e = z - zt;
-            // Inclusive gate; a non-finite point gives NaN or inf and never passes.
-            if e * e / st <= params.gamma {
-                mask |= 1 << j;
-            }
-        }
-        *valid = mask;
-        any_valid |= mask;
-    }
-    for (j, z) in points.iter().enumerate() {
-        if !z.is_finite() {
-            out.ignored_points += 1;
-        } else if any_valid & (1 << j) == 0 {
-            out.clutter_points += 1;
-        }
+    if !gate(
+        xs, ps, n, hv, points, params, skip, &mut out, &mut zhat, &mut sbar,
+    ) {
+        return out;
     }
 
     probe.enter(Stage::Events);
@@ -779,37 +272,9 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     // Event weights (step 3) and the mixture moments (step 4), in one pass over the detection
     // patterns and their events (`Ctx::pass`), redone once if the weights' scale was off.
     let mut elig = [0u8; LANES];
-    let mut na = 0usize;
-    for (t, v) in out.valid.iter().enumerate().take(n) {
-        if skip & (1 << t) == 0 && *v != 0 {
-            set(&mut elig, na, t as u8);
-            na += 1;
-        }
-    }
-    // G restricted to the eligible columns, g[i][s] = P_{i,e_s} h, and S̄ among the eligible
-    // tracks (symmetric: the upper triangle, mirrored).
-    let el = elig.get(..na).unwrap_or(&[]);
     let mut g = [[[0.0f32; NS]; LANES]; LANES];
-    if na > 0 {
-        for (gi, prow) in g.iter_mut().zip(ps.iter()).take(n) {
-            for (gs, &ts) in gi.iter_mut().zip(el.iter()) {
-                if let Some(p) = prow.get(usize::from(ts)) {
-                    *gs = mat_vec(p, &hv);
-                }
-            }
-        }
-    }
-    for (s1, &t1) in el.iter().enumerate() {
-        let g1 = g
-            .get(usize::from(t1))
-            .copied()
-            .unwrap_or([[0.0; NS]; LANES]);
-        for (&t2, g12) in el.iter().zip(g1.iter()).skip(s1 + 1) {
-            let v = dot(&hv, g12);
-            put(&mut sbar, usize::from(t1), usize::from(t2), v);
-            put(&mut sbar, usize::from(t2), usize::from(t1), v);
-        }
-    }
+    let na = eligible_gains(&out.valid, skip, ps, n, hv, &mut sbar, &mut elig, &mut g);
+    let el = elig.get(..na).unwrap_or(&[]);
     let ctx = Ctx {
         elig,
         na,
@@ -823,20 +288,9 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         active: (n - n_skipped) as f32,
         active_set: !skip & (u32::MAX >> (32 - n.clamp(1, 32))),
     };
-    let empty = ctx.base(0, 0.0);
-    let mut reference = if empty.is_finite() { empty } else { 0.0 };
     let mut acc = Acc::<LANES>::new();
-    if !ctx.pass(reference, &mut acc) {
+    if !weigh(&ctx, &mut acc) {
         return failed(out);
-    }
-    if acc.lwmax.is_finite()
-        && ((acc.lwmax - reference).abs() > WINDOW || !(acc.wtot.is_finite() && acc.wtot > 0.0))
-    {
-        reference = acc.lwmax;
-        acc = Acc::new();
-        if !ctx.pass(reference, &mut acc) {
-            return failed(out);
-        }
     }
     out.events = acc.events;
     out.patterns = acc.patterns;
@@ -853,18 +307,191 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         return failed(out);
     }
     let inv = 1.0 / wtot;
+    if !apply_mixture(xs, ps, n, el, &g, &y, &c, inv) {
+        return failed(out);
+    }
+    for (t, ((bm, brow), src)) in out
+        .beta_miss
+        .iter_mut()
+        .zip(out.beta.iter_mut())
+        .zip(beta.iter())
+        .enumerate()
+        .take(n)
+    {
+        *bm = if skip & (1 << t) != 0 {
+            1.0
+        } else {
+            get(&bmiss, t) * inv
+        };
+        for (v, s) in brow.iter_mut().zip(src.iter()).take(m) {
+            *v = s * inv;
+        }
+    }
+    out
+}
+
+/// Gating (step 2) on each track's marginal: `ẑ_t = h·x_t` and `S̄_tt = hᵀ P_tt h + r`, the
+/// validation masks in `out.valid`, and the ignored and clutter points counted. `false` (with
+/// `out.failed` set) when a marginal variance is not positive and finite.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn gate<const NS: usize, const LANES: usize>(
+    xs: &Means<NS, LANES>,
+    ps: &Blocks<NS, LANES>,
+    n: usize,
+    hv: [f32; NS],
+    points: &[f32],
+    params: &RowParams,
+    skip: u32,
+    out: &mut RowOutcome<LANES>,
+    zhat: &mut [f32; LANES],
+    sbar: &mut [[f32; LANES]; LANES],
+) -> bool {
+    for (t, ((prow, x), (zh, srow))) in ps
+        .iter()
+        .zip(xs.iter())
+        .zip(zhat.iter_mut().zip(sbar.iter_mut()))
+        .enumerate()
+        .take(n)
+    {
+        let [xv] = x.data.0;
+        *zh = dot(&hv, &xv);
+        if let Some(ptt) = prow.get(t) {
+            set(srow, t, dot(&hv, &mat_vec(ptt, &hv)) + params.r);
+        }
+    }
+    let mut any_valid = 0u32;
+    for (t, (srow, (zt, valid))) in sbar
+        .iter()
+        .zip(zhat.iter().zip(out.valid.iter_mut()))
+        .enumerate()
+        .take(n)
+    {
+        let st = get(srow, t);
+        if !(st.is_finite() && st > 0.0) {
+            out.failed = true;
+            return false;
+        }
+        if skip & (1 << t) != 0 {
+            continue;
+        }
+        let mut mask = 0u32;
+        for (j, z) in points.iter().enumerate() {
+            let e = z - zt;
+            // Inclusive gate; a non-finite point gives NaN or inf and never passes.
+            if e * e / st <= params.gamma {
+                mask |= 1 << j;
+            }
+        }
+        *valid = mask;
+        any_valid |= mask;
+    }
+    for (j, z) in points.iter().enumerate() {
+        if !z.is_finite() {
+            out.ignored_points += 1;
+        } else if any_valid & (1 << j) == 0 {
+            out.clutter_points += 1;
+        }
+    }
+    true
+}
+
+/// The eligible tracks (not masked, at least one candidate) in increasing order, `G` restricted
+/// to their columns, `g[i][s] = P_{i,e_s} h`, and `S̄` among them (symmetric: the upper triangle,
+/// mirrored into `sbar`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn eligible_gains<const NS: usize, const LANES: usize>(
+    valid: &[u32; LANES],
+    skip: u32,
+    ps: &Blocks<NS, LANES>,
+    n: usize,
+    hv: [f32; NS],
+    sbar: &mut [[f32; LANES]; LANES],
+    elig: &mut [u8; LANES],
+    g: &mut [[[f32; NS]; LANES]; LANES],
+) -> usize {
+    let mut na = 0usize;
+    for (t, v) in valid.iter().enumerate().take(n) {
+        if skip & (1 << t) == 0 && *v != 0 {
+            set(elig, na, t as u8);
+            na += 1;
+        }
+    }
+    let el = elig.get(..na).unwrap_or(&[]);
+    if na > 0 {
+        for (gi, prow) in g.iter_mut().zip(ps.iter()).take(n) {
+            for (gs, &ts) in gi.iter_mut().zip(el.iter()) {
+                if let Some(p) = prow.get(usize::from(ts)) {
+                    *gs = mat_vec(p, &hv);
+                }
+            }
+        }
+    }
+    for (s1, &t1) in el.iter().enumerate() {
+        let g1 = g
+            .get(usize::from(t1))
+            .copied()
+            .unwrap_or([[0.0; NS]; LANES]);
+        for (&t2, g12) in el.iter().zip(g1.iter()).skip(s1 + 1) {
+            let v = dot(&hv, g12);
+            put(sbar, usize::from(t1), usize::from(t2), v);
+            put(sbar, usize::from(t2), usize::from(t1), v);
+        }
+    }
+    na
+}
+
+/// Event weights (step 3) and the mixture sums (step 4) in one pass over the patterns and their
+/// events, redone once with a new reference if the weights' scale was off. `None` on a
+/// numerical failure (`acc` then holds nothing meaningful).
+#[inline(always)]
+fn weigh<const LANES: usize>(ctx: &Ctx<'_, LANES>, acc: &mut Acc<LANES>) -> bool {
+    let empty = ctx.base(0, 0.0);
+    let mut reference = if empty.is_finite() { empty } else { 0.0 };
+    if !ctx.pass(reference, acc) {
+        return false;
+    }
+    if acc.lwmax.is_finite()
+        && ((acc.lwmax - reference).abs() > WINDOW || !(acc.wtot.is_finite() && acc.wtot > 0.0))
+    {
+        reference = acc.lwmax;
+        *acc = Acc::new();
+        if !ctx.pass(reference, acc) {
+            return false;
+        }
+    }
+    true
+}
+
+/// The state update with the mixture sums (step 4): `C' = C/w + y yᵀ` compacted to the eligible
+/// tracks `el`, `P⁺ = P̄ − G_e C'_e G_eᵀ`, `x⁺ = x̄ + G_e y_e`. `false`, with the state untouched,
+/// when a correction could overflow.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn apply_mixture<const NS: usize, const LANES: usize>(
+    xs: &mut Means<NS, LANES>,
+    ps: &mut Blocks<NS, LANES>,
+    n: usize,
+    el: &[u8],
+    g: &[[[f32; NS]; LANES]; LANES],
+    y: &[f32; LANES],
+    c: &[[f32; LANES]; LANES],
+    inv: f32,
+) -> bool {
+    let na = el.len();
     // Only the eligible tracks (those in some detection pattern) have rows in y and C, so
     // C' = C + y yᵀ is compacted to them: P⁺ = P̄ − G_e C'_e G_eᵀ, x⁺ = x̄ + G_e y_e. With none
     // (every track missed for sure), the state does not move.
     let mut ye = [0.0f32; LANES];
     for (ys, &ts) in ye.iter_mut().zip(el.iter()) {
-        *ys = get(&y, usize::from(ts)) * inv;
+        *ys = get(y, usize::from(ts)) * inv;
     }
     let mut ce = [[0.0f32; LANES]; LANES];
     for (s1, &t1) in el.iter().enumerate() {
         let y1 = get(&ye, s1);
         for (s2, &t2) in el.iter().enumerate().take(s1 + 1) {
-            let v = at(&c, usize::from(t1), usize::from(t2)) * inv + y1 * get(&ye, s2);
+            let v = at(c, usize::from(t1), usize::from(t2)) * inv + y1 * get(&ye, s2);
             put(&mut ce, s1, s2, v);
             put(&mut ce, s2, s1, v);
         }
@@ -907,7 +534,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
             ok &= gi.iter().take(na).all(|v| v.iter().all(small));
         }
         if !ok {
-            return failed(out);
+            return false;
         }
         for (i, ui) in u.iter().enumerate().take(n) {
             let ui = ui.get(..na).unwrap_or(&[]);
@@ -953,24 +580,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
             }
         }
     }
-    for (t, ((bm, brow), src)) in out
-        .beta_miss
-        .iter_mut()
-        .zip(out.beta.iter_mut())
-        .zip(beta.iter())
-        .enumerate()
-        .take(n)
-    {
-        *bm = if skip & (1 << t) != 0 {
-            1.0
-        } else {
-            get(&bmiss, t) * inv
-        };
-        for (v, s) in brow.iter_mut().zip(src.iter()).take(m) {
-            *v = s * inv;
-        }
-    }
-    out
+    true
 }
 
 /// Drops (track, point) candidates in order of increasing single-track PDA probability until
@@ -1020,7 +630,7 @@ fn prune<const LANES: usize>(
         }
     }
     if let Some(c) = cand.get_mut(..nc) {
-        super::sort_by(c, |a, b| a.0.total_cmp(&b.0).is_lt());
+        crate::linalg::sort_by(c, |a, b| a.0.total_cmp(&b.0).is_lt());
     }
     for &(_, t, j) in cand.iter().take(nc) {
         let bound: u64 = out
@@ -1053,12 +663,6 @@ fn at<const R: usize, const C: usize>(a: &[[f32; C]; R], i: usize, j: usize) -> 
     a.get(i).and_then(|r| r.get(j)).copied().unwrap_or(0.0)
 }
 
-/// `a · b`.
-#[inline(always)]
-fn dot<const N: usize>(a: &[f32; N], b: &[f32; N]) -> f32 {
-    a.iter().zip(b.iter()).map(|(x, y)| x * y).sum()
-}
-
 /// `P h` for a column-major block `P` (columns where `h` is zero are skipped: `h = [1, 1, 0, …]`
 /// has zeros).
 #[inline(always)]
@@ -1089,244 +693,4 @@ fn put<const R: usize, const C: usize>(a: &mut [[f32; C]; R], i: usize, j: usize
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn event_count_matches_formula_for_full_gating() {
-        // Σ_k C(D,k) C(m,k) k!: D = 3, m = 4 → 1 + 12 + 36 + 24 = 73.
-        assert_eq!(count_events(&[0b1111u32; 3], 3, 1000), 73);
-        assert_eq!(count_events(&[0b1111u32; 3], 3, 10), 11);
-        assert_eq!(count_events(&[0b1111u32; 3], 3, 73), 73);
-        // Shared single candidates: {}, {0→0}, {1→0}, {2→1}, {0→0, 2→1}, {1→0, 2→1}.
-        assert_eq!(count_events(&[0b01u32, 0b01, 0b10], 3, 100), 6);
-        assert_eq!(count_events(&[0u32; 3], 3, 100), 1);
-        assert_eq!(count_events(&[0b111u32; 3], 0, 100), 1);
-        assert_eq!(count_events(&[0b111u32; 3], 1, 100), 4);
-    }
-    /// Brute-force f64 oracle of a row step: every joint event, its weight from the joint
-    /// Gaussian, and the moment-matched mixture (DESIGN 4.1), for `NS = 2` tracks.
-    #[allow(clippy::type_complexity, clippy::needless_range_loop)]
-    fn oracle(
-        s: &Stacked<2, 3>,
-        h: [f64; 2],
-        z: &[f64],
-        p: &RowParams,
-    ) -> (Vec<f64>, Vec<Vec<f64>>, Vec<f64>, Vec<Vec<f64>>) {
-        let n = s.len();
-        let d = 2 * n;
-        let x: Vec<f64> = (0..d)
-            .map(|a| f64::from(s.mean(a / 2).unwrap()[a % 2]))
-            .collect();
-        let pm: Vec<Vec<f64>> = (0..d)
-            .map(|a| {
-                (0..d)
-                    .map(|b| f64::from(s.cov(a / 2, b / 2).unwrap()[(a % 2, b % 2)]))
-                    .collect()
-            })
-            .collect();
-        // G[a][t] = (P Hᵀ)[a][t], S = H P Hᵀ + r I.
-        let g: Vec<Vec<f64>> = (0..d)
-            .map(|a| {
-                (0..n)
-                    .map(|t| h[0] * pm[a][2 * t] + h[1] * pm[a][2 * t + 1])
-                    .collect()
-            })
-            .collect();
-        let sb: Vec<Vec<f64>> = (0..n)
-            .map(|i| {
-                (0..n)
-                    .map(|t| {
-                        h[0] * g[2 * i][t]
-                            + h[1] * g[2 * i + 1][t]
-                            + if i == t { f64::from(p.r) } else { 0.0 }
-                    })
-                    .collect()
-            })
-            .collect();
-        let zh: Vec<f64> = (0..n)
-            .map(|t| h[0] * x[2 * t] + h[1] * x[2 * t + 1])
-            .collect();
-        let valid: Vec<Vec<usize>> = (0..n)
-            .map(|t| {
-                (0..z.len())
-                    .filter(|&j| (z[j] - zh[t]).powi(2) / sb[t][t] <= f64::from(p.gamma))
-                    .collect()
-            })
-            .collect();
-        let miss = 1.0 - f64::from(p.pd) * f64::from(p.pg);
-        // Enumerate events: a[t] = Some(j) or None, injective.
-        let mut events: Vec<Vec<Option<usize>>> = vec![vec![]];
-        for t in 0..n {
-            let mut next = Vec::new();
-            for e in &events {
-                next.push({
-                    let mut v = e.clone();
-                    v.push(None);
-                    v
-                });
-                for &j in &valid[t] {
-                    if !e.contains(&Some(j)) {
-                        let mut v = e.clone();
-                        v.push(Some(j));
-                        next.push(v);
-                    }
-                }
-            }
-            events = next;
-        }
-        let mut lws = Vec::new();
-        let mut posts = Vec::new();
-        for e in &events {
-            let idx: Vec<usize> = (0..n).filter(|&t| e[t].is_some()).collect();
-            let k = idx.len();
-            // Inverse of S_δ by Gauss-Jordan.
-            let mut m: Vec<Vec<f64>> = idx
-                .iter()
-                .map(|&a| {
-                    let mut row: Vec<f64> = idx.iter().map(|&b| sb[a][b]).collect();
-                    row.extend((0..k).map(|c| {
-                        if c == idx.iter().position(|&q| q == a).unwrap() {
-                            1.0
-                        } else {
-                            0.0
-                        }
-                    }));
-                    row
-                })
-                .collect();
-            let mut det = 1.0;
-            for c in 0..k {
-                let piv = m[c][c];
-                det *= piv;
-                for v in m[c].iter_mut() {
-                    *v /= piv;
-                }
-                for r in 0..k {
-                    if r != c {
-                        let f = m[r][c];
-                        for q in 0..2 * k {
-                            m[r][q] -= f * m[c][q];
-                        }
-                    }
-                }
-            }
-            let sinv: Vec<Vec<f64>> = m.iter().map(|r| r[k..].to_vec()).collect();
-            let nu: Vec<f64> = idx.iter().map(|&t| z[e[t].unwrap()] - zh[t]).collect();
-            let sn: Vec<f64> = (0..k)
-                .map(|a| (0..k).map(|b| sinv[a][b] * nu[b]).sum())
-                .collect();
-            let q: f64 = (0..k).map(|a| nu[a] * sn[a]).sum();
-            let lw = -0.5 * q - 0.5 * det.ln() - 0.5 * k as f64 * (2.0 * std::f64::consts::PI).ln()
-                + k as f64 * (f64::from(p.pd) / f64::from(p.clutter_density)).ln()
-                + (n - k) as f64 * miss.ln();
-            // x_A = x + G_δ S⁻¹ ν, P_δ = P − G_δ S⁻¹ G_δᵀ.
-            let xa: Vec<f64> = (0..d)
-                .map(|a| x[a] + (0..k).map(|c| g[a][idx[c]] * sn[c]).sum::<f64>())
-                .collect();
-            let pa: Vec<Vec<f64>> = (0..d)
-                .map(|a| {
-                    (0..d)
-                        .map(|b| {
-                            pm[a][b]
-                                - (0..k)
-                                    .map(|c| {
-                                        (0..k)
-                                            .map(|c2| g[a][idx[c]] * sinv[c][c2] * g[b][idx[c2]])
-                                            .sum::<f64>()
-                                    })
-                                    .sum::<f64>()
-                        })
-                        .collect()
-                })
-                .collect();
-            lws.push(lw);
-            posts.push((xa, pa));
-        }
-        let mx = lws.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-        let w: Vec<f64> = lws.iter().map(|l| (l - mx).exp()).collect();
-        let tot: f64 = w.iter().sum();
-        let mut bmiss = vec![0.0; n];
-        let mut beta = vec![vec![0.0; z.len()]; n];
-        let mut xm = vec![0.0; d];
-        for (e, (wi, (xa, _))) in events.iter().zip(w.iter().zip(posts.iter())) {
-            for t in 0..n {
-                match e[t] {
-                    Some(j) => beta[t][j] += wi / tot,
-                    None => bmiss[t] += wi / tot,
-                }
-            }
-            for a in 0..d {
-                xm[a] += wi / tot * xa[a];
-            }
-        }
-        let mut pmx = vec![vec![0.0; d]; d];
-        for (wi, (xa, pa)) in w.iter().zip(posts.iter()) {
-            for a in 0..d {
-                for b in 0..d {
-                    pmx[a][b] += wi / tot * (pa[a][b] + (xa[a] - xm[a]) * (xa[b] - xm[b]));
-                }
-            }
-        }
-        (bmiss, beta, xm, pmx)
-    }
-
-    /// Three coupled tracks with shared candidates, under ordinary and extreme parameters (the
-    /// extreme ones push the weights far from the first pass's reference, so the pass is redone):
-    /// β, the mean and the covariance match the f64 oracle.
-    #[test]
-    #[allow(clippy::needless_range_loop)]
-    fn row_step_matches_brute_force_oracle() {
-        let mut s: Stacked<2, 3> = Stacked::new();
-        let p0 = SMatrix::<f32, 2, 2>::new(1.0, 0.2, 0.2, 0.5);
-        for (i, x0) in [-1.0f32, 0.2, 1.5].iter().enumerate() {
-            s.push(SVector::from([*x0, 0.1 * i as f32]), &p0).unwrap();
-        }
-        let c01 = SMatrix::<f32, 2, 2>::new(0.6, 0.1, 0.1, 0.2);
-        s.set_cross(0, 1, &c01);
-        s.set_cross(1, 2, &c01);
-        s.set_cross(0, 2, &(c01 * 0.5));
-        let h = SVector::from([1.0f32, 1.0]);
-        let pts = [-0.9f32, 0.0, 0.5, 1.4, 2.6];
-        for (density, pd) in [(0.05f32, 0.9f32), (1e-30, 0.9), (1e-12, 0.999), (50.0, 0.5)] {
-            let params = RowParams {
-                clutter_density: density,
-                pd,
-                ..RowParams::default()
-            };
-            let mut st = s;
-            let out = update(&mut st, &h, &pts, &params, 100_000);
-            assert!(!out.failed && !out.approximated, "{density}");
-            let z: Vec<f64> = pts.iter().map(|v| f64::from(*v)).collect();
-            let (bmiss, beta, xm, pm) = oracle(&s, [1.0, 1.0], &z, &params);
-            for t in 0..3 {
-                assert!(
-                    (f64::from(out.beta_miss[t]) - bmiss[t]).abs() < 2e-5,
-                    "{density}: miss {t}"
-                );
-                for j in 0..pts.len() {
-                    assert!(
-                        (f64::from(out.beta[t][j]) - beta[t][j]).abs() < 2e-5,
-                        "{density}: β {t} {j}"
-                    );
-                }
-            }
-            for a in 0..6 {
-                let xv = f64::from(st.mean(a / 2).unwrap()[a % 2]);
-                assert!(
-                    (xv - xm[a]).abs() < 1e-4,
-                    "{density}: x {a}: {xv} vs {}",
-                    xm[a]
-                );
-                for b in 0..6 {
-                    let pv = f64::from(st.cov(a / 2, b / 2).unwrap()[(a % 2, b % 2)]);
-                    assert!(
-                        (pv - pm[a][b]).abs() < 1e-4,
-                        "{density}: P {a} {b}: {pv} vs {}",
-                        pm[a][b]
-                    );
-                }
-            }
-        }
-    }
-}
+mod tests;

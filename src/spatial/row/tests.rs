@@ -1,0 +1,239 @@
+use super::*;
+
+#[test]
+fn event_count_matches_formula_for_full_gating() {
+    // Σ_k C(D,k) C(m,k) k!: D = 3, m = 4 → 1 + 12 + 36 + 24 = 73.
+    assert_eq!(count_events(&[0b1111u32; 3], 3, 1000), 73);
+    assert_eq!(count_events(&[0b1111u32; 3], 3, 10), 11);
+    assert_eq!(count_events(&[0b1111u32; 3], 3, 73), 73);
+    // Shared single candidates: {}, {0→0}, {1→0}, {2→1}, {0→0, 2→1}, {1→0, 2→1}.
+    assert_eq!(count_events(&[0b01u32, 0b01, 0b10], 3, 100), 6);
+    assert_eq!(count_events(&[0u32; 3], 3, 100), 1);
+    assert_eq!(count_events(&[0b111u32; 3], 0, 100), 1);
+    assert_eq!(count_events(&[0b111u32; 3], 1, 100), 4);
+}
+/// Brute-force f64 oracle of a row step: every joint event, its weight from the joint
+/// Gaussian, and the moment-matched mixture (docs/design.md §4.1), for `NS = 2` tracks.
+#[allow(clippy::type_complexity, clippy::needless_range_loop)]
+fn oracle(
+    s: &Stacked<2, 3>,
+    h: [f64; 2],
+    z: &[f64],
+    p: &RowParams,
+) -> (Vec<f64>, Vec<Vec<f64>>, Vec<f64>, Vec<Vec<f64>>) {
+    let n = s.len();
+    let d = 2 * n;
+    let x: Vec<f64> = (0..d)
+        .map(|a| f64::from(s.mean(a / 2).unwrap()[a % 2]))
+        .collect();
+    let pm: Vec<Vec<f64>> = (0..d)
+        .map(|a| {
+            (0..d)
+                .map(|b| f64::from(s.cov(a / 2, b / 2).unwrap()[(a % 2, b % 2)]))
+                .collect()
+        })
+        .collect();
+    // G[a][t] = (P Hᵀ)[a][t], S = H P Hᵀ + r I.
+    let g: Vec<Vec<f64>> = (0..d)
+        .map(|a| {
+            (0..n)
+                .map(|t| h[0] * pm[a][2 * t] + h[1] * pm[a][2 * t + 1])
+                .collect()
+        })
+        .collect();
+    let sb: Vec<Vec<f64>> = (0..n)
+        .map(|i| {
+            (0..n)
+                .map(|t| {
+                    h[0] * g[2 * i][t]
+                        + h[1] * g[2 * i + 1][t]
+                        + if i == t { f64::from(p.r) } else { 0.0 }
+                })
+                .collect()
+        })
+        .collect();
+    let zh: Vec<f64> = (0..n)
+        .map(|t| h[0] * x[2 * t] + h[1] * x[2 * t + 1])
+        .collect();
+    let valid: Vec<Vec<usize>> = (0..n)
+        .map(|t| {
+            (0..z.len())
+                .filter(|&j| (z[j] - zh[t]).powi(2) / sb[t][t] <= f64::from(p.gamma))
+                .collect()
+        })
+        .collect();
+    let miss = 1.0 - f64::from(p.pd) * f64::from(p.pg);
+    // Enumerate events: a[t] = Some(j) or None, injective.
+    let mut events: Vec<Vec<Option<usize>>> = vec![vec![]];
+    for t in 0..n {
+        let mut next = Vec::new();
+        for e in &events {
+            next.push({
+                let mut v = e.clone();
+                v.push(None);
+                v
+            });
+            for &j in &valid[t] {
+                if !e.contains(&Some(j)) {
+                    let mut v = e.clone();
+                    v.push(Some(j));
+                    next.push(v);
+                }
+            }
+        }
+        events = next;
+    }
+    let mut lws = Vec::new();
+    let mut posts = Vec::new();
+    for e in &events {
+        let idx: Vec<usize> = (0..n).filter(|&t| e[t].is_some()).collect();
+        let k = idx.len();
+        // Inverse of S_δ by Gauss-Jordan.
+        let mut m: Vec<Vec<f64>> = idx
+            .iter()
+            .map(|&a| {
+                let mut row: Vec<f64> = idx.iter().map(|&b| sb[a][b]).collect();
+                row.extend((0..k).map(|c| {
+                    if c == idx.iter().position(|&q| q == a).unwrap() {
+                        1.0
+                    } else {
+                        0.0
+                    }
+                }));
+                row
+            })
+            .collect();
+        let mut det = 1.0;
+        for c in 0..k {
+            let piv = m[c][c];
+            det *= piv;
+            for v in m[c].iter_mut() {
+                *v /= piv;
+            }
+            for r in 0..k {
+                if r != c {
+                    let f = m[r][c];
+                    for q in 0..2 * k {
+                        m[r][q] -= f * m[c][q];
+                    }
+                }
+            }
+        }
+        let sinv: Vec<Vec<f64>> = m.iter().map(|r| r[k..].to_vec()).collect();
+        let nu: Vec<f64> = idx.iter().map(|&t| z[e[t].unwrap()] - zh[t]).collect();
+        let sn: Vec<f64> = (0..k)
+            .map(|a| (0..k).map(|b| sinv[a][b] * nu[b]).sum())
+            .collect();
+        let q: f64 = (0..k).map(|a| nu[a] * sn[a]).sum();
+        let lw = -0.5 * q - 0.5 * det.ln() - 0.5 * k as f64 * (2.0 * std::f64::consts::PI).ln()
+            + k as f64 * (f64::from(p.pd) / f64::from(p.clutter_density)).ln()
+            + (n - k) as f64 * miss.ln();
+        // x_A = x + G_δ S⁻¹ ν, P_δ = P − G_δ S⁻¹ G_δᵀ.
+        let xa: Vec<f64> = (0..d)
+            .map(|a| x[a] + (0..k).map(|c| g[a][idx[c]] * sn[c]).sum::<f64>())
+            .collect();
+        let pa: Vec<Vec<f64>> = (0..d)
+            .map(|a| {
+                (0..d)
+                    .map(|b| {
+                        pm[a][b]
+                            - (0..k)
+                                .map(|c| {
+                                    (0..k)
+                                        .map(|c2| g[a][idx[c]] * sinv[c][c2] * g[b][idx[c2]])
+                                        .sum::<f64>()
+                                })
+                                .sum::<f64>()
+                    })
+                    .collect()
+            })
+            .collect();
+        lws.push(lw);
+        posts.push((xa, pa));
+    }
+    let mx = lws.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let w: Vec<f64> = lws.iter().map(|l| (l - mx).exp()).collect();
+    let tot: f64 = w.iter().sum();
+    let mut bmiss = vec![0.0; n];
+    let mut beta = vec![vec![0.0; z.len()]; n];
+    let mut xm = vec![0.0; d];
+    for (e, (wi, (xa, _))) in events.iter().zip(w.iter().zip(posts.iter())) {
+        for t in 0..n {
+            match e[t] {
+                Some(j) => beta[t][j] += wi / tot,
+                None => bmiss[t] += wi / tot,
+            }
+        }
+        for a in 0..d {
+            xm[a] += wi / tot * xa[a];
+        }
+    }
+    let mut pmx = vec![vec![0.0; d]; d];
+    for (wi, (xa, pa)) in w.iter().zip(posts.iter()) {
+        for a in 0..d {
+            for b in 0..d {
+                pmx[a][b] += wi / tot * (pa[a][b] + (xa[a] - xm[a]) * (xa[b] - xm[b]));
+            }
+        }
+    }
+    (bmiss, beta, xm, pmx)
+}
+
+/// Three coupled tracks with shared candidates, under ordinary and extreme parameters (the
+/// extreme ones push the weights far from the first pass's reference, so the pass is redone):
+/// β, the mean and the covariance match the f64 oracle.
+#[test]
+#[allow(clippy::needless_range_loop)]
+fn row_step_matches_brute_force_oracle() {
+    let mut s: Stacked<2, 3> = Stacked::new();
+    let p0 = SMatrix::<f32, 2, 2>::new(1.0, 0.2, 0.2, 0.5);
+    for (i, x0) in [-1.0f32, 0.2, 1.5].iter().enumerate() {
+        s.push(SVector::from([*x0, 0.1 * i as f32]), &p0).unwrap();
+    }
+    let c01 = SMatrix::<f32, 2, 2>::new(0.6, 0.1, 0.1, 0.2);
+    s.set_cross(0, 1, &c01);
+    s.set_cross(1, 2, &c01);
+    s.set_cross(0, 2, &(c01 * 0.5));
+    let h = SVector::from([1.0f32, 1.0]);
+    let pts = [-0.9f32, 0.0, 0.5, 1.4, 2.6];
+    for (density, pd) in [(0.05f32, 0.9f32), (1e-30, 0.9), (1e-12, 0.999), (50.0, 0.5)] {
+        let params = RowParams {
+            clutter_density: density,
+            pd,
+            ..RowParams::default()
+        };
+        let mut st = s;
+        let out = update(&mut st, &h, &pts, &params, 100_000);
+        assert!(!out.failed && !out.approximated, "{density}");
+        let z: Vec<f64> = pts.iter().map(|v| f64::from(*v)).collect();
+        let (bmiss, beta, xm, pm) = oracle(&s, [1.0, 1.0], &z, &params);
+        for t in 0..3 {
+            assert!(
+                (f64::from(out.beta_miss[t]) - bmiss[t]).abs() < 2e-5,
+                "{density}: miss {t}"
+            );
+            for j in 0..pts.len() {
+                assert!(
+                    (f64::from(out.beta[t][j]) - beta[t][j]).abs() < 2e-5,
+                    "{density}: β {t} {j}"
+                );
+            }
+        }
+        for a in 0..6 {
+            let xv = f64::from(st.mean(a / 2).unwrap()[a % 2]);
+            assert!(
+                (xv - xm[a]).abs() < 1e-4,
+                "{density}: x {a}: {xv} vs {}",
+                xm[a]
+            );
+            for b in 0..6 {
+                let pv = f64::from(st.cov(a / 2, b / 2).unwrap()[(a % 2, b % 2)]);
+                assert!(
+                    (pv - pm[a][b]).abs() < 1e-4,
+                    "{density}: P {a} {b}: {pv} vs {}",
+                    pm[a][b]
+                );
+            }
+        }
+    }
+}

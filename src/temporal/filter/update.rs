@@ -1,0 +1,348 @@
+//! The lane update of the temporal filter (docs/design.md §4.2): the gain parts from a lane's
+//! pseudo-measurements (shared with the fixed-lag smoother), their check, and the rank-r
+//! covariance update in place; and the small kernels the update and the smoother share.
+
+use super::*;
+
+impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize>
+    TemporalFilter<LANES, POINTS, RANK, NX>
+{
+    /// Update with lane `s`'s pseudo-measurements: `y = V_r a_s + e`, `e ~ N(0, R + r₀² I)` over the
+    /// present index points (`R` the observation's covariance block), as the rank-`r` correction
+    /// of `UpdateParts`; the covariance keeps one computed triangle, mirrored (symmetric).
+    ///
+    /// A pseudo-measurement covariance that is not positive semi-definite is repaired, not
+    /// trusted: its factorisation raises every pivot of `R + r₀² I` that falls below `r₀²/2` to
+    /// `r₀²` (a PSD `R` has all its pivots `≥ r₀²`), so the posterior stays PSD; the count is in
+    /// the returned [`UpdateInfo`].
+    ///
+    /// # Errors
+    /// [`TemporalError::BadSlot`], [`TemporalError::NoData`], [`TemporalError::Numerical`]; the
+    /// state is unchanged.
+    ///
+    /// # Complexity
+    /// `m³/6 + m²·r + m·r²` for the gain (`m ≤ POINTS` present points, one `m×m` Cholesky) and
+    /// `n_act²·r/2` for the covariance, `n_act = 2r·lanes`.
+    pub fn update<const NT: usize>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+        obs: &LaneObservation<POINTS>,
+    ) -> Result<UpdateInfo, TemporalError> {
+        let mut g = UpdateParts::EMPTY;
+        self.prepare_update(tables, s, obs, &mut g)?;
+        self.check_update(&g)?;
+        self.apply_update(&g);
+        Ok(UpdateInfo {
+            repaired_pivots: g.repaired,
+        })
+    }
+
+    /// The gain parts of [`TemporalFilter::update`] (shared with the fixed-lag smoother), written
+    /// into `parts`; on error `parts` holds nothing meaningful.
+    #[allow(non_snake_case, clippy::too_many_lines)]
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
+    pub(crate) fn prepare_update<const NT: usize>(
+        &self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+        obs: &LaneObservation<POINTS>,
+        parts: &mut UpdateParts<RANK, NX>,
+    ) -> Result<(), TemporalError> {
+        if !self.is_active(s) {
+            return Err(TemporalError::BadSlot);
+        }
+        let r = Self::r_used(tables);
+        let v = &tables.gram_eigvec;
+        let vg = |i: usize, j: usize| v.get((i, j)).copied().unwrap_or(0.0);
+        // The used index points, in order.
+        let mut us = [0u8; POINTS];
+        let mut m = 0usize;
+        for i in 0..POINTS {
+            if get(&obs.present, i) && obs.z.get(i).is_some_and(|z| z.is_finite()) {
+                set(&mut us, m, i as u8);
+                m += 1;
+            }
+        }
+        if m == 0 {
+            return Err(TemporalError::NoData);
+        }
+        let u = |a: usize| usize::from(get(&us, a));
+        let a0 = Self::idx(s, 0, 0);
+        // Cov(a_s) (r×r) and T = V_m Cov(a_s) (m×r).
+        let pss = SMatrix::<f32, RANK, RANK>::from_fn(|j, k| {
+            if j < r && k < r {
+                self.pg(a0 + 2 * j, a0 + 2 * k)
+            } else {
+                0.0
+            }
+        });
+        let mut t = SMatrix::<f32, POINTS, RANK>::zeros();
+        for a in 0..m {
+            for k in 0..r {
+                let mut acc = 0.0;
+                for j in 0..r {
+                    acc += vg(u(a), j) * pss.get((j, k)).copied().unwrap_or(0.0);
+                }
+                if let Some(e) = t.get_mut((a, k)) {
+                    *e = acc;
+                }
+            }
+        }
+        // R̃ = sym(R) + r₀² I on the used points (lower triangle). With R PSD every pivot of its
+        // Cholesky factorisation is ≥ r₀²; a pivot below r₀²/2 means R is not PSD (the spatial
+        // pseudo-measurement covariance can be slightly indefinite: moment-matched mixtures make
+        // the per-lane RTS cross-covariances inconsistent). Such pivots are raised to r₀² (a
+        // modified Cholesky: R̃ + diag(e), e ≥ 0), so the noise used is PSD and the posterior
+        // stays PSD; they are counted.
+        let r0 = tables.hyper.pseudo_noise;
+        let mut l = SMatrix::<f32, POINTS, POINTS>::zeros();
+        for b in 0..m {
+            for a in b..m {
+                let acc = obs.cov.get((u(a), u(b))).copied().unwrap_or(0.0);
+                let acc2 = obs.cov.get((u(b), u(a))).copied().unwrap_or(0.0);
+                if let Some(e) = l.get_mut((a, b)) {
+                    *e = 0.5 * (acc + acc2) + if a == b { r0 } else { 0.0 };
+                }
+            }
+        }
+        let mut rt = l;
+        let mut load = [0.0f32; POINTS];
+        let repaired = linalg::cholesky_loaded(&mut rt, m, 0.5 * r0, r0, &mut load);
+        if repaired == u8::MAX {
+            return Err(TemporalError::Numerical);
+        }
+        // S = T V_mᵀ + R̃ + diag(e) on the leading m×m block (lower triangle, then factored).
+        for b in 0..m {
+            for a in b..m {
+                let mut acc = l.get((a, b)).copied().unwrap_or(0.0)
+                    + if a == b { get(&load, a) } else { 0.0 };
+                for k in 0..r {
+                    acc += t.get((a, k)).copied().unwrap_or(0.0) * vg(u(b), k);
+                }
+                if let Some(e) = l.get_mut((a, b)) {
+                    *e = acc;
+                }
+            }
+        }
+        if !cholesky_lower(&mut l, m) {
+            return Err(TemporalError::Numerical);
+        }
+        // A = L⁻¹ V_m (m×r), b = L⁻¹ ν.
+        let mut A =
+            SMatrix::<f32, POINTS, RANK>::from_fn(
+                |a, k| {
+                    if a < m && k < r {
+                        vg(u(a), k)
+                    } else {
+                        0.0
+                    }
+                },
+            );
+        for k in 0..r {
+            if let Some(col) = A.as_mut_slice().get_mut(k * POINTS..k * POINTS + m) {
+                forward_subst(&l, col);
+            }
+        }
+        let mut b = [0.0f32; POINTS];
+        for (a, bv) in b.iter_mut().enumerate().take(m) {
+            let mut pred = 0.0;
+            for j in 0..r {
+                pred += vg(u(a), j) * self.xg(a0 + 2 * j);
+            }
+            *bv = obs.z.get(u(a)).copied().unwrap_or(0.0) - pred;
+        }
+        if let Some(bs) = b.get_mut(..m) {
+            forward_subst(&l, bs);
+        }
+        // M = AᵀA, w = Aᵀb.
+        let mut M = SMatrix::<f32, RANK, RANK>::zeros();
+        let mut w = SVector::<f32, RANK>::zeros();
+        let As = A.as_slice();
+        let col = |k: usize| As.get(k * POINTS..k * POINTS + m).unwrap_or(&[]);
+        for k in 0..r {
+            let ck = col(k);
+            if let Some(e) = w.get_mut(k) {
+                *e = ck.iter().zip(b.iter()).map(|(x, y)| x * y).sum();
+            }
+            for k2 in k..r {
+                let d: f32 = ck.iter().zip(col(k2)).map(|(x, y)| x * y).sum();
+                if let Some(e) = M.get_mut((k, k2)) {
+                    *e = d;
+                }
+                if let Some(e) = M.get_mut((k2, k)) {
+                    *e = d;
+                }
+            }
+        }
+        if !(M.iter().chain(w.iter()).all(|v| v.is_finite())) {
+            return Err(TemporalError::Numerical);
+        }
+        // G = P[:, a_s] (only the active rows are non-zero), row-major, written in place (the
+        // parts are 2.6 KiB: no copy on the stack).
+        for (i, row) in parts.g.iter_mut().enumerate() {
+            for (k, e) in row.iter_mut().enumerate() {
+                *e = if k < r { self.pg(i, a0 + 2 * k) } else { 0.0 };
+            }
+        }
+        parts.slot = s;
+        parts.r = r;
+        parts.m = M;
+        parts.w = w;
+        parts.repaired = repaired;
+        Ok(())
+    }
+
+    /// Checks that applying `g` keeps the state finite (bounds on the products, before anything
+    /// is written).
+    ///
+    /// # Errors
+    /// [`TemporalError::Numerical`].
+    pub(crate) fn check_update(&self, g: &UpdateParts<RANK, NX>) -> Result<(), TemporalError> {
+        let r = g.r as f32;
+        let gmax = self.g_max(g);
+        let mmax = norm_bound(g.m.as_slice());
+        let wmax = norm_bound(g.w.as_slice());
+        let ok = r * gmax * wmax < SAFE && r * r * gmax * mmax * gmax < SAFE;
+        // NaN compares false: a non-finite bound fails the check.
+        if ok {
+            Ok(())
+        } else {
+            Err(TemporalError::Numerical)
+        }
+    }
+
+    /// A bound on `|G|` over the active rows (`sqrt` of the sum of squares; not finite when some
+    /// entry is not).
+    pub(crate) fn g_max(&self, g: &UpdateParts<RANK, NX>) -> f32 {
+        let sp = self.spans(g.r);
+        let ss: f32 = sp
+            .indices()
+            .filter_map(|i| g.g.get(i))
+            .map(|row| dot(row, row))
+            .sum();
+        math::sqrt(ss)
+    }
+
+    /// Applies checked gain parts in place: `x += G w`, `P −= G M Gᵀ` over the active block
+    /// (one triangle computed, mirrored).
+    // Not inlined: its stack frame must not add to its caller's (stack budget).
+    #[inline(never)]
+    pub(crate) fn apply_update(&mut self, g: &UpdateParts<RANK, NX>) {
+        let sp = self.spans(g.r);
+        let w: [f32; RANK] = core::array::from_fn(|k| g.w.get(k).copied().unwrap_or(0.0));
+        // x += G w.
+        for i in sp.indices() {
+            if let (Some(xv), Some(gi)) = (self.x.as_mut_slice().get_mut(i), g.g.get(i)) {
+                *xv += dot(gi, &w);
+            }
+        }
+        // U = G M, row-major, active rows.
+        let mut u = [[0.0f32; RANK]; NX];
+        for i in sp.indices() {
+            if let (Some(ui), Some(gi)) = (u.get_mut(i), g.g.get(i)) {
+                *ui = times_sym(gi, &g.m);
+            }
+        }
+        // P[i, j] −= U_i · G_j for active i ≤ j (column j of P is contiguous), two columns (a
+        // component's position j and rate j + 1) at a time: rows i ≤ j for both, then the
+        // diagonal entry (j + 1, j + 1).
+        let ps = self.p.as_mut_slice();
+        for j in sp.indices().step_by(2) {
+            let (Some(g0), Some(g1)) = (g.g.get(j), g.g.get(j + 1)) else {
+                continue;
+            };
+            let Some(pair) = ps.get_mut(j * NX..(j + 2) * NX) else {
+                continue;
+            };
+            let (c0, c1) = pair.split_at_mut(NX);
+            for rg in sp.iter() {
+                if rg.start > j {
+                    break;
+                }
+                let rg = rg.start..rg.end.min(j + 1);
+                if let (Some(d0), Some(d1), Some(ur)) =
+                    (c0.get_mut(rg.clone()), c1.get_mut(rg.clone()), u.get(rg))
+                {
+                    for ((v0, v1), ui) in d0.iter_mut().zip(d1.iter_mut()).zip(ur) {
+                        *v0 -= dot(ui, g0);
+                        *v1 -= dot(ui, g1);
+                    }
+                }
+            }
+            if let (Some(v), Some(ui)) = (c1.get_mut(j + 1), u.get(j + 1)) {
+                *v -= dot(ui, g1);
+            }
+        }
+        // Mirror the upper triangle into the lower one.
+        for j in sp.indices() {
+            for i in sp.indices().take_while(|&i| i < j) {
+                let v = ps.get(i + NX * j).copied().unwrap_or(0.0);
+                if let Some(e) = ps.get_mut(j + NX * i) {
+                    *e = v;
+                }
+            }
+        }
+        // Any update can leave the covariance indefinite in f32 (see `repair_covariance`).
+        self.repair_due = true;
+    }
+}
+
+/// `a · b` over a fixed length (unrolled by the compiler).
+#[inline(always)]
+pub(crate) fn dot<const R: usize>(a: &[f32; R], b: &[f32; R]) -> f32 {
+    let mut acc = 0.0;
+    for (x, y) in a.iter().zip(b) {
+        acc += x * y;
+    }
+    acc
+}
+
+/// `a M` for a row `a` and a square `M` (`(a M)_k = Σ_j a_j M[j, k]`).
+#[inline(always)]
+pub(crate) fn times_sym<const R: usize>(a: &[f32; R], m: &SMatrix<f32, R, R>) -> [f32; R] {
+    let ms = m.as_slice();
+    core::array::from_fn(|k| {
+        let col = ms.get(k * R..(k + 1) * R).unwrap_or(&[]);
+        a.iter().zip(col).map(|(x, y)| x * y).sum()
+    })
+}
+
+/// A lane from its coefficients: positions `f_i = v_i · a` and variances `v_i P v_iᵀ` at every
+/// index point, `v_i` the first `r` entries of row `i` of the Gram eigenvectors `v`.
+/// `POINTS · (RANK² + 2·RANK)` multiply-adds.
+/// Positions `V_r a` and variances `diag(V_r P V_rᵀ)` at the index points. A variance is not
+/// published below a bound on the rounding error of its own f32 computation,
+/// `2r·ε·(Σ_j |v_j| √P_jj)²` (`≥ 2r·ε·|v|ᵀ|P||v|` for a PSD `P`): where the
+/// exact value is smaller than that (a direction measured ~10⁵ times more precisely than the
+/// components' prior scale), the computed one is rounding noise and can come out negative.
+pub(crate) fn project<const POINTS: usize, const RANK: usize>(
+    v: &SMatrix<f32, POINTS, POINTS>,
+    r: usize,
+    a: &[f32; RANK],
+    p: &[[f32; RANK]; RANK],
+) -> (SVector<f32, POINTS>, SVector<f32, POINTS>) {
+    let mut mean = SVector::<f32, POINTS>::zeros();
+    let mut var = SVector::<f32, POINTS>::zeros();
+    let sd: [f32; RANK] = core::array::from_fn(|j| {
+        p.get(j)
+            .and_then(|row| row.get(j))
+            .map_or(0.0, |d| math::sqrt(d.abs()))
+    });
+    let tol = 2.0 * r as f32 * f32::EPSILON;
+    for (i, (m, w)) in mean.iter_mut().zip(var.iter_mut()).enumerate() {
+        let vi: [f32; RANK] = core::array::from_fn(|j| {
+            if j < r {
+                v.get((i, j)).copied().unwrap_or(0.0)
+            } else {
+                0.0
+            }
+        });
+        *m = dot(&vi, a);
+        let pv: [f32; RANK] = core::array::from_fn(|j| p.get(j).map_or(0.0, |row| dot(row, &vi)));
+        let s: f32 = vi.iter().zip(&sd).map(|(v, d)| v.abs() * d).sum();
+        *w = dot(&pv, &vi).max(tol * s * s);
+    }
+    (mean, var)
+}
