@@ -238,7 +238,7 @@ fn camera_blackout_and_recovery() {
 ///
 /// Expected: the clutter is counted (`spatial.clutter_points`), the true lanes coast and are
 /// removed at their 10th miss; clutter may confirm false lanes (the known open problem of
-/// dashed-tolerant confirmation, README "Open problems"), which are published with valid
+/// dashed-tolerant confirmation, docs/measurements.md, "Open problems"), which are published with valid
 /// state; nothing panics or goes non-finite. When the lanes return, all three are tracked within
 /// 3 frames (measured; asserted ≤ 6: a lane whose last clutter-era state is far off is removed
 /// and restarted).

@@ -87,7 +87,7 @@ fn finds_curved_lanes_in_clutter() {
 /// before a tentative track is deleted), which lets dense uniform clutter confirm false lanes:
 /// measured over 20 seeds, 0 per frame at 0.02 /m, 0.85 at 0.05 /m and 3.65 at 0.1 /m (with the
 /// earlier 3-miss rule: 0, 0, 0.2 — but every dashed lane was lost and replay accuracy fell from
-/// 0.84 to 0.14). Asserted at 0.02 /m; the trade-off is an open problem in the README.
+/// 0.84 to 0.14). Asserted at 0.02 /m; the trade-off is an open problem (docs/measurements.md).
 #[test]
 fn sparse_clutter_alone_confirms_nothing() {
     for seed in [6, 7, 8, 9, 10] {

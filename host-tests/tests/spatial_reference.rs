@@ -449,7 +449,7 @@ fn more_lanes_than_slots() {
 
 /// Sparse uniform clutter confirms no lane. (At 0.05 /m the dash-tolerant defaults — 8 misses
 /// before a tentative track is deleted — confirm false lanes; see `spatial_filter_core.rs` and
-/// the README's open problems.)
+/// the open problems in docs/measurements.md.)
 #[test]
 fn clutter_alone_confirms_nothing() {
     let (model, cfg) = setup();

@@ -116,7 +116,7 @@ fn new_lane_gets_a_new_id() {
         // No clutter here: this test is about ids. With clutter the spatial filter can lose a lane
         // inside a frame and restart it further out, which shows as an extra lane (seed 0 of this
         // scene with 0.02 /m clutter: two clutter points at 57–58 m pull the track 0.4 m off;
-        // known issue, see the README's open problems).
+        // known issue, see the open problems in docs/measurements.md).
         let cfg = ScenarioConfig {
             lanes,
             clutter_density: 0.0,
