@@ -367,7 +367,8 @@ impl<
     }
 
     /// Step 3: this frame's observations against the temporal predictions.
-    #[inline(always)]
+    // Not inlined: its predictions (~0.9 KiB) must not add to the temporal stage's stack.
+    #[inline(never)]
     fn associate(&mut self, n_obs: usize) -> IdentityOutcome<LANES> {
         let mut preds = [LanePrediction::<POINTS>::EMPTY; LANES];
         for (s, p) in preds.iter_mut().enumerate() {
@@ -496,7 +497,8 @@ impl<
     }
 
     /// Step 7: the filtered lanes of this frame and the smoothed lanes `LAG` frames back.
-    #[inline(always)]
+    // Not inlined: its frame must not add to the step's (stack budget).
+    #[inline(never)]
     fn estimates(
         &self,
         filtered: &mut Vec<LaneEstimate<POINTS>, LANES>,

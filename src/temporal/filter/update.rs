@@ -90,45 +90,9 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        // R̃ = sym(R) + r₀² I on the used points (lower triangle). With R PSD every pivot of its
-        // Cholesky factorisation is ≥ r₀²; a pivot below r₀²/2 means R is not PSD (the spatial
-        // pseudo-measurement covariance can be slightly indefinite: moment-matched mixtures make
-        // the per-lane RTS cross-covariances inconsistent). Such pivots are raised to r₀² (a
-        // modified Cholesky: R̃ + diag(e), e ≥ 0), so the noise used is PSD and the posterior
-        // stays PSD; they are counted.
         let r0 = tables.hyper.pseudo_noise;
         let mut l = SMatrix::<f32, POINTS, POINTS>::zeros();
-        for b in 0..m {
-            for a in b..m {
-                let acc = obs.cov.get((u(a), u(b))).copied().unwrap_or(0.0);
-                let acc2 = obs.cov.get((u(b), u(a))).copied().unwrap_or(0.0);
-                if let Some(e) = l.get_mut((a, b)) {
-                    *e = 0.5 * (acc + acc2) + if a == b { r0 } else { 0.0 };
-                }
-            }
-        }
-        let mut rt = l;
-        let mut load = [0.0f32; POINTS];
-        let repaired = linalg::cholesky_loaded(&mut rt, m, 0.5 * r0, r0, &mut load);
-        if repaired == u8::MAX {
-            return Err(TemporalError::Numerical);
-        }
-        // S = T V_mᵀ + R̃ + diag(e) on the leading m×m block (lower triangle, then factored).
-        for b in 0..m {
-            for a in b..m {
-                let mut acc = l.get((a, b)).copied().unwrap_or(0.0)
-                    + if a == b { get(&load, a) } else { 0.0 };
-                for k in 0..r {
-                    acc += t.get((a, k)).copied().unwrap_or(0.0) * vg(u(b), k);
-                }
-                if let Some(e) = l.get_mut((a, b)) {
-                    *e = acc;
-                }
-            }
-        }
-        if !cholesky_lower(&mut l, m) {
-            return Err(TemporalError::Numerical);
-        }
+        let repaired = innovation_factor(&obs.cov, &t, &us, m, r, r0, &vg, &mut l)?;
         // A = L⁻¹ V_m (m×r), b = L⁻¹ ν.
         let mut A =
             SMatrix::<f32, POINTS, RANK>::from_fn(
@@ -287,6 +251,63 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         // Any update can leave the covariance indefinite in f32 (see `repair_covariance`).
         self.repair_due = true;
     }
+}
+
+/// The lower Cholesky factor `L` (into `l`, leading `m×m` block) of the innovation covariance
+/// `S = T V_mᵀ + R̃ + diag(e)` of a lane update on the used index points `us[..m]`, with `R̃` the
+/// symmetrised pseudo-measurement covariance plus `r₀² I`, repaired where it is not PSD
+/// (`e ≥ 0`, see [`TemporalFilter::update`]). Returns the number of raised pivots.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn innovation_factor<const POINTS: usize, const RANK: usize>(
+    cov: &SMatrix<f32, POINTS, POINTS>,
+    t: &SMatrix<f32, POINTS, RANK>,
+    us: &[u8; POINTS],
+    m: usize,
+    r: usize,
+    r0: f32,
+    vg: &impl Fn(usize, usize) -> f32,
+    l: &mut SMatrix<f32, POINTS, POINTS>,
+) -> Result<u8, TemporalError> {
+    let u = |a: usize| usize::from(get(us, a));
+    // R̃ = sym(R) + r₀² I on the used points (lower triangle). With R PSD every pivot of its
+    // Cholesky factorisation is ≥ r₀²; a pivot below r₀²/2 means R is not PSD (the spatial
+    // pseudo-measurement covariance can be slightly indefinite: moment-matched mixtures make
+    // the per-lane RTS cross-covariances inconsistent). Such pivots are raised to r₀² (a
+    // modified Cholesky: R̃ + diag(e), e ≥ 0), so the noise used is PSD and the posterior
+    // stays PSD; they are counted.
+    for b in 0..m {
+        for a in b..m {
+            let acc = cov.get((u(a), u(b))).copied().unwrap_or(0.0);
+            let acc2 = cov.get((u(b), u(a))).copied().unwrap_or(0.0);
+            if let Some(e) = l.get_mut((a, b)) {
+                *e = 0.5 * (acc + acc2) + if a == b { r0 } else { 0.0 };
+            }
+        }
+    }
+    let mut rt = *l;
+    let mut load = [0.0f32; POINTS];
+    let repaired = linalg::cholesky_loaded(&mut rt, m, 0.5 * r0, r0, &mut load);
+    if repaired == u8::MAX {
+        return Err(TemporalError::Numerical);
+    }
+    // S = T V_mᵀ + R̃ + diag(e) on the leading m×m block (lower triangle, then factored).
+    for b in 0..m {
+        for a in b..m {
+            let mut acc =
+                l.get((a, b)).copied().unwrap_or(0.0) + if a == b { get(&load, a) } else { 0.0 };
+            for k in 0..r {
+                acc += t.get((a, k)).copied().unwrap_or(0.0) * vg(u(b), k);
+            }
+            if let Some(e) = l.get_mut((a, b)) {
+                *e = acc;
+            }
+        }
+    }
+    if !cholesky_lower(l, m) {
+        return Err(TemporalError::Numerical);
+    }
+    Ok(repaired)
 }
 
 /// `a · b` over a fixed length (unrolled by the compiler).
