@@ -162,7 +162,7 @@ fn f2_update_with_indefinite_observation() -> (
     (res, check)
 }
 
-/// **F1** (fixed in `src/spatial/filter.rs`, backward pass `smooth`): a sparse lane (14 hits in
+/// **F1** (fixed in `src/spatial/filter/smooth.rs`, backward pass `smooth`): a sparse lane (14 hits in
 /// 61 rows) among clutter gave a pseudo-measurement covariance over its 9 index points that was
 /// not PSD (smallest eigenvalue of its correlation form −0.275); the temporal update took it as
 /// `R` and published negative variances (−0.014 m² at index point 9 on the first frame). The
@@ -178,7 +178,7 @@ fn finding_f1_spatial_pseudo_measurement_covariance_not_psd() {
     replay("regressions/tracker_step", "f1-", harness::tracker_step);
 }
 
-/// **F2** (fixed in `src/temporal/filter.rs`, `prepare_update`; defence in depth behind F1):
+/// **F2** (fixed in `src/temporal/filter/update.rs`, `prepare_update`; defence in depth behind F1):
 /// the temporal update took the pseudo-measurement covariance as given. F1's covariance plus
 /// `r₀² I` had a negative eigenvalue (−3.4e-3 m²), the innovation covariance `S` was still
 /// positive definite, so the update went through and the lane's covariance lost PSD (in exact
@@ -252,7 +252,7 @@ fn first_unrepaired_break(data: &[u8], check: PsdCheck) -> Option<f32> {
     None
 }
 
-/// **F5** (fixed in `src/temporal/filter.rs`, `TemporalFilter::repair_covariance`): once the
+/// **F5** (fixed in `src/temporal/filter/repair.rs`, `TemporalFilter::repair_covariance`): once the
 /// pattern that tolerated F1/F2 was gone, `temporal_ops` found the f32 limit of the standard-form
 /// update `P −= G M Gᵀ`: a strongly informative update (prior variance ~190 m² of a lane's first
 /// Gram component at its birth, posterior ~1e-3 m²; more so with pseudo-measurement variances of
@@ -279,7 +279,7 @@ fn finding_f5_informative_update_repaired_to_psd() {
     );
 }
 
-/// **F6** (fixed in `src/temporal/filter.rs`): the first long `temporal_ops` run after F5's
+/// **F6** (fixed in `src/temporal/filter/`): the first long `temporal_ops` run after F5's
 /// repair found 12 inputs in 2 min where the repair did not run or did not suffice: a second very
 /// precise update of a lane born the frame before reduced a combination of Gram components (not
 /// any single component's variance) ~10⁵ times, and the published variances at the index points
@@ -296,7 +296,7 @@ fn finding_f6_published_variances_not_below_their_rounding_bound() {
     );
 }
 
-/// **F7** (fixed in `src/temporal/filter.rs`): CI's 20 s `temporal_ops` smoke found an update that
+/// **F7** (fixed in `src/temporal/filter/`): CI's 20 s `temporal_ops` smoke found an update that
 /// broke positive definiteness below both of F6's triggers: one very precise point on a new lane
 /// left its covariance nearly singular in correlation form (smallest eigenvalue 2.6e-4, healthy),
 /// then nine precise points cut no variance 100-fold (`λ_max(M C) < 0.99`) and the posterior came

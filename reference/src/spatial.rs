@@ -20,7 +20,7 @@
 //!
 //! # Readings of the specification
 //! Where `docs/spatial-filter.md` leaves room, this module reads it as the core
-//! (`src/spatial/filter.rs`) does:
+//! (`src/spatial/filter/`) does:
 //! 1. **Ended tracks in the update** (§3.4): an ended track stays in the stacked state and is
 //!    forced to *miss* in every event (it gates no point, carries no miss factor). The event
 //!    weights and `β` are those of the active tracks alone (`jpda::row_step` on the active tracks'

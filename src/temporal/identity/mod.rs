@@ -372,7 +372,7 @@ fn valid_points<const POINTS: usize>(obs: &LaneObservation<POINTS>) -> u32 {
 
 /// The temporal lanes' identities: up to `LANES` slots with id, age and miss count.
 ///
-/// RAM: `LANES × 12 + 4` bytes (about 76 B for `LANES = 6`).
+/// RAM: 124 B for `LANES = 6` (`size_of`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LaneTable<const LANES: usize> {
