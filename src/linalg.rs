@@ -138,3 +138,17 @@ pub(crate) fn forward_subst<const N: usize>(l: &SMatrix<f32, N, N>, b: &mut [f32
         }
     }
 }
+
+/// Entry `(r, c)` of a column-major `N×N` array (`m[c][r]`), 0 past its end.
+#[inline(always)]
+pub(crate) fn cm_at<const N: usize>(m: &[[f32; N]; N], r: usize, c: usize) -> f32 {
+    m.get(c).and_then(|col| col.get(r)).copied().unwrap_or(0.0)
+}
+
+/// Sets entry `(r, c)` of a column-major `N×N` array (no-op past its end).
+#[inline(always)]
+pub(crate) fn cm_set<const N: usize>(m: &mut [[f32; N]; N], r: usize, c: usize, v: f32) {
+    if let Some(e) = m.get_mut(c).and_then(|col| col.get_mut(r)) {
+        *e = v;
+    }
+}

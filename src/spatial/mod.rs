@@ -25,6 +25,8 @@ pub mod row;
 
 use nalgebra::{ArrayStorage, SMatrix, SVector};
 
+use crate::linalg::{cm_at, cm_set};
+
 /// Error returned by [`Stacked::push`]: all `LANES` slots are in use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -37,20 +39,6 @@ impl core::fmt::Display for Full {
 }
 
 impl core::error::Error for Full {}
-
-/// Entry `(r, c)` of a column-major `N×N` array (`m[c][r]`), 0 past its end.
-#[inline(always)]
-fn mat_at<const N: usize>(m: &[[f32; N]; N], r: usize, c: usize) -> f32 {
-    m.get(c).and_then(|col| col.get(r)).copied().unwrap_or(0.0)
-}
-
-/// Sets entry `(r, c)` of a column-major `N×N` array (no-op past its end).
-#[inline(always)]
-fn mat_set<const N: usize>(m: &mut [[f32; N]; N], r: usize, c: usize, v: f32) {
-    if let Some(e) = m.get_mut(c).and_then(|col| col.get_mut(r)) {
-        *e = v;
-    }
-}
 
 /// Entry `r` of a column, 0 past its end.
 #[inline(always)]
@@ -182,8 +170,8 @@ impl<const NS: usize, const LANES: usize> Stacked<NS, LANES> {
         let f = F.data.0; // f[c][r] = F_rc (column-major)
         let q = Q.data.0;
         let static_offset = (0..NS).all(|k| {
-            let (f0k, fk0) = (mat_at(&f, 0, k), mat_at(&f, k, 0));
-            let (q0k, qk0) = (mat_at(&q, 0, k), mat_at(&q, k, 0));
+            let (f0k, fk0) = (cm_at(&f, 0, k), cm_at(&f, k, 0));
+            let (q0k, qk0) = (cm_at(&q, 0, k), cm_at(&q, k, 0));
             q0k == 0.0
                 && qk0 == 0.0
                 && if k == 0 {
@@ -230,7 +218,7 @@ impl<const NS: usize, const LANES: usize> Stacked<NS, LANES> {
                 for (c, tc) in t.iter_mut().enumerate().skip(S) {
                     let mut acc = [0.0f32; NS];
                     for (k, mk) in m.iter().enumerate().skip(S) {
-                        let fck = mat_at(f, c, k);
+                        let fck = cm_at(f, c, k);
                         for (a, v) in acc.iter_mut().zip(mk.iter()) {
                             *a += fck * v;
                         }
@@ -253,8 +241,8 @@ impl<const NS: usize, const LANES: usize> Stacked<NS, LANES> {
                     // Exactly symmetric diagonal blocks: the upper triangle, mirrored.
                     for c in 0..NS {
                         for r in c + 1..NS {
-                            let v = mat_at(&out, c, r);
-                            mat_set(&mut out, r, c, v);
+                            let v = cm_at(&out, c, r);
+                            cm_set(&mut out, r, c, v);
                         }
                     }
                 }

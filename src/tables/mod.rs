@@ -429,21 +429,28 @@ mod tests {
         );
     }
 
+    /// `F` within `f_tol` (absolute) and `Q` within 1e-4 of its largest entry.
+    fn assert_close<const N: usize>(
+        got: Option<(SMatrix<f32, N, N>, SMatrix<f32, N, N>)>,
+        f: &SMatrix<f32, N, N>,
+        q: &SMatrix<f32, N, N>,
+        f_tol: f32,
+    ) {
+        let (gf, gq) = got.unwrap();
+        assert!((gf - f).abs().max() < f_tol);
+        assert!((gq - q).abs().max() <= 1e-4 * q.abs().max());
+    }
+
     #[test]
     fn nominal_tables_match_runtime_discretisation() {
-        let (f, q) = DEFAULT
-            .temporal
-            .kernel
-            .transition(DEFAULT.hyper.frame_step)
-            .unwrap();
-        assert!((f - DEFAULT.temporal.f).abs().max() < 1e-6);
-        assert!((q - DEFAULT.temporal.q).abs().max() <= 1e-4 * DEFAULT.temporal.q.abs().max());
-        let (f, q) = DEFAULT
-            .spatial
-            .model
-            .transition(DEFAULT.hyper.row_step)
-            .unwrap();
-        assert!((f - DEFAULT.spatial.f).abs().max() < 1e-5);
-        assert!((q - DEFAULT.spatial.q).abs().max() <= 1e-4 * DEFAULT.spatial.q.abs().max());
+        let t = &DEFAULT.temporal;
+        assert_close(
+            t.kernel.transition(DEFAULT.hyper.frame_step),
+            &t.f,
+            &t.q,
+            1e-6,
+        );
+        let s = &DEFAULT.spatial;
+        assert_close(s.model.transition(DEFAULT.hyper.row_step), &s.f, &s.q, 1e-5);
     }
 }

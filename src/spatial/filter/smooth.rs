@@ -3,6 +3,7 @@
 //! definite at output (finding F1).
 
 use super::*;
+use crate::linalg::{cm_at, cm_set};
 
 impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usize>
     SpatialFilter<NS, LANES, ROWS, PER_ROW>
@@ -178,28 +179,14 @@ fn rts_step<const NS: usize>(
             // (T Gᵀ)[rr][c] = Σ_k T[rr][k] G[c][k]
             let mut acc = 0.0f32;
             for k in 0..NS {
-                acc += m_at(&t, rr, k) * m_at(&g, c, k);
+                acc += cm_at(&t, rr, k) * cm_at(&g, c, k);
             }
-            let s = 0.5 * (m_at(ps, rr, c) + m_at(ps, c, rr)) + acc;
-            m_set(ps, rr, c, s);
-            m_set(ps, c, rr, s);
+            let s = 0.5 * (cm_at(ps, rr, c) + cm_at(ps, c, rr)) + acc;
+            cm_set(ps, rr, c, s);
+            cm_set(ps, c, rr, s);
         }
     }
     Some(g)
-}
-
-/// Entry `(r, c)` of a column-major `N×N` array (`m[c][r]`), 0 past its end.
-#[inline(always)]
-fn m_at<const N: usize>(m: &[[f32; N]; N], r: usize, c: usize) -> f32 {
-    m.get(c).and_then(|col| col.get(r)).copied().unwrap_or(0.0)
-}
-
-/// Sets entry `(r, c)` of a column-major `N×N` array (no-op past its end).
-#[inline(always)]
-fn m_set<const N: usize>(m: &mut [[f32; N]; N], r: usize, c: usize, v: f32) {
-    if let Some(e) = m.get_mut(c).and_then(|col| col.get_mut(r)) {
-        *e = v;
-    }
 }
 
 /// The `N×N` identity (column-major).
@@ -240,7 +227,7 @@ fn transpose<const N: usize>(m: &[[f32; N]; N]) -> [[f32; N]; N] {
     let mut out = [[0.0f32; N]; N];
     for (c, col) in m.iter().enumerate() {
         for (r, v) in col.iter().enumerate() {
-            m_set(&mut out, c, r, *v);
+            cm_set(&mut out, c, r, *v);
         }
     }
     out
@@ -257,9 +244,9 @@ fn spd_solve<const N: usize>(a: &[[f32; N]; N], b: &[[f32; N]; N]) -> Option<[[f
     let mut d = [0.0f32; N];
     let mut invd = [0.0f32; N];
     for j in 0..N {
-        let mut dj = m_at(a, j, j);
+        let mut dj = cm_at(a, j, j);
         for k in 0..j {
-            let ljk = m_at(&l, j, k);
+            let ljk = cm_at(&l, j, k);
             dj -= ljk * ljk * get(&d, k);
         }
         if !(dj.is_finite() && dj > 0.0) {
@@ -270,11 +257,11 @@ fn spd_solve<const N: usize>(a: &[[f32; N]; N], b: &[[f32; N]; N]) -> Option<[[f
         set(&mut invd, j, ij);
         for i in j + 1..N {
             // L_ij d_j = A_ij − Σ_{k<j} L_ik L_jk d_k
-            let mut s = m_at(a, i, j);
+            let mut s = cm_at(a, i, j);
             for k in 0..j {
-                s -= m_at(&l, i, k) * m_at(&l, j, k) * get(&d, k);
+                s -= cm_at(&l, i, k) * cm_at(&l, j, k) * get(&d, k);
             }
-            m_set(&mut l, i, j, s * ij);
+            cm_set(&mut l, i, j, s * ij);
         }
     }
     let mut x = *b;
@@ -282,7 +269,7 @@ fn spd_solve<const N: usize>(a: &[[f32; N]; N], b: &[[f32; N]; N]) -> Option<[[f
         for i in 0..N {
             let mut s = get(col, i);
             for k in 0..i {
-                s -= m_at(&l, i, k) * get(col, k);
+                s -= cm_at(&l, i, k) * get(col, k);
             }
             set(col, i, s);
         }
@@ -292,7 +279,7 @@ fn spd_solve<const N: usize>(a: &[[f32; N]; N], b: &[[f32; N]; N]) -> Option<[[f
         for i in (0..N).rev() {
             let mut s = get(col, i);
             for k in i + 1..N {
-                s -= m_at(&l, k, i) * get(col, k);
+                s -= cm_at(&l, k, i) * get(col, k);
             }
             set(col, i, s);
         }
