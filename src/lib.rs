@@ -37,6 +37,7 @@ pub mod kernel;
 pub mod linalg;
 pub mod math;
 pub mod observation;
+pub mod persist;
 pub mod probe;
 pub mod spatial;
 pub mod tables;

@@ -49,13 +49,16 @@ pub enum Stage {
     Smoother = 9,
     /// Output assembly (filtered and smoothed lanes).
     Output = 10,
+    /// The known lanes' association against their temporal prediction, their evidence and
+    /// existence (docs/design.md §11, [`crate::persist`]).
+    Known = 11,
     /// The frame is done (nothing is charged after this).
-    Done = 11,
+    Done = 12,
 }
 
 impl Stage {
     /// Number of stages.
-    pub const COUNT: usize = 12;
+    pub const COUNT: usize = 13;
 
     /// Every stage, in order.
     pub const ALL: [Stage; Stage::COUNT] = [
@@ -70,6 +73,7 @@ impl Stage {
         Stage::Temporal,
         Stage::Smoother,
         Stage::Output,
+        Stage::Known,
         Stage::Done,
     ];
 
@@ -87,6 +91,7 @@ impl Stage {
             Stage::Temporal => "temporal",
             Stage::Smoother => "smoother",
             Stage::Output => "output",
+            Stage::Known => "known",
             Stage::Done => "done",
         }
     }

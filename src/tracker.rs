@@ -33,6 +33,7 @@ use nalgebra::SVector;
 
 use crate::linalg::{get, set};
 use crate::observation::LaneObservation;
+use crate::persist::{Evidence, Explained, Lanes, Pass, Persist, PersistConfig};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::{Config as SpatialConfig, SpatialFilter, SpatialReport};
 use crate::tables::Tables;
@@ -66,8 +67,11 @@ pub struct TrackerConfig {
     pub spatial: SpatialConfig,
     /// Lane identity.
     pub identity: IdentityConfig,
-    /// Each frame a lane is not seen multiplies its existence by this factor.
+    /// Each frame a lane is not seen multiplies its existence by this factor (round-1
+    /// pipeline only, `persist.enabled == false`).
     pub existence_decay: f32,
+    /// Known lanes, existence probability, estimated clutter (docs/design.md §11).
+    pub persist: PersistConfig,
 }
 
 impl TrackerConfig {
@@ -76,6 +80,13 @@ impl TrackerConfig {
         spatial: SpatialConfig::DEFAULT,
         identity: IdentityConfig::DEFAULT,
         existence_decay: 0.8,
+        persist: PersistConfig::DEFAULT,
+    };
+
+    /// The round-1 pipeline: no temporal prior in the association (the ablation).
+    pub const ROUND1: Self = Self {
+        persist: PersistConfig::ROUND1,
+        ..Self::DEFAULT
     };
 }
 
@@ -201,6 +212,8 @@ pub struct Tracker<
     id_hist: [[Option<LaneId>; LANES]; MAX_LAG + 1],
     /// B slot (rank from the left) of each active lane after the last step.
     ranks: [u8; LANES],
+    /// Known lanes' existence and detection probabilities, the clutter estimate.
+    persist: Persist<LANES, POINTS, ROWS>,
     last: Option<Instant>,
     frames: u32,
 }
@@ -248,6 +261,7 @@ impl<
             extent: [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; EXTENT_HISTORY],
             id_hist: [[None; LANES]; MAX_LAG + 1],
             ranks: [0; LANES],
+            persist: Persist::new(),
             last: None,
             frames: 0,
         }
@@ -262,6 +276,11 @@ impl<
     /// diagnostics and the reliability checks (covariance symmetry and PSD, soak).
     pub fn temporal(&self) -> &Temporal<LANES, POINTS, RANK, NX, NA, LAG> {
         &self.temporal
+    }
+
+    /// The known-lane stage's estimates (existence, detection, clutter, point variance).
+    pub fn persist(&self) -> &Persist<LANES, POINTS, ROWS> {
+        &self.persist
     }
 
     /// One frame: BEV feature points `(u, x)` in metres at time `now`.
@@ -322,18 +341,15 @@ impl<
             pseudo_cov_repairs: 0,
             temporal_cov_repairs: 0,
         };
-        // 1. Spatial JPDACF.
+        // 1. The points into BEV rows.
         for o in &mut self.obs {
             *o = Self::EMPTY_OBS;
         }
-        let (n_obs, srep) = self.spatial.run_probed(
+        let srep = self.spatial.bin(
             self.tables,
             &self.cfg.spatial,
             points.get(..used).unwrap_or(&[]),
-            &mut self.obs,
-            probe,
         );
-        report.spatial = srep;
         // 2. Temporal prediction to now.
         if dt > 0.0
             && self
@@ -343,13 +359,55 @@ impl<
         {
             report.temporal_failures += 1;
         }
+        // 3. Known lanes against their prediction; the points they explain leave the rows.
+        let known = if self.cfg.persist.enabled {
+            probe.enter(Stage::Known);
+            self.persist.predict(dt, &self.cfg.persist);
+            if let Some(pass) = self.pass() {
+                let spatial = &self.spatial;
+                self.persist
+                    .observe_spans(pass.rows, pass.k_rows, |r| spatial.row_points(r));
+            }
+            self.known_lanes(&mut report, probe)
+        } else {
+            0
+        };
+        // 4. The spatial JPDACF on the remaining points.
+        let mut scfg = self.cfg.spatial;
+        if self.cfg.persist.enabled {
+            scfg.confirm_hits = self.cfg.persist.confirm_hits;
+        }
+        let (n_obs, srep) =
+            self.spatial
+                .walk_probed(self.tables, &scfg, srep, &mut self.obs, probe);
+        report.spatial = srep;
         probe.enter(Stage::Identity);
-        // 3. Identity against the predictions.
+        // 5. Identity against the predictions.
         let outcome = self.associate(n_obs);
         report.identity = outcome.report;
+        for s in 0..LANES {
+            if known & (1 << s) != 0 {
+                let counted = matches!(outcome.slots.get(s), Some(SlotFate::Matched { .. }));
+                self.ids.mark_seen(s, counted);
+            }
+        }
         probe.enter(Stage::Temporal);
-        // 4.–5. Removed lanes leave the temporal filter, new lanes start, seen lanes are updated.
-        self.temporal_stage(&outcome.slots, &mut report, probe);
+        // 6. Removed lanes leave the temporal filter, new lanes start, seen lanes are updated.
+        self.temporal_stage(&outcome.slots, known, &mut report, probe);
+        if self.cfg.persist.enabled {
+            probe.enter(Stage::Known);
+            self.new_lane_existence(&outcome.slots);
+            if self.delete_unlikely() {
+                let ranks = self.ranks_of(None);
+                match self.temporal.set_ranks(&ranks) {
+                    Ok(()) => self.ranks = ranks,
+                    Err(_) => report.temporal_failures += 1,
+                }
+            }
+            for (info, l) in self.info.iter_mut().zip(self.persist.lanes.iter()) {
+                info.existence = l.existence;
+            }
+        }
         // 6. Extent and id histories.
         self.push_histories();
         // 7. Output.
@@ -395,6 +453,7 @@ impl<
     fn temporal_stage<P: Probe>(
         &mut self,
         slots: &[SlotFate; LANES],
+        known: u32,
         report: &mut StepReport,
         probe: &mut P,
     ) {
@@ -409,6 +468,7 @@ impl<
                 );
             if removed {
                 self.temporal.remove_lane(s);
+                self.persist.remove(s);
                 set(&mut self.info, s, NO_INFO);
                 for h in self.extent.iter_mut() {
                     set(h, s, [f32::INFINITY, f32::NEG_INFINITY]);
@@ -417,6 +477,7 @@ impl<
         }
         for (s, fate) in slots.iter().enumerate() {
             if let SlotFate::New { obs, .. } = fate {
+                self.persist.start(s, &self.cfg.persist);
                 let x = self.bottom_position(s, Some(usize::from(*obs)));
                 let ranks = self.ranks_of(Some((s, x)));
                 if self
@@ -446,9 +507,16 @@ impl<
                     }
                     info.existence = ob.existence;
                     info.seen = true;
-                    info.extent = [ob.u_first, ob.u_last];
+                    if known & (1 << s) != 0 {
+                        info.extent = [
+                            info.extent[0].min(ob.u_first),
+                            info.extent[1].max(ob.u_last),
+                        ];
+                    } else {
+                        info.extent = [ob.u_first, ob.u_last];
+                    }
                 }
-                (None, Some(info)) => {
+                (None, Some(info)) if known & (1 << s) == 0 => {
                     info.existence *= self.cfg.existence_decay;
                     info.seen = false;
                     info.extent = [f32::INFINITY, f32::NEG_INFINITY];
@@ -465,6 +533,179 @@ impl<
             Ok(()) => self.ranks = ranks,
             Err(_) => report.temporal_failures += 1,
         }
+    }
+
+    /// Step 3 (docs/design.md §11): the live lanes' row evidence against their prediction, the
+    /// temporal update with it, their existence; the points they explain leave the rows.
+    /// Returns the lanes seen (bit = slot).
+    #[inline(never)]
+    fn known_lanes<P: Probe>(&mut self, report: &mut StepReport, probe: &mut P) -> u32 {
+        let Some(pass) = self.pass() else {
+            return 0;
+        };
+        let mut live = 0u32;
+        for s in 0..LANES {
+            if self.temporal.filter().is_active(s) && self.ids.lane(s).is_some() {
+                live |= 1 << s;
+            }
+        }
+        let mut explained: Explained<ROWS> = [0; ROWS];
+        let mut ev = [Evidence::<RANK>::NONE; LANES];
+        if live != 0 {
+            let last = pass.rows.saturating_sub(1).min(usize::from(u16::MAX)) as u16;
+            let lanes = Lanes {
+                slots: live,
+                ranks: &self.ranks,
+                rows: [(0, last); LANES],
+            };
+            let spatial = &self.spatial;
+            self.persist.associate(
+                self.tables,
+                self.temporal.filter(),
+                &lanes,
+                &pass,
+                &self.cfg.persist,
+                |r| spatial.row_points(r),
+                true,
+                &mut ev,
+                &mut explained,
+            );
+        }
+        let mut seen = 0u32;
+        let k = pass.k_rows as f32;
+        for (s, e) in ev.iter().enumerate() {
+            if live & (1 << s) == 0 {
+                continue;
+            }
+            if e.weight > 0.0 {
+                match self
+                    .temporal
+                    .update_info_probed(self.tables, s, &e.j, &e.i, probe)
+                {
+                    Ok(_) => {}
+                    Err(_) => report.temporal_failures += 1,
+                }
+                probe.enter(Stage::Known);
+            }
+            self.persist.update_existence(s, e.llr, k);
+            let seen_now = e.extent[0] <= e.extent[1];
+            if let Some(info) = self.info.get_mut(s) {
+                info.existence = self.persist.lanes.get(s).map_or(0.0, |l| l.existence);
+                info.seen = seen_now;
+                info.extent = e.extent;
+            }
+            if seen_now {
+                seen |= 1 << s;
+            }
+        }
+        self.persist.estimate_noise(
+            self.tables,
+            self.temporal.filter(),
+            live,
+            &self.ranks,
+            &pass,
+            self.cfg.persist.pd_memory,
+        );
+        for (r, mask) in explained.iter().enumerate().take(pass.rows) {
+            if *mask != 0 {
+                self.spatial.remove_points(r, *mask);
+            }
+        }
+        seen
+    }
+
+    /// The row pass parameters of the known-lane stage.
+    fn pass(&self) -> Option<Pass> {
+        let (rows, du) =
+            SpatialFilter::<NS, LANES, ROWS, PER_ROW>::geometry(self.tables, &self.cfg.spatial)?;
+        let c = &self.cfg.spatial;
+        Some(Pass {
+            rows,
+            du,
+            k_rows: usize::from(c.rows_per_interval.max(1)),
+            params: crate::spatial::row::RowParams {
+                pd: c.pd,
+                pg: c.pg,
+                gamma: c.gamma,
+                clutter_density: c.clutter_density,
+                r: self.tables.hyper.meas_noise,
+                miss: c.miss,
+            },
+            max_events: c.max_events,
+        })
+    }
+
+    /// The existence of lanes started this frame: their birth prior updated by their own
+    /// frame's evidence over their observed extent (the rows that remain after the known
+    /// lanes took theirs).
+    #[inline(never)]
+    fn new_lane_existence(&mut self, slots: &[SlotFate; LANES]) {
+        let Some(pass) = self.pass() else {
+            return;
+        };
+        let mut new = 0u32;
+        let mut rows = [(0u16, 0u16); LANES];
+        let h = &self.tables.hyper;
+        for (s, fate) in slots.iter().enumerate() {
+            if matches!(fate, SlotFate::New { .. }) && self.temporal.filter().is_active(s) {
+                let [a, b] = get(&self.info, s).extent;
+                if a <= b {
+                    let lo = libm::rintf((a - h.u_min) / pass.du).max(0.0) as u16;
+                    let hi = libm::rintf((b - h.u_min) / pass.du).max(0.0) as u16;
+                    set(&mut rows, s, (lo, hi));
+                    new |= 1 << s;
+                }
+            }
+        }
+        if new == 0 {
+            return;
+        }
+        let lanes = Lanes {
+            slots: new,
+            ranks: &self.ranks,
+            rows,
+        };
+        let mut explained: Explained<ROWS> = [0; ROWS];
+        let mut ev = [Evidence::<RANK>::NONE; LANES];
+        let spatial = &self.spatial;
+        self.persist.associate(
+            self.tables,
+            self.temporal.filter(),
+            &lanes,
+            &pass,
+            &self.cfg.persist,
+            |r| spatial.row_points(r),
+            false,
+            &mut ev,
+            &mut explained,
+        );
+        for (s, e) in ev.iter().enumerate() {
+            if new & (1 << s) != 0 {
+                self.persist.update_existence(s, e.llr, pass.k_rows as f32);
+                if let Some(info) = self.info.get_mut(s) {
+                    info.existence = self.persist.lanes.get(s).map_or(0.0, |l| l.existence);
+                }
+            }
+        }
+    }
+
+    /// Lanes whose existence fell below `p_delete` are removed; `true` if any was.
+    fn delete_unlikely(&mut self) -> bool {
+        let mut any = false;
+        for s in 0..LANES {
+            let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
+            if self.ids.lane(s).is_some() && p < self.cfg.persist.p_delete {
+                self.ids.remove(s);
+                self.temporal.remove_lane(s);
+                self.persist.remove(s);
+                set(&mut self.info, s, NO_INFO);
+                for h in self.extent.iter_mut() {
+                    set(h, s, [f32::INFINITY, f32::NEG_INFINITY]);
+                }
+                any = true;
+            }
+        }
+        any
     }
 
     /// Step 6: this frame's extents and ids enter the histories (newest first).
@@ -511,6 +752,9 @@ impl<
             ) {
                 let (u_first, u_last) = self.extent_of(s, 0);
                 let info = get(&self.info, s);
+                if self.cfg.persist.enabled && info.existence < self.cfg.persist.p_publish {
+                    continue;
+                }
                 // At most one estimate per slot: the vectors hold `LANES`, so no push fails.
                 if filtered
                     .push(LaneEstimate {

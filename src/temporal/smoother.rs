@@ -344,6 +344,37 @@ impl<
         probe.enter(Stage::Temporal);
         let mut g = UpdateParts::EMPTY;
         self.filter.prepare_update(tables, s, obs, &mut g)?;
+        self.apply_parts(&g, probe)
+    }
+
+    /// Update of lane `s` by row evidence in information form (`J`, `i` on the Gram
+    /// components; [`TemporalFilter::prepare_info_update`], docs/design.md §11.3), the lags
+    /// moved by the same innovation as in [`Temporal::update`].
+    ///
+    /// # Errors
+    /// As [`Temporal::update`]; the state is unchanged.
+    #[inline(never)]
+    pub fn update_info_probed<const NT: usize, P: Probe>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+        jm: &SMatrix<f32, RANK, RANK>,
+        iv: &SVector<f32, RANK>,
+        probe: &mut P,
+    ) -> Result<UpdateInfo, TemporalError> {
+        probe.enter(Stage::Temporal);
+        let mut g = UpdateParts::EMPTY;
+        self.filter.prepare_info_update(tables, s, jm, iv, &mut g)?;
+        self.apply_parts(&g, probe)
+    }
+
+    /// Checks gain parts against the filter and every lag, then applies them to both.
+    #[inline(always)]
+    fn apply_parts<P: Probe>(
+        &mut self,
+        g: &UpdateParts<RANK, NX>,
+        probe: &mut P,
+    ) -> Result<UpdateInfo, TemporalError> {
         self.filter.check_update(&g)?;
         probe.enter(Stage::Smoother);
         // Check every lag before writing anything.

@@ -128,12 +128,36 @@ pub const CLUSTER_GAP: f64 = 0.25;
 /// mean. An edge detector returns many points per marking in near rows (one BEV row spans tens of
 /// image rows there); without this they would fill the row budget and look like clutter.
 /// Points outside the window are dropped (the core would reject them).
+///
+/// **Support.** A BEV row near the camera spans many feature rows (image rows), so a painted
+/// marking gives a cluster of many points there while uniform clutter gives clusters of one or
+/// two; merged into one point each, they would look alike. A cluster is kept only when it holds
+/// at least [`MIN_SUPPORT_FRACTION`] of the feature rows present in its BEV row (at least one
+/// point): a marking detected in a quarter of the rows it crosses passes, an isolated clutter
+/// point in a row that spans eight or more feature rows does not. Far rows (one or two feature
+/// rows each) keep every cluster.
 pub fn preprocess(points: &[(f64, f64)], tables: &ReferenceTables) -> Vec<[f32; 2]> {
+    preprocess_with(points, tables, MIN_SUPPORT_FRACTION)
+}
+
+/// The support a cluster needs, as a fraction of the feature rows in its BEV row (see
+/// [`preprocess`]). Chosen on the bundled replay (mid preset): with 0 (no support rule) the
+/// near rows hold three to four clutter points per marking point and the lanes' near ends are
+/// pulled by them.
+pub const MIN_SUPPORT_FRACTION: f64 = 0.25;
+
+/// [`preprocess`] with a given support fraction (0 keeps every cluster).
+pub fn preprocess_with(
+    points: &[(f64, f64)],
+    tables: &ReferenceTables,
+    min_support_fraction: f64,
+) -> Vec<[f32; 2]> {
     let h = &tables.hyper;
     let (u0, u1) = (f64::from(h.u_min), f64::from(h.u_max));
     let rows = 15 * 4;
     let du = (u1 - u0) / rows as f64;
     let mut bins: Vec<Vec<f64>> = vec![Vec::new(); rows + 1];
+    let mut urows: Vec<Vec<f64>> = vec![Vec::new(); rows + 1];
     for &(u, x) in points {
         if !(u.is_finite() && x.is_finite()) {
             continue;
@@ -141,22 +165,35 @@ pub fn preprocess(points: &[(f64, f64)], tables: &ReferenceTables) -> Vec<[f32; 
         let r = ((u - u0) / du).round();
         if r >= 0.0 && r <= rows as f64 {
             bins[r as usize].push(x);
+            urows[r as usize].push(u);
         }
     }
     let mut out = Vec::new();
     for (r, xs) in bins.iter_mut().enumerate() {
+        let k = distinct_u(&urows[r]) as f64;
+        let min_support = ((k * min_support_fraction).floor() as usize).max(1);
         xs.sort_by(f64::total_cmp);
         let u = u0 + r as f64 * du;
         let mut start = 0;
         for i in 1..=xs.len() {
             if i == xs.len() || xs[i] - xs[i - 1] > CLUSTER_GAP {
                 let c = &xs[start..i];
-                out.push([u as f32, (c.iter().sum::<f64>() / c.len() as f64) as f32]);
+                if c.len() >= min_support {
+                    out.push([u as f32, (c.iter().sum::<f64>() / c.len() as f64) as f32]);
+                }
                 start = i;
             }
         }
     }
     out
+}
+
+/// Number of distinct values (feature rows) among a BEV row's `u`s.
+fn distinct_u(us: &[f64]) -> usize {
+    let mut v: Vec<f64> = us.to_vec();
+    v.sort_by(f64::total_cmp);
+    v.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    v.len()
 }
 
 /// The smoother lag of the [`ReferenceTracker`] (`StepOutput::smoothed` is this many frames

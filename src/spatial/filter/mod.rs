@@ -282,11 +282,88 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         probe: &mut P,
     ) -> (usize, SpatialReport) {
         probe.enter(Stage::Binning);
-        const { assert!(NS == NT + 1, "NS must be NT + 1 (offset + RBF state)") };
+        let rep = self.bin(tables, cfg, points);
+        self.walk_probed(tables, cfg, rep, out, probe)
+    }
+
+    /// The row geometry: `(rows, Δu)`, `None` when `ROWS` cannot hold the rows or `Δu` is not
+    /// positive and finite.
+    pub fn geometry<const NT: usize, const POINTS: usize>(
+        tables: &Tables<NT, LANES, POINTS>,
+        cfg: &Config,
+    ) -> Option<(usize, f32)> {
+        let h = &tables.hyper;
+        let k_rows = usize::from(cfg.rows_per_interval.max(1));
+        let rows = (POINTS - 1) * k_rows + 1;
+        let du = (h.u_max - h.u_min) / ((POINTS - 1) * k_rows) as f32;
+        (rows <= ROWS && du.is_finite() && du > 0.0).then_some((rows, du))
+    }
+
+    /// First half of [`SpatialFilter::run`]: empties the state and bins the frame's points into
+    /// the rows (docs/design.md §4.1); returns the counters so far (`bad_config` when the
+    /// geometry does not fit).
+    pub fn bin<const NT: usize, const POINTS: usize>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        cfg: &Config,
+        points: &[[f32; 2]],
+    ) -> SpatialReport {
         let mut rep = SpatialReport {
             points_in: points.len().min(u32::MAX as usize) as u32,
             ..SpatialReport::default()
         };
+        match Self::geometry(tables, cfg) {
+            Some((rows, du)) => self.bin_points(points, tables.hyper.u_min, du, rows, &mut rep),
+            None => {
+                self.bin_n = [0; ROWS];
+                rep.bad_config = true;
+            }
+        }
+        rep
+    }
+
+    /// The binned points of row `r` (lateral positions, metres; empty past the rows).
+    pub fn row_points(&self, r: usize) -> &[f32] {
+        let m = usize::from(get(&self.bin_n, r)).min(PER_ROW);
+        self.bins.get(r).and_then(|b| b.get(..m)).unwrap_or(&[])
+    }
+
+    /// Removes the points of row `r` whose bit is set in `mask` (the order of the others kept).
+    pub fn remove_points(&mut self, r: usize, mask: u32) {
+        let m = usize::from(get(&self.bin_n, r)).min(PER_ROW);
+        let Some(b) = self.bins.get_mut(r) else {
+            return;
+        };
+        let mut k = 0usize;
+        for j in 0..m {
+            if mask & (1u32.wrapping_shl(j as u32)) == 0 {
+                let v = b.get(j).copied().unwrap_or(0.0);
+                if let Some(e) = b.get_mut(k) {
+                    *e = v;
+                }
+                k += 1;
+            }
+        }
+        set(&mut self.bin_n, r, k as u8);
+    }
+
+    /// Second half of [`SpatialFilter::run`]: walks the binned rows near to far (tracks,
+    /// events, management) and writes the confirmed lanes into `out`; `rep` comes from
+    /// [`SpatialFilter::bin`].
+    #[allow(non_snake_case)]
+    #[inline(never)]
+    pub fn walk_probed<const NT: usize, const POINTS: usize, P: Probe>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        cfg: &Config,
+        mut rep: SpatialReport,
+        out: &mut [LaneObservation<POINTS>; LANES],
+        probe: &mut P,
+    ) -> (usize, SpatialReport) {
+        const { assert!(NS == NT + 1, "NS must be NT + 1 (offset + RBF state)") };
+        if rep.bad_config {
+            return (0, rep);
+        }
         let h = &tables.hyper;
         let k_rows = usize::from(cfg.rows_per_interval.max(1));
         let rows = (POINTS - 1) * k_rows + 1;
@@ -326,9 +403,6 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             r: h.meas_noise,
             miss: cfg.miss,
         };
-
-        // Bin the points (§1).
-        self.bin_points(points, h.u_min, du, rows, &mut rep);
 
         for r in 0..rows {
             if r > 0 {

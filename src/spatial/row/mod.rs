@@ -330,6 +330,130 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     out
 }
 
+/// The event weights of one row given each track's predicted measurement, without a state to
+/// update (docs/design.md §11: the known lanes' association against the temporal prediction):
+/// `zhat[t]` and `sdiag[t] = S̄_tt` (with the point variance `r` included) for the first `n`
+/// tracks, and `cross(s, t) = S̄_st` (`s < t`), asked only for pairs of tracks that both have
+/// candidates. Gating, the event budget and its pruning, the detection patterns and the events
+/// are those of [`update_probed`] (steps 2, 3 and 5); `out.beta`, `out.beta_miss` and the
+/// counters are filled, `out.failed` set on a numerical failure (every track then missed).
+///
+/// # Complexity
+/// As [`update_probed`] without the state update: `n(n−1)/2` calls of `cross` at most, `2^n`
+/// patterns and `max_events` events at most.
+#[allow(clippy::too_many_arguments)]
+pub fn associate<const LANES: usize>(
+    zhat: &[f32; LANES],
+    sdiag: &[f32; LANES],
+    cross: impl Fn(usize, usize) -> f32,
+    n: usize,
+    points: &[f32],
+    params: &RowParams,
+    max_events: usize,
+    skip: u32,
+) -> RowOutcome<LANES> {
+    let mut out = RowOutcome::<LANES>::default();
+    let n = n.min(LANES);
+    let m = points.len().min(MAX_ROW_POINTS);
+    out.ignored_points = (points.len() - m) as u32;
+    let points = points.get(..m).unwrap_or(&[]);
+    let mut sbar = [[0.0f32; LANES]; LANES];
+    for (t, row) in sbar.iter_mut().enumerate().take(n) {
+        set(row, t, get(sdiag, t));
+    }
+    if n == 0 || !masks(zhat, &sbar, n, points, params, skip, &mut out) {
+        if n == 0 {
+            out.clutter_points = points.iter().filter(|z| z.is_finite()).count() as u32;
+            out.ignored_points += m as u32 - out.clutter_points;
+        }
+        return if out.failed { failed(out) } else { out };
+    }
+    let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
+    let ln_pd = math::ln(params.pd);
+    let missf = match params.miss {
+        MissModel::Textbook => 1.0 - params.pd,
+        MissModel::Gated => 1.0 - params.pd * params.pg,
+    };
+    let ln_miss = math::ln(missf);
+    let ln_lambda = math::ln(params.clutter_density);
+    let ln_2pi = math::ln(2.0 * core::f32::consts::PI);
+    let budget = max_events.max(1) as u64;
+    let bound: u64 = out
+        .valid
+        .iter()
+        .take(n)
+        .map(|v| 1 + u64::from(v.count_ones()))
+        .product();
+    if bound > budget && count_events(&out.valid, n, budget) > budget {
+        out.approximated = true;
+        prune(
+            &mut out,
+            &sbar,
+            zhat,
+            points,
+            n,
+            budget,
+            ln_pd - ln_lambda,
+            ln_miss,
+            ln_2pi,
+        );
+    }
+    let mut elig = [0u8; LANES];
+    let mut na = 0usize;
+    for (t, v) in out.valid.iter().enumerate().take(n) {
+        if skip & (1 << t) == 0 && *v != 0 {
+            set(&mut elig, na, t as u8);
+            na += 1;
+        }
+    }
+    for (a, &t1) in elig.iter().enumerate().take(na) {
+        for &t2 in elig.iter().take(na).skip(a + 1) {
+            let (t1, t2) = (usize::from(t1), usize::from(t2));
+            let v = cross(t1.min(t2), t1.max(t2));
+            put(&mut sbar, t1, t2, v);
+            put(&mut sbar, t2, t1, v);
+        }
+    }
+    let ctx = Ctx {
+        elig,
+        na,
+        sbar: &sbar,
+        zhat,
+        valid: &out.valid,
+        points,
+        ln_2pi,
+        ln_pd_lambda: ln_pd - ln_lambda,
+        ln_miss,
+        active: (n - n_skipped) as f32,
+        active_set: !skip & (u32::MAX >> (32 - n.clamp(1, 32))),
+    };
+    let mut acc = Acc::<LANES>::new();
+    if !weigh(&ctx, &mut acc) || !(acc.wtot.is_finite() && acc.wtot > 0.0) {
+        return failed(out);
+    }
+    out.events = acc.events;
+    out.patterns = acc.patterns;
+    let inv = 1.0 / acc.wtot;
+    for (t, ((bm, brow), src)) in out
+        .beta_miss
+        .iter_mut()
+        .zip(out.beta.iter_mut())
+        .zip(acc.beta.iter())
+        .enumerate()
+        .take(n)
+    {
+        *bm = if skip & (1 << t) != 0 {
+            1.0
+        } else {
+            get(&acc.bmiss, t) * inv
+        };
+        for (v, s) in brow.iter_mut().zip(src.iter()).take(m) {
+            *v = s * inv;
+        }
+    }
+    out
+}
+
 /// Gating (step 2) on each track's marginal: `ẑ_t = h·x_t` and `S̄_tt = hᵀ P_tt h + r`, the
 /// validation masks in `out.valid`, and the ignored and clutter points counted. `false` (with
 /// `out.failed` set) when a marginal variance is not positive and finite.
@@ -360,6 +484,22 @@ fn gate<const NS: usize, const LANES: usize>(
             set(srow, t, dot(&hv, &mat_vec(ptt, &hv)) + params.r);
         }
     }
+    masks(zhat, sbar, n, points, params, skip, out)
+}
+
+/// The validation masks of the first `n` tracks (step 2) in `out.valid` from their predicted
+/// measurements and marginal innovation variances `sbar[t][t]`, and the ignored and clutter
+/// points counted. `false` (with `out.failed` set) when a variance is not positive and finite.
+#[inline(always)]
+fn masks<const LANES: usize>(
+    zhat: &[f32; LANES],
+    sbar: &[[f32; LANES]; LANES],
+    n: usize,
+    points: &[f32],
+    params: &RowParams,
+    skip: u32,
+    out: &mut RowOutcome<LANES>,
+) -> bool {
     let mut any_valid = 0u32;
     for (t, (srow, (zt, valid))) in sbar
         .iter()

@@ -66,3 +66,55 @@ fn repair_touches_only_the_given_indices() {
     assert!(p[(0, 0)] > 1.0 || p[(2, 2)] > 1.0);
     assert_eq!(p[(0, 2)], before[(0, 2)]);
 }
+
+/// The information-form update equals the innovation-form update for the same independent
+/// measurements at the index points (`c` = rows of the Gram eigenvectors, `ω = 1/(R_ii + r₀²)`).
+#[test]
+fn information_update_matches_the_innovation_form() {
+    use crate::observation::LaneObservation;
+    use crate::tables::DEFAULT;
+    let mut f = TemporalFilter::<6, 16, 7, 84>::new();
+    f.start_lane(&DEFAULT, 0, 0, &[0; 6]).unwrap();
+    f.start_lane(&DEFAULT, 1, 1, &[0, 1, 0, 0, 0, 0]).unwrap();
+    let mut obs = LaneObservation::<16>::EMPTY;
+    let r = TemporalFilter::<6, 16, 7, 84>::r_used(&DEFAULT);
+    let r0 = DEFAULT.hyper.pseudo_noise;
+    let noise = 0.04f32;
+    let mut jm = SMatrix::<f32, 7, 7>::zeros();
+    let mut iv = nalgebra::SVector::<f32, 7>::zeros();
+    for i in 0..16 {
+        let z = -1.8 + 0.01 * i as f32 + 0.002 * (i * i) as f32;
+        obs.present[i] = i % 3 != 1;
+        obs.z[i] = z;
+        obs.cov[(i, i)] = noise;
+        if obs.present[i] {
+            let om = 1.0 / (noise + r0);
+            for j in 0..r {
+                let cj = DEFAULT.gram_eigvec[(i, j)];
+                iv[j] += om * z * cj;
+                for k in 0..r {
+                    jm[(j, k)] += om * cj * DEFAULT.gram_eigvec[(i, k)];
+                }
+            }
+        }
+    }
+    let mut a = UpdateParts::<7, 84>::EMPTY;
+    let mut b = UpdateParts::<7, 84>::EMPTY;
+    f.prepare_update(&DEFAULT, 0, &obs, &mut a).unwrap();
+    f.prepare_info_update(&DEFAULT, 0, &jm, &iv, &mut b)
+        .unwrap();
+    let scale_m = a.m.abs().max();
+    let scale_w = a.w.abs().max();
+    assert!(
+        (a.m - b.m).abs().max() <= 2e-3 * scale_m,
+        "M {} vs {}",
+        a.m,
+        b.m
+    );
+    assert!(
+        (a.w - b.w).abs().max() <= 2e-3 * scale_w,
+        "w {} vs {}",
+        a.w,
+        b.w
+    );
+}

@@ -158,6 +158,166 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         Ok(())
     }
 
+    /// The gain parts of an update of lane `s` by **row evidence in information form**
+    /// (docs/design.md §11.3): measurements `z̃_r = c_rᵀ a_s + e_r`, independent, with
+    /// `J = Σ_r ω_r c_r c_rᵀ` and `i = Σ_r ω_r z̃_r c_r` (`ω_r` the inverse noise variances;
+    /// `jm`, `iv` on the first `r` components). With `P_a = Cov(a_s) = L Lᵀ`,
+    /// `A = I + Lᵀ J L = L_A L_Aᵀ`, `K = J L`, `Y = L_A⁻¹ Kᵀ`:
+    /// `M = Hᵀ S⁻¹ H = J − Yᵀ Y` and `w = Hᵀ S⁻¹ ν = b − Yᵀ L_A⁻¹ Lᵀ b`, `b = i − J a_s`
+    /// (Woodbury; `A ⪰ I` is always well conditioned). A pivot of `P_a` below `1e-9 × max P_a`
+    /// is raised to that floor (rounding only; `P_a` is a covariance).
+    ///
+    /// # Errors
+    /// [`TemporalError::BadSlot`], [`TemporalError::NoData`] (`J` zero or not finite),
+    /// [`TemporalError::Numerical`]; `parts` then holds nothing meaningful.
+    ///
+    /// # Complexity
+    /// `O(r³)` (three `r×r` factorisations and products) plus `G` (`n_act·r`).
+    #[allow(non_snake_case)]
+    #[inline(never)]
+    pub(crate) fn prepare_info_update<const NT: usize>(
+        &self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+        jm: &SMatrix<f32, RANK, RANK>,
+        iv: &SVector<f32, RANK>,
+        parts: &mut UpdateParts<RANK, NX>,
+    ) -> Result<(), TemporalError> {
+        if !self.is_active(s) {
+            return Err(TemporalError::BadSlot);
+        }
+        let r = Self::r_used(tables);
+        let jr = |j: usize, k: usize| {
+            if j < r && k < r {
+                jm.get((j, k)).copied().unwrap_or(0.0)
+            } else {
+                0.0
+            }
+        };
+        let jmax = (0..r).map(|j| jr(j, j)).fold(0.0f32, f32::max);
+        if !(jmax.is_finite() && jmax > 0.0) {
+            return Err(TemporalError::NoData);
+        }
+        let a0 = Self::idx(s, 0, 0);
+        let mut L = SMatrix::<f32, RANK, RANK>::from_fn(|j, k| {
+            if j < r && k < r {
+                self.pg(a0 + 2 * j, a0 + 2 * k)
+            } else {
+                0.0
+            }
+        });
+        let pmax = (0..r)
+            .map(|j| L.get((j, j)).copied().unwrap_or(0.0))
+            .fold(0.0f32, f32::max);
+        let floor = 1e-9 * pmax;
+        let mut load = [0.0f32; RANK];
+        if !(pmax.is_finite() && pmax > 0.0)
+            || linalg::cholesky_loaded(&mut L, r, floor, floor, &mut load) == u8::MAX
+        {
+            return Err(TemporalError::Numerical);
+        }
+        let l = |j: usize, k: usize| {
+            if k <= j {
+                L.get((j, k)).copied().unwrap_or(0.0)
+            } else {
+                0.0
+            }
+        };
+        // K = J L (r×r).
+        let K =
+            SMatrix::<f32, RANK, RANK>::from_fn(|j, k| (0..r).map(|q| jr(j, q) * l(q, k)).sum());
+        // A = I + Lᵀ K, factored.
+        let mut A = SMatrix::<f32, RANK, RANK>::from_fn(|j, k| {
+            if j < r && k < r {
+                let v: f32 = (0..r)
+                    .map(|q| l(q, j) * K.get((q, k)).copied().unwrap_or(0.0))
+                    .sum();
+                v + if j == k { 1.0 } else { 0.0 }
+            } else {
+                0.0
+            }
+        });
+        // Symmetrise before factoring (rounding).
+        for j in 0..r {
+            for k in 0..j {
+                let v = 0.5
+                    * (A.get((j, k)).copied().unwrap_or(0.0)
+                        + A.get((k, j)).copied().unwrap_or(0.0));
+                if let Some(e) = A.get_mut((j, k)) {
+                    *e = v;
+                }
+            }
+        }
+        if !cholesky_lower(&mut A, r) {
+            return Err(TemporalError::Numerical);
+        }
+        // Y = L_A⁻¹ Kᵀ: column k of Y solves L_A y = (row k of K)ᵀ.
+        let mut Y = SMatrix::<f32, RANK, RANK>::zeros();
+        for k in 0..r {
+            let mut col = [0.0f32; RANK];
+            for (q, c) in col.iter_mut().enumerate().take(r) {
+                *c = K.get((k, q)).copied().unwrap_or(0.0);
+            }
+            if let Some(cs) = col.get_mut(..r) {
+                forward_subst(&A, cs);
+            }
+            for (q, c) in col.iter().enumerate().take(r) {
+                if let Some(e) = Y.get_mut((q, k)) {
+                    *e = *c;
+                }
+            }
+        }
+        // b = i − J a, t = L_A⁻¹ Lᵀ b.
+        let a: [f32; RANK] =
+            core::array::from_fn(|j| if j < r { self.xg(a0 + 2 * j) } else { 0.0 });
+        let b: [f32; RANK] = core::array::from_fn(|j| {
+            if j < r {
+                iv.get(j).copied().unwrap_or(0.0)
+                    - (0..r).map(|q| jr(j, q) * get(&a, q)).sum::<f32>()
+            } else {
+                0.0
+            }
+        });
+        let mut t = [0.0f32; RANK];
+        for (j, tv) in t.iter_mut().enumerate().take(r) {
+            *tv = (0..r).map(|q| l(q, j) * get(&b, q)).sum();
+        }
+        if let Some(ts) = t.get_mut(..r) {
+            forward_subst(&A, ts);
+        }
+        let mut M = SMatrix::<f32, RANK, RANK>::zeros();
+        let mut w = SVector::<f32, RANK>::zeros();
+        let y = |q: usize, j: usize| Y.get((q, j)).copied().unwrap_or(0.0);
+        for j in 0..r {
+            if let Some(e) = w.get_mut(j) {
+                *e = get(&b, j) - (0..r).map(|q| y(q, j) * get(&t, q)).sum::<f32>();
+            }
+            for k in j..r {
+                let v = jr(j, k) - (0..r).map(|q| y(q, j) * y(q, k)).sum::<f32>();
+                if let Some(e) = M.get_mut((j, k)) {
+                    *e = v;
+                }
+                if let Some(e) = M.get_mut((k, j)) {
+                    *e = v;
+                }
+            }
+        }
+        if !(M.iter().chain(w.iter()).all(|v| v.is_finite())) {
+            return Err(TemporalError::Numerical);
+        }
+        for (i, row) in parts.g.iter_mut().enumerate() {
+            for (k, e) in row.iter_mut().enumerate() {
+                *e = if k < r { self.pg(i, a0 + 2 * k) } else { 0.0 };
+            }
+        }
+        parts.slot = s;
+        parts.r = r;
+        parts.m = M;
+        parts.w = w;
+        parts.repaired = 0;
+        Ok(())
+    }
+
     /// Checks that applying `g` keeps the state finite (bounds on the products, before anything
     /// is written).
     ///

@@ -440,6 +440,31 @@ impl<const LANES: usize> LaneTable<LANES> {
         self.slots = [None; LANES];
     }
 
+    /// Lane `slot` was seen this frame by other means than an observation (the known-lane
+    /// association, docs/design.md §11): its miss count is reset and, unless `counted` (already
+    /// matched this frame), its hits counted. `false` for a free slot.
+    pub fn mark_seen(&mut self, slot: usize, counted: bool) -> bool {
+        match self.slots.get_mut(slot) {
+            Some(Some(l)) => {
+                if !counted {
+                    l.hits = l.hits.saturating_add(1);
+                }
+                l.misses = 0;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Removes the lane in `slot` (its existence fell below the deletion threshold); returns
+    /// its id.
+    pub fn remove(&mut self, slot: usize) -> Option<LaneId> {
+        self.slots
+            .get_mut(slot)
+            .and_then(Option::take)
+            .map(|l| l.id)
+    }
+
     fn id_live(&self, id: u32) -> bool {
         self.slots.iter().flatten().any(|l| l.id.0 == id)
     }
