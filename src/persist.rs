@@ -75,6 +75,8 @@ pub struct PersistConfig {
     /// while this stage is on): a candidate starts with existence `p_birth`, and the frames
     /// that follow decide, so a dashed marking needs only a few hits in one frame.
     pub confirm_hits: u16,
+    /// Frames of memory of the process-noise scale's adaptation (0: no adaptation).
+    pub q_memory: f32,
 }
 
 impl PersistConfig {
@@ -92,6 +94,7 @@ impl PersistConfig {
         p_delete: 0.01,
         explained: 0.5,
         confirm_hits: 3,
+        q_memory: 2.0,
     };
 
     /// The round-1 pipeline (ablation "no temporal prior").
@@ -110,6 +113,8 @@ impl Default for PersistConfig {
 /// One lane's estimated detection probability per index band and its existence.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LaneState<const POINTS: usize> {
+    /// Known-lane passes this lane has been through.
+    pub passes: u16,
     /// Discounted row weights `Σ W_r` per band.
     pub hits: [f32; POINTS],
     /// Discounted rows per band.
@@ -121,6 +126,7 @@ pub struct LaneState<const POINTS: usize> {
 impl<const POINTS: usize> LaneState<POINTS> {
     /// A lane with no history.
     pub const NEW: Self = Self {
+        passes: 0,
         hits: [0.0; POINTS],
         looks: [0.0; POINTS],
         existence: 0.0,
@@ -146,6 +152,13 @@ pub struct Persist<const LANES: usize, const POINTS: usize, const ROWS: usize> {
     rows: [[[f32; 2]; ROWS]; LANES],
     /// This frame's lateral span `[min, max]` of all points per band: where the sensor sees.
     pub span: [[f32; 2]; POINTS],
+    /// `ln` of the process-noise scale (≥ 0).
+    pub log_q_scale: f32,
+    /// This frame's sum of `ν²/S` and count over the confidently associated rows of lanes
+    /// older than one frame.
+    nis: [f32; 2],
+    /// The last frame's ratio `Σ nis / Σ dof` (0 when not enough was counted).
+    pub last_nis_ratio: f32,
 }
 
 /// One frame's evidence for one lane.
@@ -206,7 +219,42 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             noise: [[0.0; 2]; POINTS],
             rows: [[[0.0; 2]; ROWS]; LANES],
             span: [[f32::INFINITY, f32::NEG_INFINITY]; POINTS],
+            log_q_scale: 0.0,
+            nis: [0.0; 2],
+            last_nis_ratio: 0.0,
         }
+    }
+
+    /// The temporal process-noise scale `e^{log_q_scale}` (≥ 1).
+    pub fn q_scale(&self) -> f32 {
+        math::exp(self.log_q_scale.max(0.0))
+    }
+
+    /// Counts one lane update's normalised innovation `nis` with `dof` degrees of freedom
+    /// (lanes through at least two known-lane passes only: a new lane's velocity is unknown).
+    pub fn count_nis(&mut self, s: usize, nis: f32, dof: f32) {
+        if self.lanes.get(s).is_some_and(|l| l.passes >= 2) && nis.is_finite() && nis >= 0.0 {
+            self.nis[0] += nis;
+            self.nis[1] += dof;
+        }
+    }
+
+    /// Adapts the process-noise scale to this frame's normalised innovations (covariance
+    /// matching): with `ρ = Σ nis / Σ dof` over the lane updates counted (1 when the model
+    /// holds), `ln s += ln ρ / memory`, `s` kept in `[1, 10⁴]`. Nothing changes with fewer than
+    /// `min_dof` degrees of freedom.
+    pub fn adapt_q_scale(&mut self, memory: f32, min_dof: f32) {
+        let [sum, n] = self.nis;
+        self.last_nis_ratio = 0.0;
+        if n >= min_dof && sum > 0.0 && sum.is_finite() {
+            let rho = sum / n;
+            self.last_nis_ratio = rho;
+            let step = math::ln(rho) / memory.max(1.0);
+            if step.is_finite() {
+                self.log_q_scale = (self.log_q_scale + step).clamp(0.0, 9.21);
+            }
+        }
+        self.nis = [0.0; 2];
     }
 
     /// Records this frame's lateral span per band from all its binned points (call once per
@@ -470,6 +518,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         };
         for s in slot.iter().take(n) {
             if let Some(l) = self.lanes.get_mut(*s) {
+                l.passes = l.passes.saturating_add(1);
                 for (hb, lb) in l.hits.iter_mut().zip(l.looks.iter_mut()) {
                     *hb *= pd_decay;
                     *lb *= pd_decay;

@@ -351,10 +351,15 @@ impl<
             points.get(..used).unwrap_or(&[]),
         );
         // 2. Temporal prediction to now.
+        let q_scale = if self.cfg.persist.enabled {
+            self.persist.q_scale()
+        } else {
+            1.0
+        };
         if dt > 0.0
             && self
                 .temporal
-                .predict_probed(self.tables, dt, probe)
+                .predict_scaled_probed(self.tables, dt, q_scale, probe)
                 .is_err()
         {
             report.temporal_failures += 1;
@@ -582,7 +587,10 @@ impl<
                     .temporal
                     .update_info_probed(self.tables, s, &e.j, &e.i, probe)
                 {
-                    Ok(_) => {}
+                    Ok(u) => {
+                        let dof = (self.tables.gram_rank as usize).min(RANK) as f32;
+                        self.persist.count_nis(s, u.nis, dof);
+                    }
                     Err(_) => report.temporal_failures += 1,
                 }
                 probe.enter(Stage::Known);
@@ -597,6 +605,9 @@ impl<
             if seen_now {
                 seen |= 1 << s;
             }
+        }
+        if self.cfg.persist.q_memory > 0.0 {
+            self.persist.adapt_q_scale(self.cfg.persist.q_memory, 10.0);
         }
         self.persist.estimate_noise(
             self.tables,

@@ -17,11 +17,21 @@ fn main() -> anyhow::Result<()> {
         Some("high") => NoiseLevel::High,
         _ => NoiseLevel::Mid,
     };
-    let cfg = if args.iter().any(|a| a == "round1") {
+    let mut cfg = if args.iter().any(|a| a == "round1") {
         TrackerConfig::ROUND1
     } else {
         TrackerConfig::DEFAULT
     };
+    let envf = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f32>().ok());
+    if let Some(v) = envf("QMEM") {
+        cfg.persist.q_memory = v;
+    }
+    if let Some(v) = envf("CONFIRM") {
+        cfg.persist.confirm_hits = v as u16;
+    }
+    if let Some(v) = envf("PBIRTH") {
+        cfg.persist.p_birth = v;
+    }
     let labels = tusimple::read_labels(
         &stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json"),
     )?;
@@ -59,6 +69,10 @@ fn main() -> anyhow::Result<()> {
     let mut prev_ids: Vec<u32> = Vec::new();
     let mut fn_covered = 0usize;
     let mut fp_best = [0usize; 4];
+    let mut fp_dup = 0usize;
+    let mut qs: Vec<f32> = Vec::new();
+    let mut fp_class = [0usize; 4];
+    let mut fp_dist: Vec<f64> = Vec::new();
     // For FP lanes with best acc in [0.3, 0.85): gt rows where pred missing / off near / off far / ok.
     let mut rows_cat = [0usize; 4];
     let bands = [3.0, 6.0, 10.0, 20.0, 40.0, 80.0];
@@ -87,6 +101,10 @@ fn main() -> anyhow::Result<()> {
             return;
         };
         frames += 1;
+        qs.push(
+            v.tracker.persist().last_nis_ratio
+                + 1000.0 * f32::from(v.tracker.persist().lanes[0].passes.min(9)),
+        );
         let pub_lanes: Vec<_> = out
             .filtered
             .iter()
@@ -354,6 +372,39 @@ fn main() -> anyhow::Result<()> {
                         bi = gi;
                     }
                 }
+                if let Some(l) = l {
+                    // mean |Δx| to the nearest gt lane over common u in [3, 40]
+                    let mut bestd = f64::INFINITY;
+                    for x in &gl {
+                        let gb: Vec<(f64, f64)> = x
+                            .iter()
+                            .zip(ys.iter())
+                            .filter(|(x, _)| **x >= 0.0)
+                            .filter_map(|(x, y)| cam.to_bev(*x, *y))
+                            .filter(|p| p.0 >= 3.0 && p.0 <= 40.0)
+                            .collect();
+                        let ds: Vec<f64> = gb
+                            .iter()
+                            .filter_map(|(u, x)| {
+                                v.tracker
+                                    .lane_at(l.slot as usize, *u as f32)
+                                    .map(|(xp, _)| (f64::from(xp) - x).abs())
+                            })
+                            .collect();
+                        if ds.len() >= 3 {
+                            bestd = bestd.min(ds.iter().sum::<f64>() / ds.len() as f64);
+                        }
+                    }
+                    fp_class[if bestd < 0.3 {
+                        0
+                    } else if bestd < 2.0 {
+                        1
+                    } else if bestd.is_finite() {
+                        2
+                    } else {
+                        3
+                    }] += 1;
+                }
                 fp_best[if best < 0.1 {
                     0
                 } else if best < 0.3 {
@@ -363,6 +414,139 @@ fn main() -> anyhow::Result<()> {
                 } else {
                     3
                 }] += 1;
+                if best >= 0.3 {
+                    let th = lane_threshold(lane_angle(gl[bi], ys));
+                    if let Some((k2, _)) = pred
+                        .lanes
+                        .iter()
+                        .enumerate()
+                        .find(|(k2, p2)| *k2 != k && line_accuracy(p2, gl[bi], th) >= PT_THRESH)
+                    {
+                        fp_dup += 1;
+                        if std::env::var("ROWDUMP").is_ok() && fp_dup % 25 == 0 {
+                            let th = lane_threshold(lane_angle(gl[bi], ys));
+                            let pat: String = pl
+                                .iter()
+                                .zip(gl[bi].iter())
+                                .map(|(p, g)| {
+                                    if *g < 0.0 {
+                                        if *p < 0.0 {
+                                            '_'
+                                        } else {
+                                            'E'
+                                        }
+                                    } else if *p < 0.0 {
+                                        'm'
+                                    } else if (p - g).abs() < th {
+                                        '.'
+                                    } else if (p - g).abs() < 2.0 * th {
+                                        'x'
+                                    } else {
+                                        'X'
+                                    }
+                                })
+                                .collect();
+                            let pat2: String = pred.lanes[k2]
+                                .iter()
+                                .zip(gl[bi].iter())
+                                .map(|(p, g)| {
+                                    if *g < 0.0 {
+                                        if *p < 0.0 {
+                                            '_'
+                                        } else {
+                                            'E'
+                                        }
+                                    } else if *p < 0.0 {
+                                        'm'
+                                    } else if (p - g).abs() < th {
+                                        '.'
+                                    } else if (p - g).abs() < 2.0 * th {
+                                        'x'
+                                    } else {
+                                        'X'
+                                    }
+                                })
+                                .collect();
+                            println!(
+                                "ROW {} f{} FP  [{}] acc {:.2}",
+                                v.frame.clip, v.index, pat, best
+                            );
+                            println!("ROW {} f{} TP  [{}]", v.frame.clip, v.index, pat2);
+                        }
+                        if std::env::var("DUPDUMP").is_ok() && fp_dup % 25 == 0 {
+                            if let (Some(a), Some(b)) = (l, pub_lanes.get(k2)) {
+                                let us = [4.0f32, 8.0, 13.0, 18.0, 23.0, 33.0, 43.0, 60.0];
+                                let row = |l: &stjpdacf::tracker::LaneEstimate<16>| {
+                                    us.iter()
+                                        .map(|u| {
+                                            v.tracker
+                                                .lane_at(l.slot as usize, *u)
+                                                .map_or("-".to_string(), |(x, var)| {
+                                                    format!("{:+.2}±{:.2}", x, var.sqrt())
+                                                })
+                                        })
+                                        .collect::<Vec<_>>()
+                                        .join(" ")
+                                };
+                                println!(
+                                    "DUP {} f{}: FP id {} age {} ex {:.2} ext {:.0}-{:.0}: {}",
+                                    v.frame.clip,
+                                    v.index,
+                                    a.id.0,
+                                    a.age,
+                                    a.existence,
+                                    a.u_first,
+                                    a.u_last,
+                                    row(a)
+                                );
+                                println!(
+                                    "    matched id {} age {} ex {:.2} ext {:.0}-{:.0}: {}",
+                                    b.id.0,
+                                    b.age,
+                                    b.existence,
+                                    b.u_first,
+                                    b.u_last,
+                                    row(b)
+                                );
+                                let gtb: Vec<(f64, f64)> = gl[bi]
+                                    .iter()
+                                    .zip(ys.iter())
+                                    .filter(|(x, _)| **x >= 0.0)
+                                    .filter_map(|(x, y)| cam.to_bev(*x, *y))
+                                    .collect();
+                                println!(
+                                    "    gt: {}",
+                                    us.iter()
+                                        .map(|u| gtb
+                                            .iter()
+                                            .min_by(|p, q| (p.0 - f64::from(*u))
+                                                .abs()
+                                                .total_cmp(&(q.0 - f64::from(*u)).abs()))
+                                            .map_or("-".to_string(), |p| {
+                                                if (p.0 - f64::from(*u)).abs() < 2.0 {
+                                                    format!("{:+.2}", p.1)
+                                                } else {
+                                                    "-".into()
+                                                }
+                                            }))
+                                        .collect::<Vec<_>>()
+                                        .join(" ")
+                                );
+                            }
+                        }
+                    }
+                }
+                if let Some(l) = l {
+                    if let Some((x0, _)) = v.tracker.lane_at(l.slot as usize, 10.0) {
+                        let d = pub_lanes
+                            .iter()
+                            .filter(|o| o.slot != l.slot)
+                            .filter_map(|o| v.tracker.lane_at(o.slot as usize, 10.0))
+                            .map(|(x, _)| f64::from((x - x0).abs()))
+                            .fold(f64::INFINITY, f64::min);
+                        fp_dist.push(d);
+                    }
+                }
                 if best >= 0.3 {
                     let x = gl[bi];
                     let th = lane_threshold(lane_angle(x, ys));
@@ -419,6 +603,14 @@ fn main() -> anyhow::Result<()> {
             }
         }
     })?;
+    println!(
+        "q_scale samples: {:?}",
+        qs.iter()
+            .skip(13)
+            .step_by(20)
+            .map(|q| (q * 100.0).round() / 100.0)
+            .collect::<Vec<_>>()
+    );
     println!("level {level:?}, config persist={}", cfg.persist.enabled);
     println!(
         "frames {frames}, gt lanes/frame {:.2}, new published ids/frame {:.3}",
@@ -438,6 +630,12 @@ fn main() -> anyhow::Result<()> {
     println!(
         "age bucket (0,1,2-3,4-7,8-15,16+): TP {:?} FP {:?}",
         tp_by_age, fp_by_age
+    );
+    fp_dist.sort_by(f64::total_cmp);
+    println!("FP duplicates of a matched gt lane: {fp_dup}; FP distance to nearest other lane at u=10: <0.5 m {}, <1.5 m {}, <3 m {}, more {}", fp_dist.iter().filter(|d| **d < 0.5).count(), fp_dist.iter().filter(|d| **d >= 0.5 && **d < 1.5).count(), fp_dist.iter().filter(|d| **d >= 1.5 && **d < 3.0).count(), fp_dist.iter().filter(|d| **d >= 3.0).count());
+    println!(
+        "FP by mean BEV distance to nearest gt lane: <0.3 m {}, 0.3-2 m {}, >2 m {}, no overlap {}",
+        fp_class[0], fp_class[1], fp_class[2], fp_class[3]
     );
     println!("FP best acc [<0.1, <0.3, <0.6, <0.85]: {:?}", fp_best);
     println!(

@@ -241,12 +241,34 @@ impl<
         t: f32,
         probe: &mut P,
     ) -> Result<(), TemporalError> {
+        self.predict_scaled_probed(tables, t, 1.0, probe)
+    }
+
+    /// [`Temporal::predict_probed`] with the process noise `Q_t(T)` multiplied by `q_scale`
+    /// (≥ 1: the adaptive scale of [`crate::persist`], docs/design.md §11; a scale that is not
+    /// finite or below 1 counts as 1).
+    ///
+    /// # Errors
+    /// As [`Temporal::predict`].
+    #[inline(never)]
+    pub fn predict_scaled_probed<const NT: usize, P: Probe>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        t: f32,
+        q_scale: f32,
+        probe: &mut P,
+    ) -> Result<(), TemporalError> {
         probe.enter(Stage::Temporal);
         let (f, q) = tables
             .temporal
             .kernel
             .transition(t)
             .ok_or(TemporalError::BadStep)?;
+        let q = if q_scale.is_finite() && q_scale > 1.0 {
+            q * q_scale
+        } else {
+            q
+        };
         probe.enter(Stage::Smoother);
         let r = TemporalFilter::<LANES, POINTS, RANK, NX>::r_used(tables);
         let sp = self.filter.spans(r);
@@ -408,6 +430,7 @@ impl<
         self.filter.apply_update(&g);
         Ok(UpdateInfo {
             repaired_pivots: g.repaired,
+            nis: g.nis,
         })
     }
 

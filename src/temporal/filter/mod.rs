@@ -87,6 +87,8 @@ pub(crate) struct UpdateParts<const RANK: usize, const NX: usize> {
     pub w: SVector<f32, RANK>,
     /// Pivots of `R + r₀² I` raised because it was not positive definite there.
     pub repaired: u8,
+    /// `wᵀ M⁻¹ w` (row-evidence updates only).
+    pub nis: f32,
 }
 
 impl<const RANK: usize, const NX: usize> UpdateParts<RANK, NX> {
@@ -98,17 +100,22 @@ impl<const RANK: usize, const NX: usize> UpdateParts<RANK, NX> {
         m: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; RANK])),
         w: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; 1])),
         repaired: 0,
+        nis: 0.0,
     };
 }
 
 /// What a lane update did besides updating.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct UpdateInfo {
     /// Pivots of the pseudo-measurement covariance `R + r₀² I` that were raised to `r₀²`
     /// because it was not positive definite (0 for a valid covariance; see
     /// [`TemporalFilter::update`]).
     pub repaired_pivots: u8,
+    /// For an update by row evidence ([`TemporalFilter::prepare_info_update`]): the
+    /// normalised innovation `wᵀ M⁻¹ w` on the lane's Gram components (χ² with `r` degrees of
+    /// freedom when the model holds); 0 otherwise.
+    pub nis: f32,
 }
 
 /// Disjoint, increasing index ranges, adjacent ones merged (at most `L`): the active parts of the

@@ -35,6 +35,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         self.apply_update(&g);
         Ok(UpdateInfo {
             repaired_pivots: g.repaired,
+            nis: g.nis,
         })
     }
 
@@ -155,6 +156,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         parts.m = M;
         parts.w = w;
         parts.repaired = repaired;
+        parts.nis = 0.0;
         Ok(())
     }
 
@@ -310,11 +312,30 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 *e = if k < r { self.pg(i, a0 + 2 * k) } else { 0.0 };
             }
         }
+        // wᵀ M⁻¹ w by a loaded Cholesky of M (directions the rows barely inform are floored).
+        let mmax = (0..r)
+            .map(|j| M.get((j, j)).copied().unwrap_or(0.0))
+            .fold(0.0f32, f32::max);
+        let mut mf = M;
+        let mut mload = [0.0f32; RANK];
+        let mfloor = 1e-6 * mmax;
+        let nis = if mmax > 0.0
+            && linalg::cholesky_loaded(&mut mf, r, mfloor, mfloor, &mut mload) != u8::MAX
+        {
+            let mut z: [f32; RANK] = core::array::from_fn(|j| w.get(j).copied().unwrap_or(0.0));
+            if let Some(zs) = z.get_mut(..r) {
+                forward_subst(&mf, zs);
+            }
+            z.iter().take(r).map(|v| v * v).sum()
+        } else {
+            0.0
+        };
         parts.slot = s;
         parts.r = r;
         parts.m = M;
         parts.w = w;
         parts.repaired = 0;
+        parts.nis = nis;
         Ok(())
     }
 
