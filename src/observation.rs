@@ -35,6 +35,10 @@ pub struct LaneObservation<const POINTS: usize> {
     pub existence: f32,
     /// Rank from the left among this frame's tracks (B's slot at the end of the walk).
     pub rank: u8,
+    /// The track's existence evidence over its observed extent: `Σ ln Λ_r` of its rows from
+    /// its start to its last hit, each with the one-step-ahead prediction of the row walk and
+    /// `P_D` = 0.5 (docs/design.md §11.8); its own starting point is not counted.
+    pub llr: f32,
 }
 
 impl<const POINTS: usize> LaneObservation<POINTS> {
@@ -48,5 +52,6 @@ impl<const POINTS: usize> LaneObservation<POINTS> {
         u_last: 0.0,
         existence: 0.0,
         rank: 0,
+        llr: 0.0,
     };
 }

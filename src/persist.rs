@@ -77,6 +77,12 @@ pub struct PersistConfig {
     pub confirm_hits: u16,
     /// Frames of memory of the process-noise scale's adaptation (0: no adaptation).
     pub q_memory: f32,
+    /// Probability that a lane that exists is visible in a frame (not occluded, not blurred
+    /// out): the rows' evidence of a frame counts only in that case (docs/design.md §11.5).
+    pub p_visible: f32,
+    /// Two lanes closer than this on average over their common observed extent are one
+    /// marking (docs/design.md §11.9), metres: half of a 2 m minimum spacing of markings.
+    pub min_spacing: f32,
 }
 
 impl PersistConfig {
@@ -95,6 +101,8 @@ impl PersistConfig {
         explained: 0.5,
         confirm_hits: 3,
         q_memory: 2.0,
+        p_visible: 0.9,
+        min_spacing: 1.0,
     };
 
     /// The round-1 pipeline (ablation "no temporal prior").
@@ -232,9 +240,16 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
 
     /// Counts one lane update's normalised innovation `nis` with `dof` degrees of freedom
     /// (lanes through at least two known-lane passes only: a new lane's velocity is unknown).
-    pub fn count_nis(&mut self, s: usize, nis: f32, dof: f32) {
-        if self.lanes.get(s).is_some_and(|l| l.passes >= 2) && nis.is_finite() && nis >= 0.0 {
-            self.nis[0] += nis;
+    /// Only lanes that are published (`P ≥ p_publish`) count, and each lane's `nis` is capped at
+    /// `3·dof` (about the χ² 99.9 % point for 7 degrees of freedom): one lane gone astray must
+    /// not inflate every lane's process noise.
+    pub fn count_nis(&mut self, s: usize, nis: f32, dof: f32, p_publish: f32) {
+        let ok = self
+            .lanes
+            .get(s)
+            .is_some_and(|l| l.passes >= 2 && l.existence >= p_publish);
+        if ok && nis.is_finite() && nis >= 0.0 {
+            self.nis[0] += nis.min(3.0 * dof);
             self.nis[1] += dof;
         }
     }
@@ -307,11 +322,23 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         }
     }
 
-    /// Existence update of slot `s` with a frame's summed log-likelihood ratio `llr` counted as
-    /// `llr / k` independent looks: `logit P += llr / k` (the change bounded by ±30).
-    pub fn update_existence(&mut self, s: usize, llr: f32, k: f32) {
+    /// Existence update of slot `s` with a frame's summed row log-likelihood ratio `llr`
+    /// (docs/design.md §11.5): the rows of an index interval count as one look, `L = llr / k`,
+    /// and the frame is a mixture of "the lane is visible" (probability `p_visible`, the rows'
+    /// evidence holds) and "it is not" (occlusion, glare, a bump: no information), so
+    /// `logit P += ln(p_v e^L + 1 − p_v)` — a frame that sees nothing of a lane costs at most
+    /// `ln(1 − p_v)`; the change is bounded by ±30.
+    pub fn update_existence(&mut self, s: usize, llr: f32, k: f32, p_visible: f32) {
         if let Some(l) = self.lanes.get_mut(s) {
-            let d = (llr / k.max(1.0)).clamp(-30.0, 30.0);
+            let big = (llr / k.max(1.0)).clamp(-60.0, 60.0);
+            let pv = p_visible.clamp(0.0, 1.0);
+            // ln(p_v e^L + 1 − p_v), evaluated without overflow.
+            let mixed = if big > 0.0 {
+                big + math::ln(pv + (1.0 - pv) * math::exp(-big))
+            } else {
+                math::ln(1.0 - pv + pv * math::exp(big))
+            };
+            let d = mixed.clamp(-30.0, 30.0);
             let p = l.existence.clamp(1e-6, 1.0 - 1e-6);
             let lo = math::ln(p / (1.0 - p)) + if d.is_finite() { d } else { 0.0 };
             l.existence = 1.0 / (1.0 + math::exp(-lo));
@@ -525,12 +552,19 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 }
             }
         }
+        // P_D,b of every lane for this pass: the discounted estimate before this frame's rows
+        // (docs/design.md §11.5; the counts of this pass take effect from the next one).
+        let mut pd0 = [[0.5f32; POINTS]; LANES];
+        for (l, row) in self.lanes.iter().zip(pd0.iter_mut()) {
+            for (b, v) in row.iter_mut().enumerate() {
+                *v = l.pd(b);
+            }
+        }
         let bss = |s: usize, t: usize| {
             let a = usize::from(get(lanes.ranks, s));
             let b = usize::from(get(lanes.ranks, t));
             tables.coreg.get((a, b)).copied().unwrap_or(0.0)
         };
-        let ln_2pi = math::ln(2.0 * core::f32::consts::PI);
         let mut unexplained = [0.0f32; POINTS];
         let mut band_rows = [0.0f32; POINTS];
         let mut failed = 0u32;
@@ -609,7 +643,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             // Evidence and detection counts per lane.
             for a in 0..nr {
                 let s = get(&idx, a);
-                let (Some(e), Some(ls)) = (ev.get_mut(s), self.lanes.get(s)) else {
+                let Some(e) = ev.get_mut(s) else {
                     continue;
                 };
                 let w = (1.0 - get(&out.beta_miss, a)).clamp(0.0, 1.0);
@@ -620,16 +654,9 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 let [vlo, vhi] = self.span.get(b).copied().unwrap_or([0.0; 2]);
                 let in_view = zh >= vlo && zh <= vhi;
                 // IPDA likelihood ratio of the row.
-                let pd = ls.pd(b);
-                let mut lsum = 0.0;
-                let valid = get(&out.valid, a);
-                for (j, z) in pts.iter().enumerate() {
-                    if valid & (1 << j) != 0 {
-                        let d = z - zh;
-                        lsum += math::exp(-0.5 * (d * d / st + ln_2pi + math::ln(st)));
-                    }
-                }
-                let lr = 1.0 - pd * params.pg + pd * lsum / lambda;
+                let pd = pd0.get(s).map_or(0.5, |row| get(row, b));
+                // Each gated point counts as far as no other lane claims it (JIPDA-style).
+                let lr = 1.0 - pd * params.pg + pd * get(&out.dens, a) / lambda;
                 if in_view && lr.is_finite() && lr > 0.0 {
                     e.llr += math::ln(lr);
                 }

@@ -37,6 +37,7 @@ use crate::persist::{Evidence, Explained, Lanes, Pass, Persist, PersistConfig};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::{Config as SpatialConfig, SpatialFilter, SpatialReport};
 use crate::tables::Tables;
+use crate::temporal::filter::TemporalFilter;
 use crate::temporal::identity::{
     IdentityConfig, IdentityOutcome, IdentityReport, LaneId, LanePrediction, LaneTable, SlotFate,
 };
@@ -144,6 +145,28 @@ pub struct StepReport {
     /// rounding had made it indefinite (see
     /// [`crate::temporal::filter::TemporalFilter::repair_covariance`]; 0 on almost every frame).
     pub temporal_cov_repairs: u32,
+    /// The known-lane stage's counters (all 0 when it is off).
+    pub known: KnownReport,
+}
+
+/// What the known-lane stage (docs/design.md §11) did in one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct KnownReport {
+    /// Live lanes associated against their prediction.
+    pub lanes: u32,
+    /// Of those, lanes seen (a row with `W ≥ 0.5`).
+    pub seen: u32,
+    /// Points the known lanes explained (removed before the spatial filter).
+    pub explained_points: u32,
+    /// Rows whose joint events failed numerically (every lane missed there).
+    pub failed_rows: u32,
+    /// Lanes deleted because their existence fell below `p_delete`.
+    pub deleted: u32,
+    /// Lanes removed as duplicates of another (one lane, one track).
+    pub merged: u32,
+    /// The process-noise scale used by this frame's prediction.
+    pub q_scale: f32,
 }
 
 /// The output of one frame.
@@ -340,6 +363,7 @@ impl<
             dt,
             pseudo_cov_repairs: 0,
             temporal_cov_repairs: 0,
+            known: KnownReport::default(),
         };
         // 1. The points into BEV rows.
         for o in &mut self.obs {
@@ -355,6 +379,11 @@ impl<
             self.persist.q_scale()
         } else {
             1.0
+        };
+        report.known.q_scale = if self.cfg.persist.enabled {
+            q_scale
+        } else {
+            0.0
         };
         if dt > 0.0
             && self
@@ -387,7 +416,12 @@ impl<
                 .walk_probed(self.tables, &scfg, srep, &mut self.obs, probe);
         report.spatial = srep;
         probe.enter(Stage::Identity);
-        // 5. Identity against the predictions.
+        // 5. Identity against the predictions (a lane the known-lane pass saw has no miss).
+        for s in 0..LANES {
+            if known & (1 << s) != 0 {
+                self.ids.reset_misses(s);
+            }
+        }
         let outcome = self.associate(n_obs);
         report.identity = outcome.report;
         for s in 0..LANES {
@@ -402,7 +436,11 @@ impl<
         if self.cfg.persist.enabled {
             probe.enter(Stage::Known);
             self.new_lane_existence(&outcome.slots);
-            if self.delete_unlikely() {
+            let deleted = self.delete_unlikely();
+            let merged = self.merge_duplicates();
+            report.known.deleted = deleted;
+            report.known.merged = merged;
+            if merged + deleted > 0 {
                 let ranks = self.ranks_of(None);
                 match self.temporal.set_ranks(&ranks) {
                     Ok(()) => self.ranks = ranks,
@@ -564,7 +602,7 @@ impl<
                 rows: [(0, last); LANES],
             };
             let spatial = &self.spatial;
-            self.persist.associate(
+            report.known.failed_rows = self.persist.associate(
                 self.tables,
                 self.temporal.filter(),
                 &lanes,
@@ -575,6 +613,7 @@ impl<
                 &mut ev,
                 &mut explained,
             );
+            report.known.lanes = live.count_ones();
         }
         let mut seen = 0u32;
         let k = pass.k_rows as f32;
@@ -589,13 +628,15 @@ impl<
                 {
                     Ok(u) => {
                         let dof = (self.tables.gram_rank as usize).min(RANK) as f32;
-                        self.persist.count_nis(s, u.nis, dof);
+                        self.persist
+                            .count_nis(s, u.nis, dof, self.cfg.persist.p_publish);
                     }
                     Err(_) => report.temporal_failures += 1,
                 }
                 probe.enter(Stage::Known);
             }
-            self.persist.update_existence(s, e.llr, k);
+            self.persist
+                .update_existence(s, e.llr, k, self.cfg.persist.p_visible);
             let seen_now = e.extent[0] <= e.extent[1];
             if let Some(info) = self.info.get_mut(s) {
                 info.existence = self.persist.lanes.get(s).map_or(0.0, |l| l.existence);
@@ -617,6 +658,8 @@ impl<
             &pass,
             self.cfg.persist.pd_memory,
         );
+        report.known.seen = seen.count_ones();
+        report.known.explained_points = explained.iter().map(|m| m.count_ones()).sum();
         for (r, mask) in explained.iter().enumerate().take(pass.rows) {
             if *mask != 0 {
                 self.spatial.remove_points(r, *mask);
@@ -646,74 +689,116 @@ impl<
         })
     }
 
-    /// The existence of lanes started this frame: their birth prior updated by their own
-    /// frame's evidence over their observed extent (the rows that remain after the known
-    /// lanes took theirs).
-    #[inline(never)]
+    /// The existence of lanes started this frame: the birth prior updated by the evidence of
+    /// their spatial track over its observed extent (`LaneObservation::llr`: one-step-ahead
+    /// predictions along the rows, so the points a track was fitted to do not confirm it).
     fn new_lane_existence(&mut self, slots: &[SlotFate; LANES]) {
-        let Some(pass) = self.pass() else {
-            return;
-        };
-        let mut new = 0u32;
-        let mut rows = [(0u16, 0u16); LANES];
-        let h = &self.tables.hyper;
+        let k = f32::from(self.cfg.spatial.rows_per_interval.max(1));
         for (s, fate) in slots.iter().enumerate() {
-            if matches!(fate, SlotFate::New { .. }) && self.temporal.filter().is_active(s) {
-                let [a, b] = get(&self.info, s).extent;
-                if a <= b {
-                    let lo = libm::rintf((a - h.u_min) / pass.du).max(0.0) as u16;
-                    let hi = libm::rintf((b - h.u_min) / pass.du).max(0.0) as u16;
-                    set(&mut rows, s, (lo, hi));
-                    new |= 1 << s;
-                }
-            }
-        }
-        if new == 0 {
-            return;
-        }
-        let lanes = Lanes {
-            slots: new,
-            ranks: &self.ranks,
-            rows,
-        };
-        let mut explained: Explained<ROWS> = [0; ROWS];
-        let mut ev = [Evidence::<RANK>::NONE; LANES];
-        let spatial = &self.spatial;
-        self.persist.associate(
-            self.tables,
-            self.temporal.filter(),
-            &lanes,
-            &pass,
-            &self.cfg.persist,
-            |r| spatial.row_points(r),
-            false,
-            &mut ev,
-            &mut explained,
-        );
-        for (s, e) in ev.iter().enumerate() {
-            if new & (1 << s) != 0 {
-                self.persist.update_existence(s, e.llr, pass.k_rows as f32);
-                if let Some(info) = self.info.get_mut(s) {
-                    info.existence = self.persist.lanes.get(s).map_or(0.0, |l| l.existence);
-                }
+            if let SlotFate::New { obs, .. } = fate {
+                let llr = self.obs.get(usize::from(*obs)).map_or(0.0, |o| o.llr);
+                self.persist
+                    .update_existence(s, llr, k, self.cfg.persist.p_visible);
             }
         }
     }
 
-    /// Lanes whose existence fell below `p_delete` are removed; `true` if any was.
-    fn delete_unlikely(&mut self) -> bool {
-        let mut any = false;
+    /// One lane, one track (docs/design.md §11.9): two live lanes, both seen this frame, whose
+    /// positions agree over the
+    /// index points inside both observed extents — at least `min_common` of them, mean
+    /// `(z_s − z_t)² / Var(z_s − z_t)` at most the identity gate, with
+    /// `Var = σ_s² + σ_t² − 2 Cov(z_s, z_t)` from the temporal covariance — describe one
+    /// marking, and so do two lanes closer than `min_spacing` on average there (no two
+    /// markings run that close; a double line is one marking); the younger (on a tie, the
+    /// higher slot) is removed. Returns how many were.
+    ///
+    /// # Complexity
+    /// `LANES²/2` pairs, each `POINTS·(r² + 2r)` multiply-adds.
+    #[inline(never)]
+    fn merge_duplicates(&mut self) -> u32 {
+        let mut any = 0u32;
+        let r = (self.tables.gram_rank as usize).min(RANK).min(POINTS);
+        for s in 0..LANES {
+            for t in s + 1..LANES {
+                let (Some(ls), Some(lt)) = (self.ids.lane(s), self.ids.lane(t)) else {
+                    continue;
+                };
+                // Only lanes both seen this frame: a coasting lane is not a duplicate of the
+                // lane that took its place (a bump, a jump), it is decided by its existence.
+                if !(get(&self.info, s).seen && get(&self.info, t).seen) {
+                    continue;
+                }
+                let (Some((zs, vs)), Some((zt, vt))) = (
+                    self.temporal.filter().lane(self.tables, s),
+                    self.temporal.filter().lane(self.tables, t),
+                ) else {
+                    continue;
+                };
+                let (as0, ae0) = self.extent_of(s, 0);
+                let (at0, ate) = self.extent_of(t, 0);
+                let (lo, hi) = (as0.max(at0), ae0.min(ate));
+                let p = self.temporal.filter().covariance();
+                let mut cost = 0.0f32;
+                let mut dist = 0.0f32;
+                let mut n = 0u32;
+                for i in 0..POINTS {
+                    let u = self.tables.index_u.get(i).copied().unwrap_or(f32::NAN);
+                    if !(u >= lo && u <= hi) {
+                        continue;
+                    }
+                    let vi = |j: usize| self.tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0);
+                    let mut cov = 0.0f32;
+                    for j in 0..r {
+                        let ij = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
+                        let mut inner = 0.0f32;
+                        for k in 0..r {
+                            let ik = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, 0);
+                            inner += p.get((ij, ik)).copied().unwrap_or(0.0) * vi(k);
+                        }
+                        cov += vi(j) * inner;
+                    }
+                    let d = zs.get(i).copied().unwrap_or(0.0) - zt.get(i).copied().unwrap_or(0.0);
+                    let var = vs.get(i).copied().unwrap_or(0.0) + vt.get(i).copied().unwrap_or(0.0)
+                        - 2.0 * cov;
+                    let var = var.max(self.tables.hyper.pseudo_noise);
+                    cost += d * d / var;
+                    dist += d.abs();
+                    n += 1;
+                }
+                let nf = n as f32;
+                if n >= u32::from(self.cfg.identity.min_common.max(1))
+                    && cost.is_finite()
+                    && (cost / nf <= self.cfg.identity.gate
+                        || dist / nf <= self.cfg.persist.min_spacing)
+                {
+                    let drop = if lt.age <= ls.age { t } else { s };
+                    self.remove_slot(drop);
+                    any += 1;
+                }
+            }
+        }
+        any
+    }
+
+    /// Removes the lane in slot `s` from every stage.
+    fn remove_slot(&mut self, s: usize) {
+        self.ids.remove(s);
+        self.temporal.remove_lane(s);
+        self.persist.remove(s);
+        set(&mut self.info, s, NO_INFO);
+        for h in self.extent.iter_mut() {
+            set(h, s, [f32::INFINITY, f32::NEG_INFINITY]);
+        }
+    }
+
+    /// Lanes whose existence fell below `p_delete` are removed; returns how many.
+    fn delete_unlikely(&mut self) -> u32 {
+        let mut any = 0u32;
         for s in 0..LANES {
             let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
             if self.ids.lane(s).is_some() && p < self.cfg.persist.p_delete {
-                self.ids.remove(s);
-                self.temporal.remove_lane(s);
-                self.persist.remove(s);
-                set(&mut self.info, s, NO_INFO);
-                for h in self.extent.iter_mut() {
-                    set(h, s, [f32::INFINITY, f32::NEG_INFINITY]);
-                }
-                any = true;
+                self.remove_slot(s);
+                any += 1;
             }
         }
         any
@@ -791,8 +876,15 @@ impl<
                 .and_then(|h| h.get(s))
                 .copied()
                 .flatten();
-            if let (Some(id), Some((z, var))) = (id_then, self.temporal.lagged(self.tables, s, LAG))
-            {
+            // With the known-lane stage, a smoothed lane is published while its lane is still
+            // live and published now (a lane removed since was not one, or is gone).
+            let publish_smoothed = !self.cfg.persist.enabled
+                || get(&self.info, s).existence >= self.cfg.persist.p_publish;
+            if let (true, Some(id), Some((z, var))) = (
+                publish_smoothed,
+                id_then,
+                self.temporal.lagged(self.tables, s, LAG),
+            ) {
                 // The same lane's counters at the current frame (0 once it is gone).
                 let now = self.ids.lane(s).filter(|l| l.id == id);
                 let (u_first, u_last) = self.extent_of(s, LAG);

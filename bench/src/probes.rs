@@ -102,16 +102,19 @@ pub enum StageGroup {
     Smoother,
     /// Output assembly.
     Output,
+    /// The known lanes' association against their prediction (docs/design.md §11).
+    Known,
 }
 
 impl StageGroup {
     /// Every group, in pipeline order.
-    pub const ALL: [StageGroup; 5] = [
+    pub const ALL: [StageGroup; 6] = [
         StageGroup::Spatial,
         StageGroup::Identity,
         StageGroup::Temporal,
         StageGroup::Smoother,
         StageGroup::Output,
+        StageGroup::Known,
     ];
 
     /// Lower-case name.
@@ -122,6 +125,7 @@ impl StageGroup {
             StageGroup::Temporal => "temporal",
             StageGroup::Smoother => "smoother",
             StageGroup::Output => "output",
+            StageGroup::Known => "known",
         }
     }
 
@@ -133,6 +137,7 @@ impl StageGroup {
             StageGroup::Temporal => stage == Stage::Temporal,
             StageGroup::Smoother => stage == Stage::Smoother,
             StageGroup::Output => stage == Stage::Output,
+            StageGroup::Known => stage == Stage::Known,
         }
     }
 

@@ -263,6 +263,7 @@ fn decode_obs(u: &mut Unstructured<'_>) -> LaneObservation<POINTS> {
         u_last: DEFAULT.hyper.u_max,
         existence: 1.0,
         rank: 0,
+        llr: 0.0,
     }
 }
 

@@ -210,7 +210,7 @@ fn camera_blackout_and_recovery() {
             let at = road.tick(FRAME_US);
             let out = step(&mut t, at, &[]);
             assert_eq!(out.report.spatial.points_in, 0);
-            removed += out.report.identity.removed;
+            removed += out.report.identity.removed + out.report.known.deleted;
             if k < 10 {
                 assert_eq!(out.filtered.len(), 3, "blackout frame {k}");
                 assert_eq!(out.report.identity.coasting, 3);
@@ -386,8 +386,9 @@ fn burst_of_over_budget_frames() {
 /// at all; separately, a truck that hides only the near 30 m of the right line.
 ///
 /// Expected, whole line hidden: the other two lines keep their ids and stay tracked on every
-/// frame; the hidden line's lane coasts (misses 1…9) and is removed at its 10th miss
-/// (`identity.removed` = 1); when the truck has passed it is tracked again within 1 frame
+/// frame; the hidden line's lane coasts and is removed once its existence falls below
+/// `p_delete` (docs/design.md §11.5; at the latest at its 10th miss: `identity.removed +
+/// known.deleted` = 1); when the truck has passed it is tracked again within 1 frame
 /// (asserted ≤ 2) under a new id. Near range hidden: the line is still seen beyond 30 m, so it
 /// stays tracked with its id on every frame (recovery 0).
 #[test]
@@ -402,7 +403,7 @@ fn lane_hidden_by_truck_for_two_seconds() {
         let at = road.tick(FRAME_US);
         let pts = road.points(hidden);
         let out = step(&mut t, at, &pts);
-        removed += out.report.identity.removed;
+        removed += out.report.identity.removed + out.report.known.deleted;
         assert!(tracking(&out, &road, [true, true, false]), "frame {k}");
     }
     assert_eq!(removed, 1);
@@ -448,9 +449,10 @@ fn lane_hidden_by_truck_for_two_seconds() {
 /// identity gate (cost ≫ 9), so the shifted lanes do not match: they start under new ids while
 /// the old lanes coast (identity `gated_out` > 0, `started` = 3). A transient bump: when the
 /// points return, the coasting lanes match again and keep their ids (tracking resumes within 1
-/// frame after the bump, asserted ≤ 2); the bump's lanes coast and are removed at their 10th
-/// miss. A permanent jump: the new lanes track the shifted lines from the first shifted frame
-/// (asserted ≤ 2) and the old ones are removed at their 10th miss.
+/// frame after the bump, asserted ≤ 2: three frames of seeing nothing cost a lane at most
+/// 3·ln(1 − p_visible) of existence, docs/design.md §11.5); the bump's lanes coast and are
+/// removed. A permanent jump: the new lanes track the shifted lines from the first shifted frame
+/// (asserted ≤ 2) and the old ones are removed (existence below `p_delete` or 10th miss).
 #[test]
 fn sudden_lateral_jump_of_one_metre() {
     // Transient.
@@ -492,7 +494,7 @@ fn sudden_lateral_jump_of_one_metre() {
         let at = road.tick(FRAME_US);
         let pts = road.points(NORMAL);
         let out = step(&mut t, at, &pts);
-        removed += out.report.identity.removed;
+        removed += out.report.identity.removed + out.report.known.deleted;
         assert_eq!(tracked_ids(&out, &road), new_ids);
     }
     assert_eq!(removed, 3);

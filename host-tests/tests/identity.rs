@@ -25,6 +25,7 @@ fn observation(present: [bool; N], z: [f32; N], var: [f32; N]) -> LaneObservatio
         u_last: 80.0,
         existence: 1.0,
         rank: 0,
+        llr: 0.0,
     }
 }
 

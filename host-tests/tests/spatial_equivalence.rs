@@ -77,6 +77,7 @@ fn run_core(points: &[(f64, f64)]) -> (Vec<LaneObservation<N>>, SpatialReport) {
         u_last: 0.0,
         existence: 0.0,
         rank: 0,
+        llr: 0.0,
     }; 6];
     let (n, rep) = f.run(&DEFAULT, &CoreConfig::default(), &pts, &mut out);
     (out[..n].to_vec(), rep)

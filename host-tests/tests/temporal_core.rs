@@ -38,6 +38,7 @@ fn confirmed_empty() -> LaneObservation<16> {
         u_last: 80.0,
         existence: 1.0,
         rank: 0,
+        llr: 0.0,
     }
 }
 

@@ -73,6 +73,7 @@ fn observation(z: Option<f64>) -> Option<LaneObservation<1>> {
         u_last: 3.0,
         existence: 1.0,
         rank: 0,
+        llr: 0.0,
     })
 }
 

@@ -32,11 +32,17 @@ fn frame(seed: u64, shift: f64, lanes: usize) -> Vec<[f32; 2]> {
         .collect()
 }
 
+/// Three lanes with clutter (0.02 /m per row), lateral drift and two dropped frames: the three
+/// lines are tracked on every frame with the same ids. With the known-lane stage (docs/design.md
+/// §11) a candidate that splits off a line can be published for a frame before it is merged or
+/// its existence falls (measured: 1 frame of 30 with a fourth lane); at most 2 are allowed, and
+/// the extra lane never replaces one of the three.
 #[test]
 fn keeps_lanes_and_ids_over_frames() {
     let mut t = tracker();
     let mut ids = Vec::new();
     let mut us = 0i64;
+    let mut extra_frames = 0;
     for k in 0..30u64 {
         // Lateral drift of 2 cm a frame; frame 10 and 20 are dropped (2× and 5× steps).
         let step = match k {
@@ -48,14 +54,29 @@ fn keeps_lanes_and_ids_over_frames() {
         let out = t
             .step(Instant::from_micros(us), &frame(k, 0.02 * k as f64, 3))
             .unwrap();
-        assert_eq!(out.filtered.len(), 3, "frame {k}: {:?}", out.report);
-        let mut frame_ids: Vec<u32> = out.filtered.iter().map(|l| l.id.0).collect();
+        assert!(out.filtered.len() >= 3, "frame {k}: {:?}", out.report);
+        if out.filtered.len() > 3 {
+            extra_frames += 1;
+        }
+        // The lane nearest each true line (at the nearest index point) is the one compared.
+        let drift = 0.02 * k as f32;
+        let nearest = |want: f32| {
+            out.filtered
+                .iter()
+                .min_by(|a, b| (a.z[0] - want).abs().total_cmp(&(b.z[0] - want).abs()))
+                .copied()
+        };
+        let lanes: Vec<_> = [-5.4f32, -1.8, 1.8]
+            .iter()
+            .filter_map(|w| nearest(w + drift))
+            .collect();
+        let mut frame_ids: Vec<u32> = lanes.iter().map(|l| l.id.0).collect();
         frame_ids.sort_unstable();
         if k == 0 {
             ids = frame_ids.clone();
         }
         assert_eq!(frame_ids, ids, "frame {k}: ids changed");
-        for l in &out.filtered {
+        for l in &lanes {
             assert_eq!(
                 (l.age, l.hits),
                 (k as u32, k as u32 + 1),
@@ -63,9 +84,8 @@ fn keeps_lanes_and_ids_over_frames() {
             );
         }
         // Positions near the truth at the nearest index point (lanes at −5.4, −1.8, 1.8 + drift).
-        let mut z0: Vec<f32> = out.filtered.iter().map(|l| l.z[0]).collect();
+        let mut z0: Vec<f32> = lanes.iter().map(|l| l.z[0]).collect();
         z0.sort_by(f32::total_cmp);
-        let drift = 0.02 * k as f32;
         for (z, want) in z0.iter().zip([-5.4f32, -1.8, 1.8]) {
             assert!(
                 (z - want - drift).abs() < 0.5,
@@ -74,9 +94,11 @@ fn keeps_lanes_and_ids_over_frames() {
             );
         }
         if k >= 4 {
-            assert_eq!(out.smoothed.len(), 3, "frame {k}: smoothed lanes");
+            assert!(out.smoothed.len() >= 3, "frame {k}: smoothed lanes");
         }
     }
+    println!("frames with a fourth lane: {extra_frames} of 30");
+    assert!(extra_frames <= 2, "{extra_frames}");
 }
 
 #[test]

@@ -10,12 +10,15 @@
 //! * [`jpda`], [`spatial`] — the spatial JPDA/JPDACF row step and the frame walk (§4.1);
 //! * [`temporal`] — the temporal coupled filter, RTS and fixed-lag smoother (§4.2, §5);
 //! * [`identity`] — lane identity across frames;
+//! * [`persist`] — the known-lane stage: association against the temporal prediction, row
+//!   evidence in information form, existence evidence (§11.3–11.5);
 //! * [`pipeline`] — the whole per-frame pipeline, the oracle for `stjpdacf::tracker`.
 
 pub mod hyper;
 pub mod identity;
 pub mod jpda;
 pub mod model;
+pub mod persist;
 pub mod pipeline;
 pub mod spatial;
 pub mod statespace;

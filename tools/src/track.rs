@@ -369,6 +369,26 @@ pub struct FrameView<'a> {
     pub output: Option<&'a StepOutput<6, 16>>,
     /// The prediction written for this frame, if any.
     pub prediction: Option<&'a TuSimpleRecord>,
+    /// The tracker ids of the prediction's lanes, in the order they are written.
+    pub prediction_ids: &'a [u32],
+}
+
+/// A frame's points in BEV `(u, x)`, metres: through the inverse IPM for image points
+/// ([`Space::Image`]) or as given (`[x, u]`, [`Space::Bev`]); points that do not map to a finite
+/// BEV point are counted in `unmapped`.
+pub fn bev_points(f: &Frame, cam: &Camera, space: Space, unmapped: &mut usize) -> Vec<(f64, f64)> {
+    let mut bev_pts: Vec<(f64, f64)> = Vec::with_capacity(f.points.len());
+    for p in &f.points {
+        let bev = match space {
+            Space::Image => cam.to_bev(p[0], p[1]),
+            Space::Bev => Some((p[1], p[0])),
+        };
+        match bev {
+            Some((u, x)) if u.is_finite() && x.is_finite() => bev_pts.push((u, x)),
+            _ => *unmapped += 1,
+        }
+    }
+    bev_pts
 }
 
 /// Runs the tracker over `frames`; returns the predictions for the frames with `h_samples`.
@@ -423,17 +443,7 @@ pub fn track_with(
         }
         let Some(tr) = tracker.as_mut() else { continue };
         let start = WallClock::now();
-        let mut bev_pts: Vec<(f64, f64)> = Vec::with_capacity(f.points.len());
-        for p in &f.points {
-            let bev = match space {
-                Space::Image => cam.to_bev(p[0], p[1]),
-                Space::Bev => Some((p[1], p[0])),
-            };
-            match bev {
-                Some((u, x)) if u.is_finite() && x.is_finite() => bev_pts.push((u, x)),
-                _ => stats.unmapped_points += 1,
-            }
-        }
+        let bev_pts = bev_points(f, cam, space, &mut stats.unmapped_points);
         let pts = preprocess(&bev_pts, tables);
         let step_start = WallClock::now();
         let res = tr.step(Instant::from_micros((f.t * 1e6).round() as i64), &pts);
@@ -448,9 +458,10 @@ pub fn track_with(
                 None
             }
         };
+        let mut prediction_ids: Vec<u32> = Vec::new();
         let prediction = match (&output, &f.raw_file, &f.h_samples) {
             (Some(output), Some(raw), Some(rows)) => {
-                let lanes = output
+                let mut lanes: Vec<(f64, Vec<f64>, u32)> = output
                     .filtered
                     .iter()
                     .filter(|l| l.misses <= MAX_REPORT_MISSES)
@@ -458,9 +469,20 @@ pub fn track_with(
                         (
                             f64::from(l.z[0]),
                             lane_columns(cam, rows, |u| lane_x(tr, tables, l, u).map(|(x, _)| x)),
+                            l.id.0,
                         )
-                    });
-                Some(lanes_record(raw, rows, lanes, None))
+                    })
+                    .filter(|(_, xs, _)| xs.iter().any(|v| *v >= 0.0))
+                    .collect();
+                // The order `lanes_record` writes (by lateral position at the nearest index point).
+                lanes.sort_by(|a, b| a.0.total_cmp(&b.0));
+                prediction_ids = lanes.iter().map(|l| l.2).collect();
+                Some(lanes_record(
+                    raw,
+                    rows,
+                    lanes.into_iter().map(|(z, xs, _)| (z, xs)),
+                    None,
+                ))
             }
             _ => None,
         };
@@ -478,6 +500,7 @@ pub fn track_with(
             tracker: tr,
             output: output.as_ref(),
             prediction: prediction.as_ref(),
+            prediction_ids: &prediction_ids,
         });
         if let Some(p) = prediction {
             out.push(p);

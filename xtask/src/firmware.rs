@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 use stjpdacf_tools::{fwscenario, repo_root};
 
 /// The stages as the firmware prints them (`events_stage` is the Events stage).
-const STAGES: [&str; 11] = [
+const STAGES: [&str; 12] = [
     "binning",
     "row_predict",
     "gating",
@@ -39,6 +39,7 @@ const STAGES: [&str; 11] = [
     "temporal",
     "smoother",
     "output",
+    "known",
 ];
 /// The binary that is the no-panic proof (never run).
 const NOPANIC: &str = "nopanic";

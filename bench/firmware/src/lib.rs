@@ -163,7 +163,7 @@ fn print_frame(k: usize, f: &FrameFacts, probe: &TickProbe) {
     hprintln!(
         "FRAME {} points={} lanes={} events={} approx={} calls={} decode={} total={} \
          binning={} row_predict={} gating={} events_stage={} update={} management={} \
-         backward={} identity={} temporal={} smoother={} output={}",
+         backward={} identity={} temporal={} smoother={} output={} known={}",
         k,
         f.points,
         f.lanes,
@@ -182,7 +182,8 @@ fn print_frame(k: usize, f: &FrameFacts, probe: &TickProbe) {
         i(Stage::Identity),
         i(Stage::Temporal),
         i(Stage::Smoother),
-        i(Stage::Output)
+        i(Stage::Output),
+        i(Stage::Known)
     );
 }
 

@@ -112,7 +112,16 @@ struct Meta {
     start_row: u16,
     last_rec: u16,
     near: u16,
+    /// `Σ ln Λ_r` over the track's rows after its start (one-step-ahead, [`BIRTH_PD`]).
+    llr: f32,
+    /// `llr` at the track's last hit (its observed extent's evidence).
+    llr_last: f32,
 }
+
+/// The detection probability used for a new track's existence evidence: the prior mean of a
+/// lane's per-band detection probability (Beta(1, 1), docs/design.md §11.5), nothing being
+/// known about the lane yet.
+pub const BIRTH_PD: f32 = 0.5;
 
 const NO_ROW: u16 = u16::MAX;
 
@@ -128,6 +137,8 @@ impl Meta {
         start_row: 0,
         last_rec: 0,
         near: 0,
+        llr: 0.0,
+        llr_last: 0.0,
     };
 }
 

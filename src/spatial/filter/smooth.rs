@@ -48,6 +48,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 u_last: tables.hyper.u_min + du * f32::from(mt.last_row),
                 existence: f32::from(mt.hits) / f32::from(mt.hits.saturating_add(mt.misses).max(1)),
                 rank: rank as u8,
+                llr: mt.llr_last,
             };
             // v[i] = Cov(x_{r'}, x_{iK}) h for the registered index points, at the last index row
             // r' passed; gam = G_r ⋯ G_{r'−1} since then.

@@ -219,7 +219,13 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             if mt.status == Status::Ended || o.failed {
                 continue;
             }
+            let lr = 1.0 - BIRTH_PD * params.pg
+                + BIRTH_PD * get(&o.dens, t) / params.clutter_density.max(1e-6);
+            if lr.is_finite() && lr > 0.0 {
+                mt.llr += crate::math::ln(lr);
+            }
             if 1.0 - get(&o.beta_miss, t) >= 0.5 {
+                mt.llr_last = mt.llr;
                 mt.hits = mt.hits.saturating_add(1);
                 mt.miss_run = 0;
                 if mt.first_row == NO_ROW {

@@ -137,6 +137,10 @@ pub struct RowOutcome<const LANES: usize> {
     pub ignored_points: u32,
     /// A numerical failure: the state was left untouched.
     pub failed: bool,
+    /// `Σ_{j gated} N(z_j; ẑ_t, S̄_tt)` per track: the one-step-ahead likelihood of the track's
+    /// gated points before the update (the IPDA likelihood ratio of the row is
+    /// `1 − P_D P_G + P_D · dens / λ_c`, docs/design.md §11.5).
+    pub dens: [f32; LANES],
 }
 
 impl<const LANES: usize> Default for RowOutcome<LANES> {
@@ -152,6 +156,7 @@ impl<const LANES: usize> Default for RowOutcome<LANES> {
             clutter_points: 0,
             ignored_points: 0,
             failed: false,
+            dens: [0.0; LANES],
         }
     }
 }
@@ -327,6 +332,8 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
             *v = s * inv;
         }
     }
+    let sdiag: [f32; LANES] = core::array::from_fn(|t| at(&sbar, t, t));
+    exclusive_density(&mut out, &zhat, &sdiag, points, n);
     out
 }
 
@@ -451,6 +458,7 @@ pub fn associate<const LANES: usize>(
             *v = s * inv;
         }
     }
+    exclusive_density(&mut out, zhat, sdiag, points, n);
     out
 }
 
@@ -526,6 +534,7 @@ fn masks<const LANES: usize>(
         *valid = mask;
         any_valid |= mask;
     }
+
     for (j, z) in points.iter().enumerate() {
         if !z.is_finite() {
             out.ignored_points += 1;
@@ -534,6 +543,43 @@ fn masks<const LANES: usize>(
         }
     }
     true
+}
+
+/// `out.dens[t] = Σ_{j gated} N(z_j; ẑ_t, S̄_tt) · (1 − Σ_{t' ≠ t} β_{t'j})` after the weights:
+/// each point counts for a track as far as no other track claims it (a broad track overlapping
+/// a known one gets no credit for the known one's points, as in JIPDA).
+fn exclusive_density<const LANES: usize>(
+    out: &mut RowOutcome<LANES>,
+    zhat: &[f32; LANES],
+    sdiag: &[f32; LANES],
+    points: &[f32],
+    n: usize,
+) {
+    let ln_2pi = math::ln(2.0 * core::f32::consts::PI);
+    let mut claimed = [0.0f32; MAX_ROW_POINTS];
+    for row in out.beta.iter().take(n) {
+        for (c, b) in claimed.iter_mut().zip(row.iter()) {
+            *c += b;
+        }
+    }
+    for t in 0..n {
+        let st = get(sdiag, t);
+        let zt = get(zhat, t);
+        let mask = get(&out.valid, t);
+        let own = out.beta.get(t).copied().unwrap_or([0.0; MAX_ROW_POINTS]);
+        let norm = -0.5 * (ln_2pi + math::ln(st));
+        let d: f32 = points
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| mask & (1 << j) != 0)
+            .map(|(j, z)| {
+                let e = z - zt;
+                let free = (1.0 - (get(&claimed, j) - get(&own, j))).clamp(0.0, 1.0);
+                math::exp(norm - 0.5 * e * e / st) * free
+            })
+            .sum();
+        set(&mut out.dens, t, if d.is_finite() { d } else { 0.0 });
+    }
 }
 
 /// The eligible tracks (not masked, at least one candidate) in increasing order, `G` restricted

@@ -456,6 +456,18 @@ impl<const LANES: usize> LaneTable<LANES> {
         }
     }
 
+    /// Resets the miss count of the lane in `slot` (seen this frame before identity runs);
+    /// `false` for a free slot.
+    pub fn reset_misses(&mut self, slot: usize) -> bool {
+        match self.slots.get_mut(slot) {
+            Some(Some(l)) => {
+                l.misses = 0;
+                true
+            }
+            _ => false,
+        }
+    }
+
     /// Removes the lane in `slot` (its existence fell below the deletion threshold); returns
     /// its id.
     pub fn remove(&mut self, slot: usize) -> Option<LaneId> {

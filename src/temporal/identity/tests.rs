@@ -14,6 +14,7 @@ fn obs(z: [f32; P], present: [bool; P], var: f32) -> LaneObservation<P> {
         u_last: 80.0,
         existence: 1.0,
         rank: 0,
+        llr: 0.0,
     }
 }
 

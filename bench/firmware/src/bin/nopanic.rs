@@ -118,6 +118,7 @@ fn observation() -> LaneObservation<16> {
         u_last: f(),
         existence: f(),
         rank: black_box(0),
+        llr: 0.0,
     })
 }
 
