@@ -29,7 +29,7 @@
 use std::collections::BTreeMap;
 
 use stjpdacf::tables::DEFAULT;
-use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker};
+use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, TrackerConfig};
 use stjpdacf_reference::hyper::HyperFile;
 use stjpdacf_reference::pipeline::{PipelineConfig, RefLane, ReferencePipeline};
 use stjpdacf_tools::repo_root;
@@ -126,7 +126,9 @@ fn compare_lane(
 }
 
 fn run(seq: &Sequence, tables: &ModelTables, tol: Tol) -> Result<Dev, String> {
-    let mut core = Box::new(ReferenceTracker::new(&DEFAULT));
+    // The reference pipeline is the round-1 pipeline (docs/design.md §1–§4.3); the known-lane
+    // stage (§11) has its own reference (`tests/persist_reference.rs`).
+    let mut core = Box::new(ReferenceTracker::with_config(&DEFAULT, TrackerConfig::ROUND1));
     let mut reference = ReferencePipeline::new(tables, K, PipelineConfig::from_tables(tables))
         .map_err(|e| e.to_string())?;
     let mut c2r: BTreeMap<u32, u32> = BTreeMap::new();

@@ -226,7 +226,8 @@ pub struct LaneRow {
     pub equivalent: Option<(f64, f64)>,
     /// Points in the lane's gate (`(z_j − ẑ)²/S_ss ≤ γ`).
     pub gated: Vec<bool>,
-    /// `Σ_{j gated} N(z_j; ẑ, S_ss)`.
+    /// `Σ_{j gated} N(z_j; ẑ, S_ss) (1 − Σ_{t ≠ s} β_{t,j})`: each point as far as no other
+    /// lane claims it.
     pub gated_likelihood: f64,
     /// `ẑ` inside its band's span (§11.1).
     pub in_view: bool,
@@ -366,6 +367,14 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
         let one = DMatrix::from_element(1, 1, 1.0);
         let res = jpda::row_step(&zhat, &p_row, &one, &row.points, &params)
             .with_context(|| format!("row {ri}: the joint events cannot be weighed"))?;
+        // Σ over all lanes of β_{t,j}: a point counts for a lane's existence as far as no other
+        // lane claims it (§11.5).
+        let mut claimed = vec![0.0; row.points.len()];
+        for b in &res.beta {
+            for (c, v) in claimed.iter_mut().zip(b.iter().skip(1)) {
+                *c += v;
+            }
+        }
         for (a, &s) in idx.iter().enumerate() {
             let lane = &input.lanes[s];
             let beta: Vec<f64> = res.beta[a].iter().skip(1).copied().collect();
@@ -395,8 +404,11 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
                 .points
                 .iter()
                 .zip(&gated)
-                .filter(|(_, g)| **g)
-                .map(|(z, _)| normal_pdf(z - zh, st))
+                .zip(claimed.iter().zip(&beta))
+                .filter(|((_, g), _)| **g)
+                .map(|((z, _), (cl, own))| {
+                    normal_pdf(z - zh, st) * (1.0 - (cl - own)).clamp(0.0, 1.0)
+                })
                 .sum();
             let in_view = band.span.is_some_and(|(lo, hi)| zh >= lo && zh <= hi);
             let log_lr =
