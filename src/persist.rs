@@ -1,41 +1,36 @@
 //! Known lanes persist (docs/design.md §11): the temporal prediction is the prior of this frame's
-//! association, existence is a probability, and the clutter density and every lane's detection
-//! probability are estimated, not set.
+//! association, existence is a probability, and the clutter density, the point variance and
+//! every lane's detection probability are estimated, not set.
 //!
 //! Each frame, before the spatial JPDACF, every live temporal lane is predicted at every BEV row
 //! `u_r` from its Gram coefficients (the GP conditional of [`crate::tracker::Tracker::lane_at`]):
-//! `ẑ = c_rᵀ a_s`, `c_rj = k(u_r, U)·v_j / λ_j`, with variance `c_rᵀ Cov(a_s) c_r` plus the
-//! prior's residual `ρ_r B_ss` (`ρ_r = σ_u² − Σ_j (k·v_j)²/λ_j`) and the point variance `r`.
-//! The lanes' cross-covariances at the row, `c_rᵀ Cov(a_s, a_t) c_r + ρ_r B_st`, couple them:
-//! one joint-event enumeration per row ([`crate::spatial::row::associate`]) gives
-//! `β_{s,j}` and `β_{s,miss}`. Each lane's row evidence is the PDA-weighted point
-//! `z̃_r = Σ_j β_{s,j} z_j / W_r`, `W_r = 1 − β_{s,miss}`, with variance `r / W_r + ρ_r B_ss`
-//! (the synthetic measurement of PMHT, Streit & Luginbuhl 1994), accumulated in information
-//! form on the lane's Gram components: `J_s = Σ_r ω_r c_r c_rᵀ`, `i_s = Σ_r ω_r z̃_r c_r`,
-//! `ω_r = 1 / (r / W_r + ρ_r B_ss)`. The temporal filter is then updated with `(J_s, i_s)`
-//! ([`crate::temporal::smoother::Temporal::update_info_probed`]): the frame's points enter the
-//! temporal filter once, no spatial posterior is divided by its prior.
+//! `ẑ = c_rᵀ a_s`, `c_rj = k(u_r, U)·v_j / λ_j`, with variance `p = c_rᵀ Cov(a_s) c_r + ρ_r B_ss`
+//! (`ρ_r = σ_u² − Σ_j (k·v_j)²/λ_j`) plus the band's point variance `r_b`. The lanes'
+//! cross-covariances at the row, `c_rᵀ Cov(a_s, a_t) c_r + ρ_r B_st`, couple them: one
+//! joint-event enumeration per row ([`crate::spatial::row::associate`]) gives `β_{s,j}` and
+//! `β_{s,miss}`. A row's PDA update of a lane's marginal is replaced by the equivalent
+//! measurement with the same posterior variance (§11.3: `1/(p + v) = W/S − q₂/S²`,
+//! `z̃ = ẑ + ν̄ (p + v)/S`), and the rows are summed in information form on the lane's Gram
+//! components, `J_s = Σ_r c_r c_rᵀ / v_r`, `i_s = Σ_r c_r z̃_r / v_r`. The temporal filter is then
+//! updated with `(J_s, i_s)` ([`crate::temporal::smoother::Temporal::update_info_probed`]): the
+//! frame's points enter the temporal filter once.
 //!
-//! **Existence** (IPDA, Mušicki, Evans & Stanković 1994, per row): predicted by
-//! `P ← P·e^{−T/τ_s}`, updated by `logit P += (1/K) Σ_r ln Λ_r`,
-//! `Λ_r = 1 − P_D,b P_G + (P_D,b / λ_b) Σ_{j gated} N(z_j; ẑ, S)`: the likelihood ratio of
-//! "the lane exists" against "its gated points are clutter", counted as one independent look
-//! per index interval of `K` rows (neighbouring rows of one marking are not independent
-//! looks). `P_D,b` is the lane's own detection probability in index band `b` (the index point
-//! nearest the row), a Beta(1, 1)-prior estimate from the row weights `W_r` with a memory of
-//! `pd_memory` frames, so a dashed marking's gaps and a lane's unseen far end cost little.
-//! `λ_b` is the clutter density of band `b`: the points no known lane explains
-//! (`Σ_s β_{s,j} < explained`), per row and per metre of the band's lateral span, smoothed
-//! over `clutter_memory` frames, floored at `clutter_floor`.
+//! **Existence** (IPDA, Mušicki, Evans & Stanković 1994, per row, §11.5): predicted by
+//! `P ← P·e^{−T/τ_s}`; updated with `L = (1/K) Σ_r ln Λ_r` over the rows where the lane is in
+//! view, `Λ_r = 1 − P_D,b P_G + (P_D,b / λ_b) Σ_{j gated} N(z_j; ẑ, S)(1 − Σ_{t≠s} β_{t,j})`, as
+//! `logit P += ln(p_v e^L + 1 − p_v)` (a frame may not show the lane at all). `P_D,b` is the
+//! lane's own detection probability in index band `b` (Beta(1, 1) posterior mean of discounted
+//! row weights, fixed over a pass); `λ_b` the band's clutter density from the points no known
+//! lane explains; `r_b` the band's point variance from posterior residuals (§11.6).
 //!
 //! Points a known lane explains leave the rows; the spatial JPDACF runs on the rest and may
 //! start new lanes only from them.
 //!
 //! # Cost
 //! Per row: `n·r` for the predictions, `n·r²` for the variances, at most `n(n−1)/2·r²` for the
-//! cross terms of lanes with candidates, one bounded event enumeration; then per lane `O(r³)`
-//! and the temporal update (`n_act²·r/2`). `POINTS·(r + 1)` exponentials per row (the kernel
-//! vector).
+//! cross terms of lanes with candidates, one bounded event enumeration; `POINTS` exponentials
+//! and `POINTS·r` multiply-adds for the row basis; then per lane `O(r³)` and the temporal update
+//! (`n_act²·r/2`); the noise estimate another `n·r²` per row with evidence.
 
 use nalgebra::{SMatrix, SVector};
 
@@ -365,10 +360,11 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
 
 impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, POINTS, ROWS> {
     /// The point-variance estimate from this frame's posterior residuals of the lanes in
-    /// `slots` (after their updates): for every row with `W_r ≥ 0.5`,
-    /// `r̂ = W_r (e² − ρ_r B_ss + c_rᵀ P⁺ c_r)`, `e = z̃_r − c_rᵀ a⁺` (unbiased:
-    /// `Var(e) = r/W_r + ρ_r B_ss − c_rᵀ P⁺ c_r`), summed per band with a memory of `memory`
-    /// frames.
+    /// `slots` (after their updates, docs/design.md §11.6): for every row where one point holds
+    /// ≥ 90 % of the lane's weight `W_r ≥ 0.5`, `r̂ = (e² − ρ_r B_ss + c_rᵀ P⁺ c_r)/0.973`,
+    /// `e` = that point − `c_rᵀ a⁺` (`Var(e) = r + ρ_r B_ss − c_rᵀ P⁺ c_r`), counted when
+    /// `e² ≤ 9 r_b` (0.973 corrects the 3σ truncation), summed per band with a memory of
+    /// `memory` frames.
     #[allow(clippy::too_many_arguments)]
     pub fn estimate_noise<const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,

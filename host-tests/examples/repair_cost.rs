@@ -23,6 +23,7 @@ fn main() {
             u_last: 40.0,
             existence: 1.0,
             rank: s as u8,
+            llr: 0.0,
         };
         t.update(&DEFAULT, s, &obs).expect("update");
     }

@@ -397,11 +397,11 @@ impl<
         g: &UpdateParts<RANK, NX>,
         probe: &mut P,
     ) -> Result<UpdateInfo, TemporalError> {
-        self.filter.check_update(&g)?;
+        self.filter.check_update(g)?;
         probe.enter(Stage::Smoother);
         // Check every lag before writing anything.
         let r = g.r as f32;
-        let gmax = self.filter.g_max(&g);
+        let gmax = self.filter.g_max(g);
         let mmax = norm_bound(g.m.as_slice());
         let wmax = norm_bound(g.w.as_slice());
         let a0 = TemporalFilter::<LANES, POINTS, RANK, NX>::index(g.slot, 0, 0);
@@ -424,10 +424,10 @@ impl<
         }
         let sp = self.filter.spans(g.r);
         for lag in &mut self.window {
-            lag_update(lag, &g, &sp, a0);
+            lag_update(lag, g, &sp, a0);
         }
         probe.enter(Stage::Temporal);
-        self.filter.apply_update(&g);
+        self.filter.apply_update(g);
         Ok(UpdateInfo {
             repaired_pivots: g.repaired,
             nis: g.nis,

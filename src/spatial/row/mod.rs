@@ -435,7 +435,7 @@ pub fn associate<const LANES: usize>(
         active_set: !skip & (u32::MAX >> (32 - n.clamp(1, 32))),
     };
     let mut acc = Acc::<LANES>::new();
-    if !weigh(&ctx, &mut acc) || !(acc.wtot.is_finite() && acc.wtot > 0.0) {
+    if !(weigh(&ctx, &mut acc) && acc.wtot.is_finite() && acc.wtot > 0.0) {
         return failed(out);
     }
     out.events = acc.events;

@@ -55,6 +55,7 @@
 //!     u_last: 80.0,
 //!     existence: 1.0,
 //!     rank: 0,
+//!     llr: 0.0,
 //! };
 //! let mut table: LaneTable<2> = LaneTable::new();
 //! let cfg = IdentityConfig::default();
