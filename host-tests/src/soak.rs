@@ -41,7 +41,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal, Poisson};
 use serde::Serialize;
 use stjpdacf::tables::DEFAULT;
-use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker};
+use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, TrackerConfig};
 
 use crate::invariants::{self, active_indices, PsdCheck, POINTS};
 use stjpdacf_reference::hyper::HyperFile;
@@ -758,7 +758,13 @@ pub fn run_drive(
                 ep = if on {
                     rs.episodes += 1;
                     Some(Episode {
-                        core: Box::new(ReferenceTracker::new(&DEFAULT)),
+                        // The reference pipeline is the round-1 pipeline (docs/design.md
+                        // §1–§4.3): compared on that configuration; the known-lane stage
+                        // has its own reference (tests/persist_reference.rs).
+                        core: Box::new(ReferenceTracker::with_config(
+                            &DEFAULT,
+                            TrackerConfig::ROUND1,
+                        )),
                         reference: ReferencePipeline::new(
                             tables,
                             K_ROWS,
