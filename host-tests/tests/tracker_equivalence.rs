@@ -128,7 +128,10 @@ fn compare_lane(
 fn run(seq: &Sequence, tables: &ModelTables, tol: Tol) -> Result<Dev, String> {
     // The reference pipeline is the round-1 pipeline (docs/design.md §1–§4.3); the known-lane
     // stage (§11) has its own reference (`tests/persist_reference.rs`).
-    let mut core = Box::new(ReferenceTracker::with_config(&DEFAULT, TrackerConfig::ROUND1));
+    let mut core = Box::new(ReferenceTracker::with_config(
+        &DEFAULT,
+        TrackerConfig::ROUND1,
+    ));
     let mut reference = ReferencePipeline::new(tables, K, PipelineConfig::from_tables(tables))
         .map_err(|e| e.to_string())?;
     let mut c2r: BTreeMap<u32, u32> = BTreeMap::new();
