@@ -236,43 +236,8 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     }
 
     probe.enter(Stage::Events);
-    let ln_pd = math::ln(params.pd);
-    let missf = match params.miss {
-        MissModel::Textbook => 1.0 - params.pd,
-        MissModel::Gated => 1.0 - params.pd * params.pg,
-    };
-    let ln_miss = math::ln(missf);
-    let ln_lambda = math::ln(params.clutter_density);
-    let ln_2pi = math::ln(2.0 * core::f32::consts::PI);
-
-    // Bounded enumeration (step 5): when the events do not fit, drop candidates in order of their
-    // single-track PDA probability `p_tj = L_tj / (1 − P_D P_G + Σ_j' L_tj')`,
-    // `L_tj = P_D N(z_j; ẑ_t, S_t) / λ_c` — the least likely first, whatever track they belong to,
-    // so a track keeps its plausible points — until the bound Π (1 + n_t) fits the budget.
-    // The bound is an upper bound of the event count, so the exact count is only needed when it
-    // exceeds the budget.
-    let budget = max_events.max(1) as u64;
-    let bound = |valid: &[u32; LANES]| -> u64 {
-        valid
-            .iter()
-            .take(n)
-            .map(|v| 1 + u64::from(v.count_ones()))
-            .product()
-    };
-    if bound(&out.valid) > budget && count_events(&out.valid, n, budget) > budget {
-        out.approximated = true;
-        prune(
-            &mut out,
-            &sbar,
-            &zhat,
-            points,
-            n,
-            budget,
-            ln_pd - ln_lambda,
-            ln_miss,
-            ln_2pi,
-        );
-    }
+    let lg = Logs::of(params);
+    fit_budget(&mut out, &sbar, &zhat, points, n, max_events, &lg);
 
     // Event weights (step 3) and the mixture moments (step 4), in one pass over the detection
     // patterns and their events (`Ctx::pass`), redone once if the weights' scale was off.
@@ -287,9 +252,9 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         zhat: &zhat,
         valid: &out.valid,
         points,
-        ln_2pi,
-        ln_pd_lambda: ln_pd - ln_lambda,
-        ln_miss,
+        ln_2pi: lg.ln_2pi,
+        ln_pd_lambda: lg.ln_pd_lambda,
+        ln_miss: lg.ln_miss,
         active: (n - n_skipped) as f32,
         active_set: !skip & (u32::MAX >> (32 - n.clamp(1, 32))),
     };
@@ -315,23 +280,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     if !apply_mixture(xs, ps, n, el, &g, &y, &c, inv) {
         return failed(out);
     }
-    for (t, ((bm, brow), src)) in out
-        .beta_miss
-        .iter_mut()
-        .zip(out.beta.iter_mut())
-        .zip(beta.iter())
-        .enumerate()
-        .take(n)
-    {
-        *bm = if skip & (1 << t) != 0 {
-            1.0
-        } else {
-            get(&bmiss, t) * inv
-        };
-        for (v, s) in brow.iter_mut().zip(src.iter()).take(m) {
-            *v = s * inv;
-        }
-    }
+    normalise(&mut out, &beta, &bmiss, inv, n, m, skip);
     let sdiag: [f32; LANES] = core::array::from_fn(|t| at(&sbar, t, t));
     exclusive_density(&mut out, &zhat, &sdiag, points, n);
     out
@@ -376,35 +325,8 @@ pub fn associate<const LANES: usize>(
         return if out.failed { failed(out) } else { out };
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
-    let ln_pd = math::ln(params.pd);
-    let missf = match params.miss {
-        MissModel::Textbook => 1.0 - params.pd,
-        MissModel::Gated => 1.0 - params.pd * params.pg,
-    };
-    let ln_miss = math::ln(missf);
-    let ln_lambda = math::ln(params.clutter_density);
-    let ln_2pi = math::ln(2.0 * core::f32::consts::PI);
-    let budget = max_events.max(1) as u64;
-    let bound: u64 = out
-        .valid
-        .iter()
-        .take(n)
-        .map(|v| 1 + u64::from(v.count_ones()))
-        .product();
-    if bound > budget && count_events(&out.valid, n, budget) > budget {
-        out.approximated = true;
-        prune(
-            &mut out,
-            &sbar,
-            zhat,
-            points,
-            n,
-            budget,
-            ln_pd - ln_lambda,
-            ln_miss,
-            ln_2pi,
-        );
-    }
+    let lg = Logs::of(params);
+    fit_budget(&mut out, &sbar, zhat, points, n, max_events, &lg);
     let mut elig = [0u8; LANES];
     let mut na = 0usize;
     for (t, v) in out.valid.iter().enumerate().take(n) {
@@ -428,9 +350,9 @@ pub fn associate<const LANES: usize>(
         zhat,
         valid: &out.valid,
         points,
-        ln_2pi,
-        ln_pd_lambda: ln_pd - ln_lambda,
-        ln_miss,
+        ln_2pi: lg.ln_2pi,
+        ln_pd_lambda: lg.ln_pd_lambda,
+        ln_miss: lg.ln_miss,
         active: (n - n_skipped) as f32,
         active_set: !skip & (u32::MAX >> (32 - n.clamp(1, 32))),
     };
@@ -441,23 +363,7 @@ pub fn associate<const LANES: usize>(
     out.events = acc.events;
     out.patterns = acc.patterns;
     let inv = 1.0 / acc.wtot;
-    for (t, ((bm, brow), src)) in out
-        .beta_miss
-        .iter_mut()
-        .zip(out.beta.iter_mut())
-        .zip(acc.beta.iter())
-        .enumerate()
-        .take(n)
-    {
-        *bm = if skip & (1 << t) != 0 {
-            1.0
-        } else {
-            get(&acc.bmiss, t) * inv
-        };
-        for (v, s) in brow.iter_mut().zip(src.iter()).take(m) {
-            *v = s * inv;
-        }
-    }
+    normalise(&mut out, &acc.beta, &acc.bmiss, inv, n, m, skip);
     exclusive_density(&mut out, zhat, sdiag, points, n);
     out
 }
@@ -543,6 +449,101 @@ fn masks<const LANES: usize>(
         }
     }
     true
+}
+
+/// The constant log terms of a row's event weights (docs/design.md §4.1 step 3).
+struct Logs {
+    /// `ln(P_D / λ_c)`.
+    ln_pd_lambda: f32,
+    /// `ln` of the miss factor of the miss model.
+    ln_miss: f32,
+    /// `ln 2π`.
+    ln_2pi: f32,
+}
+
+impl Logs {
+    fn of(params: &RowParams) -> Self {
+        let missf = match params.miss {
+            MissModel::Textbook => 1.0 - params.pd,
+            MissModel::Gated => 1.0 - params.pd * params.pg,
+        };
+        Self {
+            ln_pd_lambda: math::ln(params.pd) - math::ln(params.clutter_density),
+            ln_miss: math::ln(missf),
+            ln_2pi: math::ln(2.0 * core::f32::consts::PI),
+        }
+    }
+}
+
+/// Bounded enumeration (step 5): when the events do not fit `max_events`, drop candidates in
+/// order of their single-track PDA probability `p_tj = L_tj / (1 − P_D P_G + Σ_j' L_tj')`,
+/// `L_tj = P_D N(z_j; ẑ_t, S_t) / λ_c` — the least likely first, whatever track they belong to,
+/// so a track keeps its plausible points — until the bound Π (1 + n_t) fits the budget
+/// (`out.approximated` set). The bound is an upper bound of the event count, so the exact count
+/// is only needed when it exceeds the budget.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn fit_budget<const LANES: usize>(
+    out: &mut RowOutcome<LANES>,
+    sbar: &[[f32; LANES]; LANES],
+    zhat: &[f32; LANES],
+    points: &[f32],
+    n: usize,
+    max_events: usize,
+    lg: &Logs,
+) {
+    let budget = max_events.max(1) as u64;
+    let bound: u64 = out
+        .valid
+        .iter()
+        .take(n)
+        .map(|v| 1 + u64::from(v.count_ones()))
+        .product();
+    if bound > budget && count_events(&out.valid, n, budget) > budget {
+        out.approximated = true;
+        prune(
+            out,
+            sbar,
+            zhat,
+            points,
+            n,
+            budget,
+            lg.ln_pd_lambda,
+            lg.ln_miss,
+            lg.ln_2pi,
+        );
+    }
+}
+
+/// `β_miss` and `β` of the first `n` tracks from the mixture sums (`inv = 1 / Σ w`); masked
+/// tracks are missed.
+#[inline(always)]
+fn normalise<const LANES: usize>(
+    out: &mut RowOutcome<LANES>,
+    beta: &[[f32; MAX_ROW_POINTS]; LANES],
+    bmiss: &[f32; LANES],
+    inv: f32,
+    n: usize,
+    m: usize,
+    skip: u32,
+) {
+    for (t, ((bm, brow), src)) in out
+        .beta_miss
+        .iter_mut()
+        .zip(out.beta.iter_mut())
+        .zip(beta.iter())
+        .enumerate()
+        .take(n)
+    {
+        *bm = if skip & (1 << t) != 0 {
+            1.0
+        } else {
+            get(bmiss, t) * inv
+        };
+        for (v, s) in brow.iter_mut().zip(src.iter()).take(m) {
+            *v = s * inv;
+        }
+    }
 }
 
 /// `out.dens[t] = Σ_{j gated} N(z_j; ẑ_t, S̄_tt) · (1 − Σ_{t' ≠ t} β_{t'j})` after the weights:
