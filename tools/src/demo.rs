@@ -20,6 +20,18 @@
 //! 3. **Smoother**: on the replay frames that have a fixed-lag estimate (all but the last L of a
 //!    clip), the smoothed lanes against the filtered ones, both on the per-frame ground truth
 //!    ([`SmootherScore`]).
+//! 4. **Identity and false lanes** of every replay run ([`IdentityScore`]): on every frame the
+//!    published lanes are matched to that frame's ground-truth lanes by the official metric's
+//!    rule ([`metric::match_lanes`]); id switches per true lane (the replay's stable true-lane
+//!    index, [`synth::SynthOutput::gt_lane_ids`]), lane ids and true lanes per clip, and lanes
+//!    that match no true lane per frame. The same, with the last-frame score, on the clips in
+//!    which the replay animated a merge/split lane alone ([`MergeSplitRow`]).
+//! 5. **Robustness** ([`RobustnessReport`]): the replay at the mid preset on the first
+//!    [`DemoOptions::robustness_clips`] labels with the uniform clutter rate × 1, 2, 4, 8 and
+//!    once ×1 with [`ROBUSTNESS_DISTRACTORS`] short straight distractor segments per frame; the
+//!    tracker (default tables, each configuration of [`DemoOptions::robustness_variants`])
+//!    against the per-frame RANSAC baseline ([`crate::baseline`], its default parameters) on
+//!    the same frames, official metric on the labelled last frames.
 //!
 //! Every run is sequential on one thread, so the per-frame `run_time` is not inflated by a
 //! sibling run. Replay `run_time`: the tracker's time on a frame, from its points to its lanes
@@ -30,6 +42,8 @@
 //! * `results.md`, `results.json`: the tables below ([`DemoReport`]);
 //! * `accuracy_vs_noise.png`: last-frame and all-frame accuracy against the noise preset, coupled
 //!   vs diag(B);
+//! * `robustness.png`: last-frame accuracy against the clutter multiplier, tracker vs the RANSAC
+//!   baseline (the distractor condition as separate markers at ×1);
 //! * `replay_bev.png`: one replay clip in the bird's-eye view at three frames: feature points,
 //!   ground truth, the tracked lanes with their ±2σ bands (`Tracker::lane_at`);
 //! * `real/<clip>.png`: each real frame with its feature points, the labelled lanes and the
@@ -38,7 +52,7 @@
 //!   tracker's predictions (512×288 pixels; `stjpdacf eval --pixel-scale 2.5` reproduces the
 //!   real-frame scores from them).
 
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant as WallClock;
 
@@ -51,6 +65,7 @@ use serde::Serialize;
 use stjpdacf::tables::ReferenceTables;
 use stjpdacf::tracker::{LaneEstimate, TrackerConfig};
 
+use crate::baseline::{self, BaselineParams};
 use crate::camera::Camera;
 use crate::frontend::{self, FrontendParams};
 use crate::metric::{self, Score};
@@ -67,6 +82,11 @@ pub const ABLATION_HYPER: &str = "hyper/ablation_diag_b.json";
 pub const REAL_FRAMES: &str = "tusimple/sample_512x288";
 /// Scale from the bundled 512×288 frames to TuSimple's 1280×720, applied before scoring.
 pub const REAL_TO_TUSIMPLE: f64 = 2.5;
+/// Multipliers of the mid preset's uniform clutter rate in the robustness section.
+pub const ROBUSTNESS_CLUTTER: [f64; 4] = [1.0, 2.0, 4.0, 8.0];
+/// Distractor segments per frame of the robustness section's distractor condition (at
+/// clutter × 1).
+pub const ROBUSTNESS_DISTRACTORS: f64 = 3.0;
 
 /// Options of [`run`].
 #[derive(Debug, Clone, PartialEq)]
@@ -92,6 +112,12 @@ pub struct DemoOptions {
     /// score the build profile and the machine's load, not the tracker. The `run_time` columns
     /// always report the measured times.
     pub score_run_time: bool,
+    /// Replay labels of the robustness section (the first K; default 20; 0 leaves the section
+    /// out).
+    pub robustness_clips: usize,
+    /// The tracker configurations the robustness section runs, by name (default: one,
+    /// `"tracker"`, [`TrackerConfig::DEFAULT`]).
+    pub robustness_variants: Vec<(String, TrackerConfig)>,
 }
 
 impl Default for DemoOptions {
@@ -106,6 +132,11 @@ impl Default for DemoOptions {
             frames_per_clip: None,
             images: true,
             score_run_time: true,
+            robustness_clips: 20,
+            robustness_variants: vec![
+                ("tracker".to_string(), TrackerConfig::DEFAULT),
+                ("no temporal prior".to_string(), TrackerConfig::ROUND1),
+            ],
         }
     }
 }
@@ -166,6 +197,15 @@ pub struct DemoRow {
     pub ids_per_clip: Option<f64>,
     /// Ground-truth lanes per clip (of the last frame; replay only).
     pub gt_lanes_per_clip: Option<f64>,
+    /// Distinct true lanes (with a point in at least one frame) per clip (replay only; see
+    /// [`IdentityScore`]).
+    pub true_lanes_per_clip: Option<f64>,
+    /// Changes of the tracker id matched to a true lane, per clip (replay only; see
+    /// [`IdentityScore`]).
+    pub id_switches_per_clip: Option<f64>,
+    /// Published lanes that match no true lane, per frame (replay only; see
+    /// [`IdentityScore`]).
+    pub false_lanes_per_frame: Option<f64>,
     /// The fixed-lag smoother against the filter on the replay frames that have a smoothed
     /// estimate (replay only).
     pub smoother: Option<SmootherScore>,
@@ -210,12 +250,103 @@ pub struct RealFrameResult {
     pub run_time_ms: f64,
 }
 
+/// Identity and false-lane metrics of a tracker run on a set of replay clips, every frame
+/// against the per-frame ground truth. Per frame, the published lanes (as written in the
+/// prediction, with their tracker ids) and the ground-truth lanes with at least one point are
+/// matched by the official metric's rule ([`metric::match_lanes`]: a true lane's match is the
+/// prediction of best point accuracy if that is ≥ 0.85).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct IdentityScore {
+    /// Clips.
+    pub clips: usize,
+    /// Frames with a prediction.
+    pub frames: usize,
+    /// Distinct lane ids published (seen within `MAX_REPORT_MISSES` frames) per clip, as
+    /// [`DemoRow::ids_per_clip`].
+    pub lane_ids_per_clip: f64,
+    /// Distinct true lanes (the replay's stable true-lane index) with a point in at least one
+    /// frame, per clip.
+    pub true_lanes_per_clip: f64,
+    /// Per true lane, the number of times its matched tracker id differs from the id matched to
+    /// it the last time it was matched in the clip (frames where it is not matched are
+    /// skipped), summed over the lanes, per clip.
+    pub id_switches_per_clip: f64,
+    /// Published lanes whose point accuracy is below 0.85 on every true lane of the frame, per
+    /// frame.
+    pub false_lanes_per_frame: f64,
+}
+
+/// One replay run on the clips in which the replay animated a merge/split lane
+/// ([`synth::SynthStats::merges`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MergeSplitRow {
+    /// The replay's noise preset.
+    pub noise: NoiseLevel,
+    /// The model.
+    pub coupling: Coupling,
+    /// The merge/split clips.
+    pub clips: Vec<String>,
+    /// Official metric on their labelled last frames (`None` without such clips).
+    pub score: Option<Score>,
+    /// Their identity metrics (`None` without such clips).
+    pub identity: Option<IdentityScore>,
+}
+
+/// A tracker configuration's score in a robustness condition.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VariantScore {
+    /// The configuration's name ([`DemoOptions::robustness_variants`]).
+    pub name: String,
+    /// Official metric on the labelled last frames.
+    pub score: Score,
+    /// Its accuracy minus the baseline's.
+    pub accuracy_minus_baseline: f64,
+}
+
+/// One condition of the robustness section.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RobustnessRow {
+    /// Its name in the tables.
+    pub condition: String,
+    /// Multiplier of the mid preset's clutter rate.
+    pub clutter_multiplier: f64,
+    /// Uniform clutter points per frame.
+    pub clutter_rate: f64,
+    /// Distractor segments per frame.
+    pub distractors: f64,
+    /// Each tracker configuration.
+    pub trackers: Vec<VariantScore>,
+    /// The RANSAC baseline on the same frames.
+    pub baseline: Score,
+    /// Mean per-frame `run_time` of the baseline, ms.
+    pub baseline_run_time_mean_ms: f64,
+}
+
+/// The robustness section (see the module doc).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RobustnessReport {
+    /// The noise preset the conditions modify.
+    pub noise: NoiseLevel,
+    /// Replay clips per condition.
+    pub clips: usize,
+    /// Frames per clip.
+    pub frames_per_clip: usize,
+    /// The baseline's parameters.
+    pub baseline_params: BaselineParams,
+    /// The conditions: clutter × 1, 2, 4, 8, then × 1 with distractors.
+    pub rows: Vec<RobustnessRow>,
+}
+
 /// Everything [`run`] measured and wrote.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DemoReport {
     /// Replay rows (noise × coupling), then the real frames through the front end, then the
     /// real frames with the label points.
     pub rows: Vec<DemoRow>,
+    /// The replay runs (noise × coupling) on the merge/split clips alone.
+    pub merge_split: Vec<MergeSplitRow>,
+    /// The robustness section (`None` when [`DemoOptions::robustness_clips`] is 0).
+    pub robustness: Option<RobustnessReport>,
     /// Per real frame.
     pub real_frames: Vec<RealFrameResult>,
     /// Replay clips per run.
@@ -323,6 +454,175 @@ fn smoother_score(
     }))
 }
 
+/// What [`IdentityTally`] keeps of one clip.
+#[derive(Debug, Clone, Default)]
+struct ClipIdentity {
+    frames: usize,
+    ids: HashSet<u32>,
+    true_lanes: HashSet<usize>,
+    /// The tracker id matched to each true lane the last time it was matched.
+    last_id: HashMap<usize, u32>,
+    switches: usize,
+    false_lanes: usize,
+}
+
+/// Accumulates [`IdentityScore`]s per clip over a tracker run.
+#[derive(Debug, Clone, Default)]
+struct IdentityTally {
+    clips: BTreeMap<String, ClipIdentity>,
+}
+
+impl IdentityTally {
+    /// The lane ids published in a frame of `clip`.
+    fn published(&mut self, clip: &str, ids: impl IntoIterator<Item = u32>) {
+        self.clip(clip).ids.extend(ids);
+    }
+
+    fn clip(&mut self, clip: &str) -> &mut ClipIdentity {
+        self.clips.entry(clip.to_string()).or_default()
+    }
+
+    /// A frame of `clip`: its prediction with the tracker id of each lane, its ground truth
+    /// with the true lane of each lane.
+    fn frame(
+        &mut self,
+        clip: &str,
+        pred: &TuSimpleRecord,
+        pred_ids: &[u32],
+        gt: &TuSimpleRecord,
+        gt_ids: &[usize],
+    ) {
+        let c = self.clip(clip);
+        c.frames += 1;
+        let (lanes, truth): (Vec<Vec<f64>>, Vec<usize>) = gt
+            .lanes
+            .iter()
+            .zip(gt_ids)
+            .filter(|(l, _)| l.iter().any(|v| *v >= 0.0))
+            .map(|(l, &t)| (l.clone(), t))
+            .unzip();
+        let m = metric::match_lanes(&pred.lanes, &lanes, &gt.h_samples);
+        for (&t, matched) in truth.iter().zip(&m.gt_match) {
+            c.true_lanes.insert(t);
+            if let Some(&id) = matched.and_then(|i| pred_ids.get(i)) {
+                if c.last_id.insert(t, id).is_some_and(|prev| prev != id) {
+                    c.switches += 1;
+                }
+            }
+        }
+        c.false_lanes += m.pred_matched.iter().filter(|m| !**m).count();
+    }
+
+    /// The scores over the clips that `keep` accepts (`None` for none).
+    fn score(&self, keep: impl Fn(&str) -> bool) -> Option<IdentityScore> {
+        let clips: Vec<&ClipIdentity> = self
+            .clips
+            .iter()
+            .filter(|(k, _)| keep(k))
+            .map(|(_, c)| c)
+            .collect();
+        if clips.is_empty() {
+            return None;
+        }
+        let n = clips.len() as f64;
+        let sum = |f: &dyn Fn(&ClipIdentity) -> usize| clips.iter().map(|c| f(c)).sum::<usize>();
+        let frames = sum(&|c| c.frames);
+        Some(IdentityScore {
+            clips: clips.len(),
+            frames,
+            lane_ids_per_clip: sum(&|c| c.ids.len()) as f64 / n,
+            true_lanes_per_clip: sum(&|c| c.true_lanes.len()) as f64 / n,
+            id_switches_per_clip: sum(&|c| c.switches) as f64 / n,
+            false_lanes_per_frame: sum(&|c| c.false_lanes) as f64 / frames.max(1) as f64,
+        })
+    }
+}
+
+/// The robustness section (see the module doc): the first `clips` of `labels` at the mid
+/// preset under each condition, each tracker configuration of `variants` (default tables) and
+/// the RANSAC baseline on the same frames; `progress(what)` before each condition.
+///
+/// # Errors
+/// A replay or a scoring failure.
+pub fn robustness(
+    labels: &[TuSimpleRecord],
+    clips: usize,
+    frames_per_clip: Option<usize>,
+    seed: u64,
+    variants: &[(&str, TrackerConfig)],
+    timed: bool,
+    mut progress: impl FnMut(&str),
+) -> Result<RobustnessReport> {
+    let labels = labels.get(..clips.min(labels.len())).unwrap_or_default();
+    ensure!(
+        !labels.is_empty(),
+        "no replay labels for the robustness section"
+    );
+    let tables: &'static ReferenceTables = &stjpdacf::tables::DEFAULT;
+    let cam = Camera::tusimple();
+    let bp = BaselineParams::default();
+    let base = SynthParams::preset(NoiseLevel::Mid);
+    let mut conditions: Vec<(String, f64, f64)> = ROBUSTNESS_CLUTTER
+        .iter()
+        .map(|&m| (format!("clutter ×{m}"), m, 0.0))
+        .collect();
+    conditions.push((
+        "clutter ×1 + distractors".to_string(),
+        1.0,
+        ROBUSTNESS_DISTRACTORS,
+    ));
+    let mut rows = Vec::new();
+    let mut fpc = base.frames_per_clip;
+    for (condition, m, distractors) in conditions {
+        progress(&format!("robustness: {condition}"));
+        let mut params = SynthParams {
+            clutter_rate: base.clutter_rate * m,
+            distractors,
+            ..base.clone()
+        };
+        if let Some(k) = frames_per_clip {
+            params.frames_per_clip = k;
+        }
+        fpc = params.frames_per_clip;
+        let o = synth::synthesize(labels, &params, &cam, seed)?;
+        let (bpreds, bstats) = baseline::track(&o.frames, tables, &cam, Space::Image, &bp, |_| {})?;
+        let bscore = score_on(&bpreds, &o.gt_last, timed)?;
+        let mut trackers = Vec::new();
+        for (name, config) in variants {
+            let (preds, _) = track::track_with(
+                &o.frames,
+                tables,
+                &cam,
+                Space::Image,
+                *config,
+                |_: FrameView<'_>| {},
+            )?;
+            let score = score_on(&preds, &o.gt_last, timed)?;
+            trackers.push(VariantScore {
+                name: (*name).to_string(),
+                score,
+                accuracy_minus_baseline: score.accuracy - bscore.accuracy,
+            });
+        }
+        rows.push(RobustnessRow {
+            condition,
+            clutter_multiplier: m,
+            clutter_rate: params.clutter_rate,
+            distractors,
+            trackers,
+            baseline: bscore,
+            baseline_run_time_mean_ms: bstats.run_mean_ms,
+        });
+    }
+    Ok(RobustnessReport {
+        noise: NoiseLevel::Mid,
+        clips: labels.len(),
+        frames_per_clip: fpc,
+        baseline_params: bp,
+        rows,
+    })
+}
+
 /// A frame whose feature points are a label's lanes, sampled at every image row between
 /// consecutive labelled rows (linear interpolation); clip = the `raw_file`'s folder, t = 0.95 s
 /// (TuSimple's 20th frame), with the label's `raw_file` and `h_samples`.
@@ -386,9 +686,15 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     let coupled: &'static ReferenceTables = &stjpdacf::tables::DEFAULT;
     let diag = track::tables_from_hyper(&HyperFile::load(&opts.data.join(ABLATION_HYPER))?)?;
     let cam = Camera::tusimple();
-    let total = 2 * opts.levels.len() + 2;
+    let robustness_stages = if opts.robustness_clips > 0 {
+        ROBUSTNESS_CLUTTER.len() + 1
+    } else {
+        0
+    };
+    let total = 2 * opts.levels.len() + 2 + robustness_stages;
     let mut done = 0;
     let mut rows = Vec::new();
+    let mut merge_split = Vec::new();
     let mut files = Vec::new();
     // The BEV figure: the middle noise level, coupled, the first, middle and last frames of one
     // clip, lanes sampled every 0.5 m over the window.
@@ -410,6 +716,19 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
             params.frames_per_clip = k;
         }
         let o = synth::synthesize(&labels, &params, &cam, opts.seed)?;
+        let gt_index: HashMap<&str, usize> = o
+            .gt_all
+            .iter()
+            .enumerate()
+            .map(|(j, g)| (g.raw_file.as_str(), j))
+            .collect();
+        let merge_clips: Vec<String> = o
+            .clip_stats
+            .iter()
+            .enumerate()
+            .filter(|(_, st)| st.merges > 0)
+            .map(|(i, _)| synth::clip_name(i))
+            .collect();
         for (coupling, tables) in [(Coupling::Coupled, coupled), (Coupling::Diagonal, diag)] {
             progress(
                 done,
@@ -425,6 +744,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
             // predictions (of frame k − L, made at frame k).
             let mut published: Vec<HashMap<u32, LaneEstimate<16>>> = Vec::new();
             let mut smoothed_preds: Vec<TuSimpleRecord> = Vec::new();
+            let mut tally = IdentityTally::default();
             let (preds, stats) = track::track_with(
                 &o.frames,
                 tables,
@@ -446,6 +766,18 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                         {
                             ids.insert((v.frame.clip.clone(), l.id.0));
                             now.insert(l.id.0, *l);
+                        }
+                    }
+                    tally.published(&v.frame.clip, now.keys().copied());
+                    if let Some(p) = v.prediction {
+                        if let Some(&j) = gt_index.get(p.raw_file.as_str()) {
+                            tally.frame(
+                                &v.frame.clip,
+                                p,
+                                v.prediction_ids,
+                                &o.gt_all[j],
+                                &o.gt_lane_ids[j],
+                            );
                         }
                     }
                     published.push(now);
@@ -473,6 +805,25 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                     .cloned()
                     .collect();
             }
+            let identity = tally.score(|_| true);
+            let merge_gt: Vec<TuSimpleRecord> = o
+                .gt_last
+                .iter()
+                .zip(&o.clip_stats)
+                .filter(|(_, st)| st.merges > 0)
+                .map(|(g, _)| g.clone())
+                .collect();
+            merge_split.push(MergeSplitRow {
+                noise: level,
+                coupling,
+                clips: merge_clips.clone(),
+                score: if merge_gt.is_empty() {
+                    None
+                } else {
+                    Some(score_on(&preds, &merge_gt, opts.score_run_time)?)
+                },
+                identity: tally.score(|c| merge_clips.iter().any(|m| m == c)),
+            });
             rows.push(DemoRow {
                 input: Input::Replay,
                 noise: Some(level),
@@ -487,6 +838,9 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                     o.gt_last.iter().map(|g| g.lanes.len()).sum::<usize>() as f64
                         / o.gt_last.len().max(1) as f64,
                 ),
+                true_lanes_per_clip: identity.map(|i| i.true_lanes_per_clip),
+                id_switches_per_clip: identity.map(|i| i.id_switches_per_clip),
+                false_lanes_per_frame: identity.map(|i| i.false_lanes_per_frame),
                 run_time_mean_ms: stats.run_mean_ms,
                 run_time_max_ms: stats.run_max_ms,
             });
@@ -586,6 +940,9 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         clips: stats.clips,
         ids_per_clip: None,
         gt_lanes_per_clip: None,
+        true_lanes_per_clip: None,
+        id_switches_per_clip: None,
+        false_lanes_per_frame: None,
         smoother: None,
         run_time_mean_ms: run_times.iter().sum::<f64>() / run_times.len().max(1) as f64,
         run_time_max_ms: run_times.iter().copied().fold(0.0, f64::max),
@@ -614,6 +971,9 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         clips: lstats.clips,
         ids_per_clip: None,
         gt_lanes_per_clip: None,
+        true_lanes_per_clip: None,
+        id_switches_per_clip: None,
+        false_lanes_per_frame: None,
         smoother: None,
         run_time_mean_ms: lstats.run_mean_ms,
         run_time_max_ms: lstats.run_max_ms,
@@ -625,12 +985,40 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     tusimple::write_records(&p, &preds)?;
     files.push(p);
 
+    // Robustness: clutter × 1, 2, 4, 8 and distractors, tracker vs the RANSAC baseline.
+    let robustness = if opts.robustness_clips > 0 {
+        let variants: Vec<(&str, TrackerConfig)> = opts
+            .robustness_variants
+            .iter()
+            .map(|(n, c)| (n.as_str(), *c))
+            .collect();
+        Some(self::robustness(
+            &labels,
+            opts.robustness_clips,
+            opts.frames_per_clip,
+            opts.seed,
+            &variants,
+            opts.score_run_time,
+            |what| {
+                progress(done, total, what);
+                done += 1;
+            },
+        )?)
+    } else {
+        None
+    };
+
     progress(done, total, "figures");
     if opts.images {
         register_fonts()?;
         let p = opts.out.join("accuracy_vs_noise.png");
         plot_accuracy(&rows, &opts.levels, &p)?;
         files.push(p);
+        if let Some(r) = &robustness {
+            let p = opts.out.join("robustness.png");
+            plot_robustness(r, &p)?;
+            files.push(p);
+        }
         if !bev.is_empty() {
             let p = opts.out.join("replay_bev.png");
             let title = format!(
@@ -667,6 +1055,8 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     }
     let mut report = DemoReport {
         rows,
+        merge_split,
+        robustness,
         real_frames: real_results,
         replay_clips: labels.len(),
         frames_per_clip: opts
@@ -781,6 +1171,124 @@ pub fn render_markdown(r: &DemoReport) -> String {
             f.run_time_ms,
             f.frontend_ms
         ));
+    }
+    s.push_str(&render_identity(r));
+    if let Some(rob) = &r.robustness {
+        s.push_str(&render_robustness(rob));
+    }
+    s
+}
+
+/// The identity table: every replay run on all clips, then on the merge/split clips.
+fn render_identity(r: &DemoReport) -> String {
+    let replay: Vec<&DemoRow> = r
+        .rows
+        .iter()
+        .filter(|row| row.input == Input::Replay)
+        .collect();
+    if replay.is_empty() {
+        return String::new();
+    }
+    let mut s = String::from(
+        "\nIdentity and false lanes on the replay, every frame against its ground truth: on \
+         each frame the published lanes are matched to the true lanes by the official rule (a \
+         true lane's match is the lane of best point accuracy if ≥ 0.85); id switches = changes \
+         of the id matched to a true lane between the frames where it is matched, summed over \
+         the lanes; false lanes = published lanes below 0.85 on every true lane. \
+         \"merge/split\": the clips in which the replay animated a merge/split lane. Accuracy / \
+         FP / FN: official metric on the clips' labelled last frames.\n\n\
+         | noise | B | clips | accuracy / FP / FN | lane ids / clip | true lanes / clip | id switches / clip | false lanes / frame |\n\
+         |---|---|---|---|---|---|---|---|\n",
+    );
+    let noise =
+        |n: Option<NoiseLevel>| n.map_or("—".to_string(), |n| format!("{n:?}").to_lowercase());
+    let f3 = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3}"));
+    let f2 = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.2}"));
+    for row in &replay {
+        s.push_str(&format!(
+            "| {} | {} | all {} | {:.3} / {:.3} / {:.3} | {} | {} | {} | {} |\n",
+            noise(row.noise),
+            row.coupling.label(),
+            row.clips,
+            row.score.accuracy,
+            row.score.fp,
+            row.score.fn_,
+            f2(row.ids_per_clip),
+            f2(row.true_lanes_per_clip),
+            f2(row.id_switches_per_clip),
+            f3(row.false_lanes_per_frame)
+        ));
+    }
+    for m in &r.merge_split {
+        let score = m.score.map_or("—".to_string(), |sc| {
+            format!("{:.3} / {:.3} / {:.3}", sc.accuracy, sc.fp, sc.fn_)
+        });
+        let id = m.identity;
+        s.push_str(&format!(
+            "| {} | {} | merge/split {} | {score} | {} | {} | {} | {} |\n",
+            noise(Some(m.noise)),
+            m.coupling.label(),
+            m.clips.len(),
+            f2(id.map(|i| i.lane_ids_per_clip)),
+            f2(id.map(|i| i.true_lanes_per_clip)),
+            f2(id.map(|i| i.id_switches_per_clip)),
+            f3(id.map(|i| i.false_lanes_per_frame))
+        ));
+    }
+    s
+}
+
+/// The robustness table.
+fn render_robustness(r: &RobustnessReport) -> String {
+    let names: Vec<&str> = r
+        .rows
+        .first()
+        .map(|row| row.trackers.iter().map(|t| t.name.as_str()).collect())
+        .unwrap_or_default();
+    let mut s = format!(
+        "\nRobustness: the replay at the {} preset on the first {} labels × {} frames, uniform \
+         clutter × 1, 2, 4, 8 and × 1 with {} short straight distractor segments per frame; the \
+         tracker (default tables) against the per-frame sequential-RANSAC baseline (BEV \
+         quadratics on the same points; inlier tolerance {} m, ≥ {} inliers over ≥ {} m, no \
+         tracking) on the same frames, official metric on the labelled last frames.\n\n\
+         | condition | clutter / frame | distractors / frame |",
+        format!("{:?}", r.noise).to_lowercase(),
+        r.clips,
+        r.frames_per_clip,
+        ROBUSTNESS_DISTRACTORS,
+        r.baseline_params.inlier_tol,
+        r.baseline_params.min_inliers,
+        r.baseline_params.min_extent
+    );
+    for n in &names {
+        s.push_str(&format!(" {n} accuracy / FP / FN |"));
+    }
+    s.push_str(" RANSAC baseline accuracy / FP / FN |");
+    for n in &names {
+        s.push_str(&format!(" Δ accuracy ({n} − baseline) |"));
+    }
+    s.push_str("\n|---|---|---|");
+    s.push_str(&"---|".repeat(2 * names.len() + 1));
+    s.push('\n');
+    for row in &r.rows {
+        s.push_str(&format!(
+            "| {} | {} | {} |",
+            row.condition, row.clutter_rate, row.distractors
+        ));
+        for t in &row.trackers {
+            s.push_str(&format!(
+                " {:.3} / {:.3} / {:.3} |",
+                t.score.accuracy, t.score.fp, t.score.fn_
+            ));
+        }
+        s.push_str(&format!(
+            " {:.3} / {:.3} / {:.3} |",
+            row.baseline.accuracy, row.baseline.fp, row.baseline.fn_
+        ));
+        for t in &row.trackers {
+            s.push_str(&format!(" {:+.3} |", t.accuracy_minus_baseline));
+        }
+        s.push('\n');
     }
     s
 }
@@ -1165,6 +1673,120 @@ fn draw_accuracy(
     Ok(())
 }
 
+/// Colours of the robustness plot's tracker configurations (the baseline is black).
+const VARIANT_COLOURS: [RGBColor; 4] = [
+    RGBColor(20, 90, 200),
+    RGBColor(230, 110, 0),
+    RGBColor(0, 150, 80),
+    RGBColor(170, 0, 170),
+];
+
+/// Last-frame accuracy against the clutter multiplier (log scale), each tracker configuration
+/// and the baseline; the distractor condition as triangles at × 1.
+fn plot_robustness(r: &RobustnessReport, path: &Path) -> Result<()> {
+    let root = BitMapBackend::new(path, (760, 460)).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let accs = r.rows.iter().flat_map(|row| {
+        row.trackers
+            .iter()
+            .map(|t| t.score.accuracy)
+            .chain(std::iter::once(row.baseline.accuracy))
+    });
+    let (lo, hi) = accs.fold((1.0_f64, 0.0_f64), |(lo, hi), a| (lo.min(a), hi.max(a)));
+    let y0 = ((lo - 0.05) * 10.0).floor().clamp(0.0, 10.0) / 10.0;
+    let y1 = ((hi + 0.05) * 10.0).ceil().clamp(1.0, 10.0) / 10.0;
+    let base_rate = r
+        .rows
+        .first()
+        .map_or(0.0, |row| row.clutter_rate / row.clutter_multiplier);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "Robustness ({} clips, {} preset): tracker vs per-frame RANSAC baseline",
+                r.clips,
+                format!("{:?}", r.noise).to_lowercase()
+            ),
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(52)
+        .y_label_area_size(52)
+        .build_cartesian_2d(-0.3_f64..3.3_f64, y0..y1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("uniform clutter × (points per frame); triangles: × 1 + distractor segments")
+        .y_desc("accuracy (last frame)")
+        .light_line_style(WHITE)
+        .x_labels(4)
+        .x_label_formatter(&|v| {
+            let m = 2f64.powf(v.round());
+            if (v - v.round()).abs() < 1e-6 {
+                format!("×{m} ({})", m * base_rate)
+            } else {
+                String::new()
+            }
+        })
+        .draw()
+        .map_err(plot_err)?;
+    let curves = r.rows.first().map_or(0, |row| row.trackers.len());
+    for k in 0..=curves {
+        let (colour, label) = match r.rows.first().and_then(|row| row.trackers.get(k)) {
+            Some(t) => (VARIANT_COLOURS[k % VARIANT_COLOURS.len()], t.name.clone()),
+            None => (BLACK, "RANSAC baseline".to_string()),
+        };
+        let acc = |row: &RobustnessRow| {
+            row.trackers
+                .get(k)
+                .map_or(row.baseline.accuracy, |t| t.score.accuracy)
+        };
+        let clutter: Vec<(f64, f64)> = r
+            .rows
+            .iter()
+            .filter(|row| row.distractors == 0.0)
+            .map(|row| (row.clutter_multiplier.log2(), acc(row)))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(clutter.clone(), colour.stroke_width(3)))
+            .map_err(plot_err)?
+            .label(label)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3))
+            });
+        chart
+            .draw_series(
+                clutter
+                    .into_iter()
+                    .map(|p| Circle::new(p, 4, colour.filled())),
+            )
+            .map_err(plot_err)?;
+        chart
+            .draw_series(
+                r.rows
+                    .iter()
+                    .filter(|row| row.distractors > 0.0)
+                    .map(|row| {
+                        TriangleMarker::new(
+                            (row.clutter_multiplier.log2(), acc(row)),
+                            7,
+                            colour.filled(),
+                        )
+                    }),
+            )
+            .map_err(plot_err)?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 13))
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1181,6 +1803,64 @@ mod tests {
         assert_eq!(s.lanes, vec![vec![-2.0, 25.0, 0.0]]);
         assert_eq!(s.h_samples, vec![240.0, 250.0, 260.0]);
         assert_eq!(s.run_time, Some(3.0));
+    }
+
+    #[test]
+    fn identity_tally_counts_switches_ids_and_false_lanes() {
+        let rows: Vec<f64> = (0..20).map(|i| 300.0 + 10.0 * f64::from(i)).collect();
+        let lane = |x: f64| vec![x; 20];
+        let rec = |lanes: Vec<Vec<f64>>| TuSimpleRecord {
+            raw_file: "f".into(),
+            lanes,
+            h_samples: rows.clone(),
+            run_time: Some(0.0),
+        };
+        // True lanes 0 (x = 100) and 1 (x = 500) and an empty label lane (true lane 2, never
+        // counted); frame 3 loses lane 0 from the record (true lanes keep their index).
+        let gts = [
+            rec(vec![lane(100.0), lane(500.0), lane(-2.0)]),
+            rec(vec![lane(100.0), lane(500.0), lane(-2.0)]),
+            rec(vec![lane(100.0), lane(500.0), lane(-2.0)]),
+            rec(vec![lane(500.0)]),
+            rec(vec![lane(100.0), lane(500.0)]),
+        ];
+        let gt_ids: [&[usize]; 5] = [&[0, 1, 2], &[0, 1, 2], &[0, 1, 2], &[1], &[0, 1]];
+        // Predictions (columns, ids): lane 0 is id 7, then unmatched (30 px off) in frame 1,
+        // id 9 in frame 2 (a switch), unmatched in frame 3, id 9 again in frame 4 (no switch).
+        // Lane 1 is id 8, then id 7 in frame 3 (a switch) and id 8 in frame 4 (another). A far
+        // lane (x = 900) is false in frames 0 and 4.
+        let preds = [
+            (vec![lane(100.0), lane(500.0), lane(900.0)], vec![7, 8, 3]),
+            (vec![lane(130.0), lane(505.0)], vec![7, 8]),
+            (vec![lane(101.0), lane(499.0)], vec![9, 8]),
+            (vec![lane(500.0)], vec![7]),
+            (vec![lane(100.0), lane(500.0), lane(900.0)], vec![9, 8, 4]),
+        ];
+        let mut t = IdentityTally::default();
+        for k in 0..5 {
+            t.published("c", preds[k].1.iter().copied());
+            t.frame(
+                "c",
+                &rec(preds[k].0.clone()),
+                &preds[k].1,
+                &gts[k],
+                gt_ids[k],
+            );
+        }
+        t.published("d", [1]);
+        t.frame("d", &rec(vec![]), &[], &gts[0], gt_ids[0]);
+        let c = t.score(|c| c == "c").unwrap();
+        assert_eq!((c.clips, c.frames), (1, 5));
+        assert_eq!(c.id_switches_per_clip, 3.0);
+        assert_eq!(c.lane_ids_per_clip, 5.0); // 3, 4, 7, 8, 9
+        assert_eq!(c.true_lanes_per_clip, 2.0);
+        // False: 900 (frame 0), 130 (frame 1), 900 (frame 4).
+        assert!((c.false_lanes_per_frame - 3.0 / 5.0).abs() < 1e-12);
+        let both = t.score(|_| true).unwrap();
+        assert_eq!((both.clips, both.frames), (2, 6));
+        assert_eq!(both.id_switches_per_clip, 1.5);
+        assert_eq!(both.lane_ids_per_clip, 3.0);
+        assert!(t.score(|c| c == "e").is_none());
     }
 
     #[test]

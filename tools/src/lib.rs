@@ -2,6 +2,7 @@
 //!
 //! * [`tablegen`] — hyperparameter file → the core's static tables (`stjpdacf tables`);
 //! * [`track`] — runs the core tracker on feature-point frames (`stjpdacf track`);
+//! * [`baseline`] — a per-frame sequential-RANSAC baseline on the same points (no tracking);
 //! * [`tusimple`], [`metric`] — TuSimple label I/O and the official metric (`stjpdacf eval`);
 //! * [`synth`], [`camera`] — the real-geometry replay and the camera model (`stjpdacf synth`);
 //! * [`scenario`], [`fwscenario`] — seeded synthetic BEV frames for the spatial filter, and the
@@ -13,6 +14,7 @@
 //! This crate uses `std` freely; the no_std core is the `stjpdacf` crate and the f64 reference is
 //! `stjpdacf-reference`.
 
+pub mod baseline;
 pub mod camera;
 pub mod demo;
 pub mod frontend;

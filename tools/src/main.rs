@@ -109,6 +109,10 @@ enum Command {
         /// Frames per replay clip (default 20; the last one is the labelled frame).
         #[arg(long)]
         frames_per_clip: Option<usize>,
+        /// Replay labels of the robustness section (clutter × 1, 2, 4, 8 and distractors,
+        /// tracker vs the RANSAC baseline; the first K; 0 leaves the section out).
+        #[arg(long, default_value_t = 20)]
+        robustness_clips: usize,
         /// Skip the PNG files.
         #[arg(long)]
         no_images: bool,
@@ -155,6 +159,10 @@ enum Command {
         /// Scale of lane drift / heading / curvature change (0 = a static road).
         #[arg(long)]
         motion: Option<f64>,
+        /// Mean number of short straight distractor segments per frame (tar seams, arrows,
+        /// crosswalk bars; default 0).
+        #[arg(long)]
+        distractors: Option<f64>,
         /// Camera: `tusimple` (1280x720) or a camera JSON file.
         #[arg(long, default_value = "tusimple")]
         camera: String,
@@ -388,6 +396,7 @@ fn main() -> Result<()> {
             detect_prob,
             clutter_rate,
             motion,
+            distractors,
             camera,
         } => {
             let cam = Camera::from_spec(&camera)?;
@@ -403,6 +412,9 @@ fn main() -> Result<()> {
             }
             if let Some(v) = motion {
                 params.motion = v;
+            }
+            if let Some(v) = distractors {
+                params.distractors = v;
             }
             let mut recs = tusimple::read_labels(&labels)?;
             if let Some(k) = clips {
@@ -422,7 +434,7 @@ fn main() -> Result<()> {
             }
             let s = &o.stats;
             eprintln!(
-                "wrote {} frames of {} clips to {} ({} points: {} lane, {} clutter, {} shadow, {} car, {} road edge; {} lane changes, {} merges, {} far-end changes)",
+                "wrote {} frames of {} clips to {} ({} points: {} lane, {} clutter, {} shadow, {} car, {} road edge, {} distractor; {} lane changes, {} merges, {} far-end changes)",
                 s.frames,
                 s.clips,
                 out.display(),
@@ -432,6 +444,7 @@ fn main() -> Result<()> {
                 s.shadow_points,
                 s.car_points,
                 s.road_edge_points,
+                s.distractor_points,
                 s.lane_changes,
                 s.merges,
                 s.far_end_changes
@@ -510,6 +523,7 @@ fn main() -> Result<()> {
             seed,
             noise,
             frames_per_clip,
+            robustness_clips,
             no_images,
             json,
         } => {
@@ -519,6 +533,7 @@ fn main() -> Result<()> {
                 seed,
                 levels: noise,
                 frames_per_clip,
+                robustness_clips,
                 images: !no_images,
                 ..demo::DemoOptions::default()
             };

@@ -100,6 +100,46 @@ pub fn line_accuracy(pred: &[f64], gt: &[f64], thresh: f64) -> f64 {
     correct as f64 / gt.len() as f64
 }
 
+/// Which lanes of a frame match, by the rule of [`bench()`]: a ground-truth lane's match is the
+/// prediction with its best point accuracy when that is at least [`PT_THRESH`] (the first such
+/// prediction among equals); a prediction matches a ground-truth lane when its accuracy on it is
+/// at least [`PT_THRESH`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LaneMatches {
+    /// Per ground-truth lane, the index of its matched prediction.
+    pub gt_match: Vec<Option<usize>>,
+    /// Per prediction, whether it matches any ground-truth lane.
+    pub pred_matched: Vec<bool>,
+}
+
+/// The matches of `pred` and `gt` at `y_samples` (see [`LaneMatches`]; thresholds by the lanes'
+/// angles as in [`bench()`]; lanes pair up row by row, no length check, no run-time or lane-count
+/// penalty).
+pub fn match_lanes(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> LaneMatches {
+    let mut pred_matched = vec![false; pred.len()];
+    let gt_match = gt
+        .iter()
+        .map(|x_gts| {
+            let thresh = lane_threshold(lane_angle(x_gts, y_samples));
+            let mut best: Option<(usize, f64)> = None;
+            for (i, x_preds) in pred.iter().enumerate() {
+                let a = line_accuracy(x_preds, x_gts, thresh);
+                if a >= PT_THRESH {
+                    pred_matched[i] = true;
+                }
+                if best.is_none_or(|(_, b)| a > b) {
+                    best = Some((i, a));
+                }
+            }
+            best.filter(|&(_, a)| a >= PT_THRESH).map(|(i, _)| i)
+        })
+        .collect();
+    LaneMatches {
+        gt_match,
+        pred_matched,
+    }
+}
+
 /// Scores of one frame, as returned by `LaneEval.bench`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct FrameScore {
@@ -368,6 +408,33 @@ mod tests {
         assert_eq!(lane_angle(&[-2.0, 7.0, -2.0], &ys), 0.0);
         assert_eq!(lane_angle(&[-2.0, -2.0, -2.0], &ys), 0.0);
         assert_eq!(lane_threshold(0.0), 20.0);
+    }
+
+    // ---- match_lanes ----
+
+    #[test]
+    fn matches_follow_the_best_accuracy_rule() {
+        let ys = rows20();
+        let (a, b) = (vertical(300.0), vertical(600.0));
+        // Prediction 0 is 10 px off a on every row, prediction 1 exact on a, prediction 2 is
+        // a with 4 rows off (0.8 < 0.85), prediction 3 far from both.
+        let preds = vec![
+            vertical(310.0),
+            a.clone(),
+            off(a.clone(), 4, 50.0),
+            vertical(900.0),
+        ];
+        let m = match_lanes(&preds, &[a.clone(), b.clone()], &ys);
+        assert_eq!(m.gt_match, vec![Some(0), None]);
+        assert_eq!(m.pred_matched, vec![true, true, false, false]);
+        // Only the 0.8 prediction: no match.
+        let m = match_lanes(&[off(a.clone(), 4, 50.0)], std::slice::from_ref(&a), &ys);
+        assert_eq!(m.gt_match, vec![None]);
+        // 3 rows off: 0.85 matches (≥, as bench's pt_thresh).
+        let m = match_lanes(&[off(a.clone(), 3, 50.0), b.clone()], &[a, b], &ys);
+        assert_eq!(m.gt_match, vec![Some(0), Some(1)]);
+        assert_eq!(m.pred_matched, vec![true, true]);
+        assert_eq!(match_lanes(&[], &[vertical(1.0)], &ys).gt_match, vec![None]);
     }
 
     // ---- line_accuracy ----

@@ -71,6 +71,15 @@
 //! * **Road edge**, with probability [`SynthParams::road_edge_prob`] (per clip): a curve parallel to
 //!   the outermost lane, 0.5–1.5 m outside it, detected per row with
 //!   [`SynthParams::road_edge_detect`]; it is clutter (not in the ground truth).
+//! * **Short straight distractors** (tar seams, arrows, crosswalk bars):
+//!   Poisson([`SynthParams::distractors`]) segments per frame, drawn independently in every frame
+//!   (default 0 in every preset). Each is a straight BEV segment of length U(3, 10) m at a
+//!   uniform orientation, its centre uniform laterally in ±[`DISTRACTOR_X`] m and ahead such that
+//!   the whole segment lies in [`DISTRACTOR_U`] (the tracker's default window). It gives one
+//!   point on every feature row it crosses (no per-row misses), with the usual column noise,
+//!   hidden by cars; a segment across the road crosses one row or none. Its draws come from a
+//!   second generator seeded from the clip's seed, so the other draws of a clip (and so the
+//!   output with `distractors = 0`) do not depend on it.
 //! * Points of a frame are sorted by row (bottom first), then column: their order says nothing about
 //!   which lane they came from.
 //!
@@ -89,7 +98,10 @@
 //!   `synth/synthNNNN/K.jpg` (K = 1..=19) on the others, `h_samples` of the label on every frame.
 //! * Ground truth of the last frames (TuSimple JSON lines, what the official scorer reads).
 //! * Ground truth of every frame (TuSimple JSON lines, `raw_file` as on the frames), for scoring a
-//!   fixed-lag smoother. Lanes with no point in a frame are left out of that frame's record.
+//!   fixed-lag smoother. Lanes with no point in a frame are left out of that frame's record, so a
+//!   lane's index in a record is not stable across a clip: [`SynthOutput::gt_lane_ids`] gives each
+//!   record lane's true lane (the label's lane index; the merge/split lane is
+//!   `label.lanes.len()`), the same true lane in every frame of the clip.
 
 use std::f64::consts::PI;
 
@@ -110,6 +122,14 @@ const EXTRAP_POINTS: usize = 4;
 const MIN_LANE_LEN: f64 = 5.0;
 /// Two lanes closer than this (px) share their feature points.
 const SHARE_PX: f64 = 2.0;
+/// Range ahead (m) that a distractor segment lies in (the tracker's default BEV window).
+pub const DISTRACTOR_U: (f64, f64) = (3.0, 80.0);
+/// Largest lateral distance (m) of a distractor segment's centre.
+pub const DISTRACTOR_X: f64 = 8.0;
+/// Range (uniform) of a distractor segment's length, m.
+pub const DISTRACTOR_LEN: (f64, f64) = (3.0, 10.0);
+/// Mixed into the clip seed for the distractor generator.
+const DISTRACTOR_STREAM: u64 = 0xD157_AC70_5EED_0001;
 
 /// The noise presets of the replay benchmark (see the module doc's table).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
@@ -178,6 +198,8 @@ pub struct SynthParams {
     pub road_edge_prob: f64,
     /// Per-row detection probability of a road edge.
     pub road_edge_detect: f64,
+    /// Mean number of short straight distractor segments per frame (0 in every preset).
+    pub distractors: f64,
 }
 
 impl SynthParams {
@@ -215,6 +237,7 @@ impl SynthParams {
             cars,
             road_edge_prob,
             road_edge_detect: 0.6,
+            distractors: 0.0,
         }
     }
 
@@ -249,6 +272,7 @@ impl SynthParams {
             ("curvature_rate", self.curvature_rate),
             ("lane_width", self.lane_width),
             ("merge_shared", self.merge_shared),
+            ("distractors", self.distractors),
         ] {
             ensure!(
                 v >= 0.0 && v.is_finite(),
@@ -308,6 +332,10 @@ pub struct SynthStats {
     pub car_points: usize,
     /// Road-edge points emitted.
     pub road_edge_points: usize,
+    /// Distractor segments drawn.
+    pub distractors: usize,
+    /// Distractor-segment points emitted.
+    pub distractor_points: usize,
     /// Clips with a lane change.
     pub lane_changes: usize,
     /// Clips with a merge/split lane.
@@ -324,6 +352,7 @@ impl SynthStats {
             + self.shadow_points
             + self.car_points
             + self.road_edge_points
+            + self.distractor_points
     }
 
     fn add(&mut self, o: &SynthStats) {
@@ -340,6 +369,8 @@ impl SynthStats {
         self.shadow_points += o.shadow_points;
         self.car_points += o.car_points;
         self.road_edge_points += o.road_edge_points;
+        self.distractors += o.distractors;
+        self.distractor_points += o.distractor_points;
         self.lane_changes += o.lane_changes;
         self.merges += o.merges;
         self.far_end_changes += o.far_end_changes;
@@ -355,6 +386,10 @@ pub struct SynthOutput {
     pub gt_last: Vec<TuSimpleRecord>,
     /// Ground truth of every frame (TuSimple records, `raw_file` as on the frames).
     pub gt_all: Vec<TuSimpleRecord>,
+    /// For each record of `gt_all`, the true lane of each of its lanes (see [`Clip::gt_lane_ids`]).
+    pub gt_lane_ids: Vec<Vec<usize>>,
+    /// What the generator did, per clip (in clip order; `stats` is their sum).
+    pub clip_stats: Vec<SynthStats>,
     /// What the generator did.
     pub stats: SynthStats,
 }
@@ -394,8 +429,10 @@ pub fn synthesize_with_progress(
         let clip = synth_clip(label, i, params, camera, seed);
         out.frames.extend(clip.frames);
         out.gt_all.extend(clip.gt_all);
+        out.gt_lane_ids.extend(clip.gt_lane_ids);
         out.gt_last.push(clip.gt_last);
         out.stats.add(&clip.stats);
+        out.clip_stats.push(clip.stats);
         progress();
     }
     Ok(out)
@@ -408,6 +445,11 @@ pub struct Clip {
     pub frames: Vec<Frame>,
     /// Ground truth of each frame.
     pub gt_all: Vec<TuSimpleRecord>,
+    /// For each frame, the true lane of each lane of its `gt_all` record: the index of the
+    /// label's lane it animates, or `label.lanes.len()` for the merge/split lane. Stable across
+    /// the clip's frames (a record's own lane indices are not: lanes with no point in a frame
+    /// are left out of it).
+    pub gt_lane_ids: Vec<Vec<usize>>,
     /// Ground truth of the last frame.
     pub gt_last: TuSimpleRecord,
     /// What the generator did in this clip.
@@ -665,10 +707,12 @@ impl<'a> ClipGen<'a> {
 
     /// Ground truth of frame `k`: the source lanes in the label's order, then the merge/split
     /// lane. A lane with no point in this frame is left out, unless the label itself has it
-    /// empty (then it is kept as in the label, all −2).
-    fn ground_truth(&self, k: usize, raw_file: &str) -> TuSimpleRecord {
+    /// empty (then it is kept as in the label, all −2). With it, each lane's true lane (see
+    /// [`Clip::gt_lane_ids`]).
+    fn ground_truth(&self, k: usize, raw_file: &str) -> (TuSimpleRecord, Vec<usize>) {
         let tau = self.tau(k);
         let mut lanes = Vec::new();
+        let mut ids = Vec::new();
         let sample = |c: &Curve| -> Vec<f64> {
             self.label
                 .h_samples
@@ -683,6 +727,7 @@ impl<'a> ClipGen<'a> {
         for (i, lane) in self.lanes.iter().enumerate() {
             if lane.pts.is_empty() {
                 lanes.push(lane.cols.clone());
+                ids.push(i);
                 continue;
             }
             let c = Curve {
@@ -693,6 +738,7 @@ impl<'a> ClipGen<'a> {
             let xs = sample(&c);
             if xs.iter().any(|&v| v >= 0.0) {
                 lanes.push(xs);
+                ids.push(i);
             }
         }
         for c in self
@@ -704,14 +750,16 @@ impl<'a> ClipGen<'a> {
             let xs = sample(c);
             if xs.iter().any(|&v| v >= 0.0) {
                 lanes.push(xs);
+                ids.push(self.lanes.len());
             }
         }
-        TuSimpleRecord {
+        let record = TuSimpleRecord {
             raw_file: raw_file.to_string(),
             lanes,
             h_samples: self.label.h_samples.clone(),
             run_time: None,
-        }
+        };
+        (record, ids)
     }
 
     fn tau(&self, k: usize) -> f64 {
@@ -742,8 +790,15 @@ impl<'a> ClipGen<'a> {
         boxes
     }
 
-    /// Render frame `k`'s feature points.
-    fn render(&self, k: usize, rng: &mut ChaCha8Rng, st: &mut SynthStats) -> Vec<[f64; 2]> {
+    /// Render frame `k`'s feature points; `drng` draws the distractor segments (its own
+    /// stream, untouched when [`SynthParams::distractors`] is 0).
+    fn render(
+        &self,
+        k: usize,
+        rng: &mut ChaCha8Rng,
+        drng: &mut ChaCha8Rng,
+        st: &mut SynthStats,
+    ) -> Vec<[f64; 2]> {
         let p = self.p;
         let tau = self.tau(k);
         let t = k as f64 * p.frame_step;
@@ -878,9 +933,66 @@ impl<'a> ClipGen<'a> {
             pts.push([col, row]);
             st.clutter_points += 1;
         }
+        // Short straight distractor segments, independent per frame.
+        for _ in 0..poisson(drng, p.distractors) {
+            st.distractors += 1;
+            let seg = Distractor::draw(drng);
+            for row in (first_row..self.cam.height.ceil() as usize).step_by(step) {
+                let row = row as f64;
+                let Some((u, x)) = self.u_of_row(row).and_then(|u| seg.x_at(u).map(|x| (u, x)))
+                else {
+                    continue;
+                };
+                let col = self.col_of(u, x);
+                if !self.in_image(col) || occluded(col, row) {
+                    continue;
+                }
+                let cn = col + noise.sample(drng);
+                if self.in_image(cn) {
+                    pts.push([cn, row]);
+                    st.distractor_points += 1;
+                }
+            }
+        }
         pts.sort_by(|a, b| b[1].total_cmp(&a[1]).then(a[0].total_cmp(&b[0])));
         pts
     }
+}
+
+/// A short straight distractor segment in BEV, from (u0, x0) to (u1, x1).
+#[derive(Debug, Clone, Copy)]
+struct Distractor {
+    u0: f64,
+    x0: f64,
+    u1: f64,
+    x1: f64,
+}
+
+impl Distractor {
+    /// A segment of length U([`DISTRACTOR_LEN`]) at a uniform orientation, centred laterally in
+    /// ±[`DISTRACTOR_X`] and ahead such that it lies in [`DISTRACTOR_U`].
+    fn draw(rng: &mut ChaCha8Rng) -> Self {
+        let len = uniform(rng, DISTRACTOR_LEN);
+        let theta = rng.random_range(0.0..PI);
+        let (du, dx) = (0.5 * len * theta.cos(), 0.5 * len * theta.sin());
+        let uc = uniform(rng, (DISTRACTOR_U.0 + du.abs(), DISTRACTOR_U.1 - du.abs()));
+        let xc = sym(rng, DISTRACTOR_X);
+        let (a, b) = ((uc - du, xc - dx), (uc + du, xc + dx));
+        let ((u0, x0), (u1, x1)) = if a.0 <= b.0 { (a, b) } else { (b, a) };
+        Self { u0, x0, u1, x1 }
+    }
+
+    /// Lateral position where the segment crosses `u` (`None` where it does not; a segment
+    /// along a row crosses none).
+    fn x_at(&self, u: f64) -> Option<f64> {
+        (self.u1 - self.u0 > 1e-9 && u >= self.u0 && u <= self.u1)
+            .then(|| self.x0 + (self.x1 - self.x0) * (u - self.u0) / (self.u1 - self.u0))
+    }
+}
+
+/// The clip id (`Frame::clip`) of clip `index`.
+pub fn clip_name(index: usize) -> String {
+    format!("synth{index:04}")
 }
 
 /// The generator seed of clip `index` under `seed`.
@@ -902,6 +1014,7 @@ pub fn synth_clip(
 ) -> Clip {
     let p = params;
     let mut rng = ChaCha8Rng::seed_from_u64(clip_seed(seed, index));
+    let mut drng = ChaCha8Rng::seed_from_u64(clip_seed(seed, index) ^ DISTRACTOR_STREAM);
     let lanes: Vec<SrcLane> = label
         .lanes
         .iter()
@@ -1056,17 +1169,20 @@ pub fn synth_clip(
         far_end_changes: usize::from(g.sc.far_end.is_some()),
         ..SynthStats::default()
     };
-    let clip_id = format!("synth{index:04}");
+    let clip_id = clip_name(index);
     let mut frames = Vec::with_capacity(n);
     let mut gt_all = Vec::with_capacity(n);
+    let mut gt_lane_ids = Vec::with_capacity(n);
     for k in 0..n {
         let raw_file = if k + 1 == n {
             label.raw_file.clone()
         } else {
             format!("synth/{clip_id}/{}.jpg", k + 1)
         };
-        let points = g.render(k, &mut rng, &mut stats);
-        gt_all.push(g.ground_truth(k, &raw_file));
+        let points = g.render(k, &mut rng, &mut drng, &mut stats);
+        let (gt, ids) = g.ground_truth(k, &raw_file);
+        gt_all.push(gt);
+        gt_lane_ids.push(ids);
         frames.push(Frame {
             clip: clip_id.clone(),
             t: k as f64 * p.frame_step,
@@ -1079,6 +1195,7 @@ pub fn synth_clip(
     Clip {
         frames,
         gt_all,
+        gt_lane_ids,
         gt_last,
         stats,
     }
