@@ -466,7 +466,7 @@ fn true_lane_ids_are_stable_across_a_clip() {
     }
     eprintln!("{left_out} frames leave a label lane out; {checked} lane pairs checked");
     // Some frames leave a lane out of the record: a record index would not be a stable lane.
-    assert!(left_out > 0 && checked > 3000);
+    assert!(left_out > 0 && checked > 2500);
 }
 
 #[test]
