@@ -370,7 +370,7 @@ impl<
     }
 
     /// Update of lane `s` by row evidence in information form (`J`, `i` on the Gram
-    /// components; [`TemporalFilter::prepare_info_update`], docs/design.md §11.3), the lags
+    /// components; `TemporalFilter::prepare_info_update`, docs/design.md §11.3), the lags
     /// moved by the same innovation as in [`Temporal::update`].
     ///
     /// # Errors

@@ -112,7 +112,7 @@ pub struct UpdateInfo {
     /// because it was not positive definite (0 for a valid covariance; see
     /// [`TemporalFilter::update`]).
     pub repaired_pivots: u8,
-    /// For an update by row evidence ([`TemporalFilter::prepare_info_update`]): the
+    /// For an update by row evidence (`TemporalFilter::prepare_info_update`): the
     /// normalised innovation `wᵀ M⁻¹ w` on the lane's Gram components (χ² with `r` degrees of
     /// freedom when the model holds); 0 otherwise.
     pub nis: f32,
