@@ -31,6 +31,10 @@ fn main() {
     );
     size!("temporal::smoother::Temporal<6, 16, 7, 84, 42, 4> (filter + L = 4 window)", stjpdacf::temporal::smoother::Temporal<6, 16, 7, 84, 42, 4>);
     size!(
+        "persist::Persist<6, 16, 64> (the known-lane stage)",
+        stjpdacf::persist::Persist<6, 16, 64>
+    );
+    size!(
         "tracker::ReferenceTracker (the whole tracker)",
         stjpdacf::tracker::ReferenceTracker
     );
