@@ -376,7 +376,7 @@ mod tests {
     }
 
     #[test]
-    fn empty_or_clutter_only_frames_give_no_lanes() {
+    fn empty_and_degenerate_frames_give_no_lanes() {
         let p = BaselineParams::default();
         assert!(fit_frame(&[], &p).is_empty());
         assert!(fit_frame(&[(10.0, 1.0), (20.0, 1.0), (f64::NAN, 0.0)], &p).is_empty());

@@ -60,6 +60,16 @@ fn reduced_demo_scores_and_writes_its_files() {
         let ids = row.ids_per_clip.unwrap();
         assert!((1.0..=30.0).contains(&ids), "{ids}");
         assert!(row.gt_lanes_per_clip.unwrap() >= 2.0);
+        // Identity: true lanes at least the last frame's, switches and false lanes bounded.
+        let true_lanes = row.true_lanes_per_clip.unwrap();
+        assert!(
+            true_lanes >= row.gt_lanes_per_clip.unwrap() - 1.0 && true_lanes <= 5.0,
+            "{true_lanes}"
+        );
+        let switches = row.id_switches_per_clip.unwrap();
+        assert!((0.0..=true_lanes * 4.0).contains(&switches), "{switches}");
+        let false_lanes = row.false_lanes_per_frame.unwrap();
+        assert!((0.0..=6.0).contains(&false_lanes), "{false_lanes}");
         // The smoother (L = 4) has an estimate of frame 1 of each 5-frame clip.
         let sm = row.smoother.unwrap();
         assert_eq!(
@@ -75,6 +85,8 @@ fn reduced_demo_scores_and_writes_its_files() {
         assert_eq!((row.frames, row.clips, row.score.frames), (10, 10, 10));
         assert!(row.score_all.is_none() && row.noise.is_none() && row.ids_per_clip.is_none());
         assert!(row.smoother.is_none());
+        assert!(row.true_lanes_per_clip.is_none() && row.id_switches_per_clip.is_none());
+        assert!(row.false_lanes_per_frame.is_none());
     }
     // Measured (the same numbers in debug and release; `stjpdacf demo --clips 3
     // --frames-per-clip 5 --noise low,high`): replay low 0.894 coupled / 0.943 diag(B), high
@@ -102,6 +114,57 @@ fn reduced_demo_scores_and_writes_its_files() {
             "{s:?}"
         );
     }
+    // Merge/split rows: one per replay run, on the clips that have a merge/split lane.
+    assert_eq!(r.merge_split.len(), 4);
+    for (m, row) in r.merge_split.iter().zip(&r.rows) {
+        assert_eq!((Some(m.noise), m.coupling), (row.noise, row.coupling));
+        assert!(m.clips.len() <= 3);
+        match (m.score, m.identity) {
+            (Some(s), Some(id)) => {
+                let n = m.clips.len();
+                assert_eq!((s.frames, id.clips, id.frames), (n, n, 5 * n));
+                assert!(id.true_lanes_per_clip >= 1.0 && id.id_switches_per_clip >= 0.0);
+            }
+            (None, None) => assert!(m.clips.is_empty()),
+            other => panic!("{other:?}"),
+        }
+    }
+    // Robustness: 2 clips × 5 frames, clutter × 1, 2, 4, 8 and distractors; every tracker
+    // configuration and the baseline on the same frames.
+    let rob = r.robustness.as_ref().unwrap();
+    assert_eq!((rob.clips, rob.frames_per_clip), (2, 5));
+    let conditions: Vec<(f64, f64, f64)> = rob
+        .rows
+        .iter()
+        .map(|x| (x.clutter_multiplier, x.clutter_rate, x.distractors))
+        .collect();
+    assert_eq!(
+        conditions,
+        [
+            (1.0, 25.0, 0.0),
+            (2.0, 50.0, 0.0),
+            (4.0, 100.0, 0.0),
+            (8.0, 200.0, 0.0),
+            (1.0, 25.0, 3.0)
+        ]
+    );
+    for x in &rob.rows {
+        let names: Vec<&str> = x.trackers.iter().map(|t| t.name.as_str()).collect();
+        let want: Vec<&str> = opts
+            .robustness_variants
+            .iter()
+            .map(|(n, _)| n.as_str())
+            .collect();
+        assert_eq!(names, want);
+        assert!((0.0..=1.0).contains(&x.baseline.accuracy));
+        assert!(x.baseline_run_time_mean_ms > 0.0);
+        for t in &x.trackers {
+            assert_eq!((t.score.frames, x.baseline.frames), (2, 2));
+            let diff = t.score.accuracy - x.baseline.accuracy;
+            assert!((t.accuracy_minus_baseline - diff).abs() < 1e-12);
+        }
+    }
+
     // Per real frame: the mean of the frame scores is the total.
     assert_eq!(r.real_frames.len(), 10);
     let mean = r.real_frames.iter().map(|f| f.score.accuracy).sum::<f64>() / 10.0;
@@ -125,9 +188,15 @@ fn reduced_demo_scores_and_writes_its_files() {
     assert!(md.contains("| clips/0313-2/520/20.jpg |"), "{md}");
     assert!(md.contains("Fixed-lag smoother (L = 4)"), "{md}");
     assert!(md.contains("| high | diag(B) | 3 |"), "{md}");
+    assert!(md.contains("| low | B (coupled) | all 3 |"), "{md}");
+    assert!(md.contains("| high | diag(B) | merge/split "), "{md}");
+    assert!(md.contains("| clutter ×8 | 200 | 0 |"), "{md}");
+    assert!(md.contains("| clutter ×1 + distractors | 25 | 3 |"), "{md}");
     let js: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(js["rows"].as_array().unwrap().len(), 6);
+    assert_eq!(js["robustness"]["rows"].as_array().unwrap().len(), 5);
+    assert!(js["rows"][0]["id_switches_per_clip"].is_number());
 
     // The real-frame files reproduce the real-frame score through `eval --pixel-scale 2.5`
     // (with their run_time set to 0, as this test scores: see the top of the file).
@@ -152,6 +221,8 @@ fn reduced_demo_scores_and_writes_its_files() {
         assert!(f.exists(), "{}", f.display());
     }
     let plot = image::open(out.join("accuracy_vs_noise.png")).unwrap();
+    assert_eq!((plot.width(), plot.height()), (760, 460));
+    let plot = image::open(out.join("robustness.png")).unwrap();
     assert_eq!((plot.width(), plot.height()), (760, 460));
     let bev = image::open(out.join("replay_bev.png")).unwrap();
     assert_eq!((bev.width(), bev.height()), (3 * 420, 720));
@@ -200,6 +271,8 @@ fn demo_cli_prints_the_table() {
             "--frames-per-clip",
             "3",
             "--no-images",
+            "--robustness-clips",
+            "0",
         ])
         .args(["--noise", "low,high", "--out"])
         .arg(&out)
@@ -222,6 +295,8 @@ fn demo_cli_prints_the_table() {
         "{text}"
     );
     assert!(!out.join("accuracy_vs_noise.png").exists());
+    assert!(!text.contains("Robustness:"), "{text}");
+    assert!(text.contains("| low | B (coupled) | all 1 |"), "{text}");
     // The JSON of the run (what `--json` prints; not run again here: the real frames cost
     // ~10 s in an unoptimised build).
     let v: serde_json::Value =

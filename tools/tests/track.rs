@@ -173,6 +173,18 @@ fn lane_x_extends_beyond_the_window_and_bands_carry_the_variance() {
             }
             seen += 1;
             assert_eq!(out.filtered.len(), 2);
+            // The prediction's lanes carry the tracker ids, left to right.
+            let id = |left: bool| {
+                out.filtered
+                    .iter()
+                    .find(|l| (l.z[0] < 0.0) == left)
+                    .unwrap()
+                    .id
+                    .0
+            };
+            assert_eq!(v.prediction.unwrap().lanes.len(), 2);
+            assert_eq!(v.prediction_ids, &[id(true), id(false)]);
+            assert_ne!(id(true), id(false));
             for l in &out.filtered {
                 let want = if l.z[0] < 0.0 { -1.8 } else { 1.8 };
                 let (x, var) = lane_x(v.tracker, &DEFAULT, l, 40.0).unwrap();
