@@ -1,5 +1,5 @@
 //! The whole per-frame pipeline in dense f64: the oracle of the core's `Tracker::step`
-//! (`src/tracker.rs`), built from the other references and following the core step by step.
+//! (`src/tracker/`), built from the other references and following the core step by step.
 //!
 //! One frame (`ReferencePipeline::step`):
 //! 1. spatial frame: [`spatial::run_frame`] on the first `max_points` points; its confirmed and
@@ -26,7 +26,7 @@
 //! 8. fixed-lag output: `x_{k−L|k}` by RTS ([`rts_step`]) over the stored dense steps, when the
 //!    lane set and order did not change in the window (otherwise not comparable: counted).
 //!
-//! # Choices where the core's contract leaves room (read from `src/tracker.rs` and mirrored)
+//! # Choices where the core's contract leaves room (read from `src/tracker/` and mirrored)
 //! * No prediction on the first frame; afterwards every frame predicts by its own `T`, also with
 //!   no lanes and in blackout frames (empty frames: all lanes coast, filtered = predicted).
 //! * Points beyond `max_points` are dropped before the spatial frame (the core's `MEAS`); all the

@@ -279,6 +279,25 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
         if !(inside && increasing) {
             return Err(TablesError::IndexPoints);
         }
+        self.check_structure()?;
+        let b_max = self.coreg.diagonal().iter().fold(0.0f32, |m, v| m.max(*v));
+        let lam1 = self.gram_eigval.get(0).copied().unwrap_or(0.0);
+        let prior = b_max * lam1 * self.temporal.kernel.variance;
+        // Finite positive factors (checked above): the product is finite or +inf, never NaN.
+        if prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise {
+            return Err(TablesError::IllConditioned);
+        }
+        Ok(())
+    }
+
+    /// The structural checks of [`Tables::validate`]: covariances symmetric with a positive
+    /// diagonal, the Cholesky factor of B lower and reproducing B, the Gram eigenbasis
+    /// orthonormal with `K V = V Λ` and decreasing non-negative eigenvalues, and the nominal
+    /// transitions and stationary covariances equal to their models'.
+    fn check_structure(&self) -> Result<(), TablesError> {
+        let h = &self.hyper;
+        let sp = &self.spatial;
+        let tp = &self.temporal;
         let lower =
             self.coreg_chol.upper_triangle().abs().max() <= self.coreg_chol.diagonal().abs().max();
         let recon = (self.coreg_chol * self.coreg_chol.transpose() - self.coreg)
@@ -337,13 +356,6 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
             && sp_close)
         {
             return Err(TablesError::Inconsistent);
-        }
-        let b_max = self.coreg.diagonal().iter().fold(0.0f32, |m, v| m.max(*v));
-        let lam1 = self.gram_eigval.get(0).copied().unwrap_or(0.0);
-        let prior = b_max * lam1 * self.temporal.kernel.variance;
-        // Finite positive factors (checked above): the product is finite or +inf, never NaN.
-        if prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise {
-            return Err(TablesError::IllConditioned);
         }
         Ok(())
     }

@@ -50,12 +50,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 rank: rank as u8,
                 llr: mt.llr_last,
             };
-            // v[i] = Cov(x_{r'}, x_{iK}) h for the registered index points, at the last index row
-            // r' passed; gam = G_r ⋯ G_{r'−1} since then.
-            let mut v = [[0.0f32; NS]; POINTS];
-            let mut registered = 0u64;
-            let mut gam = ident::<NS>();
-            let mut compose = false;
+            let mut reg = Registered::<NS, POINTS>::new();
             let mut xs = [0.0f32; NS];
             let mut ps = [[0.0f32; NS]; NS];
             let mut ok = true;
@@ -74,50 +69,13 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                         ok = false;
                         break;
                     };
-                    if compose {
-                        gam = mat_mul(&g, &gam);
-                    } else {
-                        let mut m = registered;
-                        while m != 0 {
-                            if let Some(vj) = v.get_mut(m.trailing_zeros() as usize) {
-                                *vj = mat_vec(&g, vj);
-                            }
-                            m &= m - 1;
-                        }
-                    }
+                    reg.step_back(&g);
                 }
                 if r % k_rows == 0 {
                     let i = r / k_rows;
                     let inside = r >= first && r <= last;
                     if i < POINTS && i < 64 && inside {
-                        // Bring the registered vectors to this row, then add this point.
-                        for (j, vj) in v.iter_mut().enumerate() {
-                            if registered & (1 << j) != 0 {
-                                if compose {
-                                    *vj = mat_vec(&gam, vj);
-                                }
-                                let e = dot(&h, vj);
-                                if let Some(c) = obs.cov.get_mut((i, j)) {
-                                    *c = e;
-                                }
-                                if let Some(c) = obs.cov.get_mut((j, i)) {
-                                    *c = e;
-                                }
-                            }
-                        }
-                        gam = ident::<NS>();
-                        // Composing the gains costs NS³ per row, propagating NS² per vector.
-                        compose = (registered | 1 << i).count_ones() as usize >= NS;
-                        let vi = mat_vec(&ps, &h);
-                        if let Some(c) = obs.cov.get_mut((i, i)) {
-                            *c = dot(&h, &vi);
-                        }
-                        set(&mut v, i, vi);
-                        registered |= 1 << i;
-                        set(&mut obs.present, i, true);
-                        if let Some(z) = obs.z.get_mut(i) {
-                            *z = dot(&h, &xs);
-                        }
+                        reg.add(i, h, (&xs, &ps), &mut obs);
                     }
                 }
             }
@@ -138,6 +96,81 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             }
         }
         n_out
+    }
+}
+
+/// The index points a track's backward pass has registered: `v[i] = Cov(x_{r'}, x_{iK}) h` for
+/// the registered points, at the last index row `r'` passed, and `gam = G_r ⋯ G_{r'−1}` since
+/// then when the gains are composed (composing costs `NS³` per row, propagating `NS²` per
+/// vector: composition pays once `NS` points are registered).
+struct Registered<const NS: usize, const POINTS: usize> {
+    v: [[f32; NS]; POINTS],
+    registered: u64,
+    gam: [[f32; NS]; NS],
+    compose: bool,
+}
+
+impl<const NS: usize, const POINTS: usize> Registered<NS, POINTS> {
+    fn new() -> Self {
+        Self {
+            v: [[0.0; NS]; POINTS],
+            registered: 0,
+            gam: ident::<NS>(),
+            compose: false,
+        }
+    }
+
+    /// One row back with the RTS gain `g`.
+    fn step_back(&mut self, g: &[[f32; NS]; NS]) {
+        if self.compose {
+            self.gam = mat_mul(g, &self.gam);
+        } else {
+            let mut m = self.registered;
+            while m != 0 {
+                if let Some(vj) = self.v.get_mut(m.trailing_zeros() as usize) {
+                    *vj = mat_vec(g, vj);
+                }
+                m &= m - 1;
+            }
+        }
+    }
+
+    /// At index point `i`'s row (smoothed moments `xs`, `ps`): brings the registered vectors to
+    /// this row, writes their covariances with point `i` and point `i`'s mean and variance into
+    /// `obs`, and registers `i`.
+    fn add<const NT1: usize>(
+        &mut self,
+        i: usize,
+        h: [f32; NS],
+        (xs, ps): (&[f32; NS], &[[f32; NS]; NS]),
+        obs: &mut LaneObservation<NT1>,
+    ) {
+        for (j, vj) in self.v.iter_mut().enumerate() {
+            if self.registered & (1 << j) != 0 {
+                if self.compose {
+                    *vj = mat_vec(&self.gam, vj);
+                }
+                let e = dot(&h, vj);
+                if let Some(c) = obs.cov.get_mut((i, j)) {
+                    *c = e;
+                }
+                if let Some(c) = obs.cov.get_mut((j, i)) {
+                    *c = e;
+                }
+            }
+        }
+        self.gam = ident::<NS>();
+        self.compose = (self.registered | 1 << i).count_ones() as usize >= NS;
+        let vi = mat_vec(ps, &h);
+        if let Some(c) = obs.cov.get_mut((i, i)) {
+            *c = dot(&h, &vi);
+        }
+        set(&mut self.v, i, vi);
+        self.registered |= 1 << i;
+        set(&mut obs.present, i, true);
+        if let Some(z) = obs.z.get_mut(i) {
+            *z = dot(&h, xs);
+        }
     }
 }
 

@@ -1,4 +1,5 @@
 use super::*;
+use nalgebra::SMatrix;
 
 #[test]
 fn event_count_matches_formula_for_full_gating() {
@@ -63,63 +64,13 @@ fn oracle(
         })
         .collect();
     let miss = 1.0 - f64::from(p.pd) * f64::from(p.pg);
-    // Enumerate events: a[t] = Some(j) or None, injective.
-    let mut events: Vec<Vec<Option<usize>>> = vec![vec![]];
-    for t in 0..n {
-        let mut next = Vec::new();
-        for e in &events {
-            next.push({
-                let mut v = e.clone();
-                v.push(None);
-                v
-            });
-            for &j in &valid[t] {
-                if !e.contains(&Some(j)) {
-                    let mut v = e.clone();
-                    v.push(Some(j));
-                    next.push(v);
-                }
-            }
-        }
-        events = next;
-    }
+    let events = oracle_events(&valid);
     let mut lws = Vec::new();
     let mut posts = Vec::new();
     for e in &events {
         let idx: Vec<usize> = (0..n).filter(|&t| e[t].is_some()).collect();
         let k = idx.len();
-        // Inverse of S_δ by Gauss-Jordan.
-        let mut m: Vec<Vec<f64>> = idx
-            .iter()
-            .map(|&a| {
-                let mut row: Vec<f64> = idx.iter().map(|&b| sb[a][b]).collect();
-                row.extend((0..k).map(|c| {
-                    if c == idx.iter().position(|&q| q == a).unwrap() {
-                        1.0
-                    } else {
-                        0.0
-                    }
-                }));
-                row
-            })
-            .collect();
-        let mut det = 1.0;
-        for c in 0..k {
-            let piv = m[c][c];
-            det *= piv;
-            for v in m[c].iter_mut() {
-                *v /= piv;
-            }
-            for r in 0..k {
-                if r != c {
-                    let f = m[r][c];
-                    for q in 0..2 * k {
-                        m[r][q] -= f * m[c][q];
-                    }
-                }
-            }
-        }
-        let sinv: Vec<Vec<f64>> = m.iter().map(|r| r[k..].to_vec()).collect();
+        let (sinv, det) = oracle_inverse(&sb, &idx);
         let nu: Vec<f64> = idx.iter().map(|&t| z[e[t].unwrap()] - zh[t]).collect();
         let sn: Vec<f64> = (0..k)
             .map(|a| (0..k).map(|b| sinv[a][b] * nu[b]).sum())
@@ -177,6 +128,63 @@ fn oracle(
         }
     }
     (bmiss, beta, xm, pmx)
+}
+
+/// Every joint event of the oracle: `a[t] = Some(j)` (a point of `valid[t]`) or `None`, no
+/// point used twice.
+fn oracle_events(valid: &[Vec<usize>]) -> Vec<Vec<Option<usize>>> {
+    let mut events: Vec<Vec<Option<usize>>> = vec![vec![]];
+    for vt in valid {
+        let mut next = Vec::new();
+        for e in &events {
+            next.push({
+                let mut v = e.clone();
+                v.push(None);
+                v
+            });
+            for &j in vt {
+                if !e.contains(&Some(j)) {
+                    let mut v = e.clone();
+                    v.push(Some(j));
+                    next.push(v);
+                }
+            }
+        }
+        events = next;
+    }
+    events
+}
+
+/// The inverse and determinant of `sb` restricted to `idx`, by Gauss-Jordan.
+#[allow(clippy::needless_range_loop)]
+fn oracle_inverse(sb: &[Vec<f64>], idx: &[usize]) -> (Vec<Vec<f64>>, f64) {
+    let k = idx.len();
+    let mut m: Vec<Vec<f64>> = idx
+        .iter()
+        .enumerate()
+        .map(|(ia, &a)| {
+            let mut row: Vec<f64> = idx.iter().map(|&b| sb[a][b]).collect();
+            row.extend((0..k).map(|c| if c == ia { 1.0 } else { 0.0 }));
+            row
+        })
+        .collect();
+    let mut det = 1.0;
+    for c in 0..k {
+        let piv = m[c][c];
+        det *= piv;
+        for v in m[c].iter_mut() {
+            *v /= piv;
+        }
+        for r in 0..k {
+            if r != c {
+                let f = m[r][c];
+                for q in 0..2 * k {
+                    m[r][q] -= f * m[c][q];
+                }
+            }
+        }
+    }
+    (m.iter().map(|r| r[k..].to_vec()).collect(), det)
 }
 
 /// Three coupled tracks with shared candidates, under ordinary and extreme parameters (the

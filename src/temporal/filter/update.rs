@@ -239,36 +239,9 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 0.0
             }
         });
-        // Symmetrise before factoring (rounding).
-        for j in 0..r {
-            for k in 0..j {
-                let v = 0.5
-                    * (A.get((j, k)).copied().unwrap_or(0.0)
-                        + A.get((k, j)).copied().unwrap_or(0.0));
-                if let Some(e) = A.get_mut((j, k)) {
-                    *e = v;
-                }
-            }
-        }
-        if !cholesky_lower(&mut A, r) {
+        let Some(Y) = factor_and_solve(&mut A, &K, r) else {
             return Err(TemporalError::Numerical);
-        }
-        // Y = L_A⁻¹ Kᵀ: column k of Y solves L_A y = (row k of K)ᵀ.
-        let mut Y = SMatrix::<f32, RANK, RANK>::zeros();
-        for k in 0..r {
-            let mut col = [0.0f32; RANK];
-            for (q, c) in col.iter_mut().enumerate().take(r) {
-                *c = K.get((k, q)).copied().unwrap_or(0.0);
-            }
-            if let Some(cs) = col.get_mut(..r) {
-                forward_subst(&A, cs);
-            }
-            for (q, c) in col.iter().enumerate().take(r) {
-                if let Some(e) = Y.get_mut((q, k)) {
-                    *e = *c;
-                }
-            }
-        }
+        };
         // b = i − J a, t = L_A⁻¹ Lᵀ b.
         let a: [f32; RANK] =
             core::array::from_fn(|j| if j < r { self.xg(a0 + 2 * j) } else { 0.0 });
@@ -312,30 +285,12 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 *e = if k < r { self.pg(i, a0 + 2 * k) } else { 0.0 };
             }
         }
-        // wᵀ M⁻¹ w by a loaded Cholesky of M (directions the rows barely inform are floored).
-        let mmax = (0..r)
-            .map(|j| M.get((j, j)).copied().unwrap_or(0.0))
-            .fold(0.0f32, f32::max);
-        let mut mf = M;
-        let mut mload = [0.0f32; RANK];
-        let mfloor = 1e-6 * mmax;
-        let nis = if mmax > 0.0
-            && linalg::cholesky_loaded(&mut mf, r, mfloor, mfloor, &mut mload) != u8::MAX
-        {
-            let mut z: [f32; RANK] = core::array::from_fn(|j| w.get(j).copied().unwrap_or(0.0));
-            if let Some(zs) = z.get_mut(..r) {
-                forward_subst(&mf, zs);
-            }
-            z.iter().take(r).map(|v| v * v).sum()
-        } else {
-            0.0
-        };
         parts.slot = s;
         parts.r = r;
+        parts.nis = normalised_innovation(&M, &w, r);
         parts.m = M;
         parts.w = w;
         parts.repaired = 0;
-        parts.nis = nis;
         Ok(())
     }
 
@@ -547,4 +502,67 @@ pub(crate) fn project<const POINTS: usize, const RANK: usize>(
         *w = dot(&pv, &vi).max(tol * s * s);
     }
     (mean, var)
+}
+
+/// Symmetrises the leading `r×r` block of `a` (rounding), factors it in place (`a = L_A L_Aᵀ`)
+/// and returns `Y = L_A⁻¹ Kᵀ` (column `k` of `Y` solves `L_A y = (row k of K)ᵀ`); `None` when
+/// `a` is not positive definite.
+#[allow(non_snake_case)]
+fn factor_and_solve<const RANK: usize>(
+    a: &mut SMatrix<f32, RANK, RANK>,
+    K: &SMatrix<f32, RANK, RANK>,
+    r: usize,
+) -> Option<SMatrix<f32, RANK, RANK>> {
+    for j in 0..r {
+        for k in 0..j {
+            let v = 0.5
+                * (a.get((j, k)).copied().unwrap_or(0.0) + a.get((k, j)).copied().unwrap_or(0.0));
+            if let Some(e) = a.get_mut((j, k)) {
+                *e = v;
+            }
+        }
+    }
+    if !cholesky_lower(a, r) {
+        return None;
+    }
+    let mut Y = SMatrix::<f32, RANK, RANK>::zeros();
+    for k in 0..r {
+        let mut col = [0.0f32; RANK];
+        for (q, c) in col.iter_mut().enumerate().take(r) {
+            *c = K.get((k, q)).copied().unwrap_or(0.0);
+        }
+        if let Some(cs) = col.get_mut(..r) {
+            forward_subst(a, cs);
+        }
+        for (q, c) in col.iter().enumerate().take(r) {
+            if let Some(e) = Y.get_mut((q, k)) {
+                *e = *c;
+            }
+        }
+    }
+    Some(Y)
+}
+
+/// `wᵀ M⁻¹ w` on the leading `r` components by a loaded Cholesky of `M` (directions the rows
+/// barely inform are floored at `1e-6 × max M_jj`); 0 when `M` has no positive diagonal.
+fn normalised_innovation<const RANK: usize>(
+    m: &SMatrix<f32, RANK, RANK>,
+    w: &SVector<f32, RANK>,
+    r: usize,
+) -> f32 {
+    let mmax = (0..r)
+        .map(|j| m.get((j, j)).copied().unwrap_or(0.0))
+        .fold(0.0f32, f32::max);
+    let mut mf = *m;
+    let mut mload = [0.0f32; RANK];
+    let mfloor = 1e-6 * mmax;
+    if mmax > 0.0 && linalg::cholesky_loaded(&mut mf, r, mfloor, mfloor, &mut mload) != u8::MAX {
+        let mut z: [f32; RANK] = core::array::from_fn(|j| w.get(j).copied().unwrap_or(0.0));
+        if let Some(zs) = z.get_mut(..r) {
+            forward_subst(&mf, zs);
+        }
+        z.iter().take(r).map(|v| v * v).sum()
+    } else {
+        0.0
+    }
 }

@@ -1,0 +1,346 @@
+//! One association pass of the known lanes over the binned rows (docs/design.md §11.3–§11.5):
+//! per row the predicted lanes, the joint events, and each lane's evidence and detection
+//! counts; the points the lanes explain; the clutter estimate from the rest.
+
+use crate::linalg::{get, set};
+use crate::math;
+use crate::spatial::row::{self, RowOutcome, RowParams, MAX_ROW_POINTS};
+use crate::tables::Tables;
+use crate::temporal::filter::TemporalFilter;
+
+use super::rows::{band, mean_at, quad, row_basis};
+use super::{Evidence, Pass, Persist, PersistConfig};
+
+/// The rows' points a known lane explains, per row (bit `j` = point `j`).
+pub type Explained<const ROWS: usize> = [u32; ROWS];
+
+/// Inputs of one association pass.
+pub struct Lanes<'a, const LANES: usize> {
+    /// Slots looked at (bit `s`).
+    pub slots: u32,
+    /// B index (rank) of every slot.
+    pub ranks: &'a [u8; LANES],
+    /// Row range `[lo, hi]` per slot (inclusive).
+    pub rows: [(u16, u16); LANES],
+}
+
+/// The lanes looked at in one row, predicted: slot, mean `ẑ` and variance `S` (with the
+/// band's point variance) for the first `n`.
+struct Predicted<const LANES: usize> {
+    idx: [usize; LANES],
+    zhat: [f32; LANES],
+    sdiag: [f32; LANES],
+    n: usize,
+}
+
+/// Where a row is: its index, band, `u`, the GP row vector `c` over the first `r_used`
+/// components, and the row's parameters (the band's clutter density and point variance).
+struct RowAt<const RANK: usize> {
+    r: usize,
+    b: usize,
+    u: f32,
+    c: [f32; RANK],
+    r_used: usize,
+    params: RowParams,
+}
+
+/// The row's PDA update of a lane's marginal as one equivalent measurement (docs/design.md
+/// §11.3): with the row prior variance `p = S − r`, `ν̄ = Σ β_j ν_j` and the spread
+/// `Σ β_j ν_j² − ν̄²`, the PDA posterior variance `p − W p²/S + p² spread/S²` equals that of a
+/// measurement of variance `v`, `1/(p + v) = W/S − spread/S²`, at `ẑ + ν̄ (p + v)/S`.
+/// Returns `(1/v, z̃)`, or `None` when the row carries no information.
+fn equivalent_measurement(
+    pts: &[f32],
+    brow: &[f32; MAX_ROW_POINTS],
+    (zh, st, w): (f32, f32, f32),
+    r: f32,
+) -> Option<(f32, f32)> {
+    let mut nbar = 0.0f32;
+    let mut n2 = 0.0f32;
+    for (z, bj) in pts.iter().zip(brow.iter()) {
+        let d = z - zh;
+        nbar += bj * d;
+        n2 += bj * d * d;
+    }
+    let spread = (n2 - nbar * nbar).max(0.0);
+    let q = w / st - spread / (st * st);
+    let p_row = st - r;
+    let var = if q > 0.0 {
+        1.0 / q - p_row
+    } else {
+        f32::INFINITY
+    };
+    let zt = zh + nbar / (q * st);
+    let om = 1.0 / var;
+    (om.is_finite() && om > 0.0 && zt.is_finite()).then_some((om, zt))
+}
+
+/// The row's dominant point of one lane, `(j, β_j)`, the first of the largest.
+fn dominant(brow: &[f32; MAX_ROW_POINTS], m: usize) -> (usize, f32) {
+    brow.iter().take(m).enumerate().fold(
+        (0usize, 0.0f32),
+        |acc, (j, v)| if *v > acc.1 { (j, *v) } else { acc },
+    )
+}
+
+impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, POINTS, ROWS> {
+    /// One pass of the known lanes over the binned rows: per row the predicted lanes, the
+    /// joint events, and each lane's evidence (`ev[s]`) and detection counts; the points each
+    /// row's lanes explain (`explained[r]`), and the clutter estimate from the rest
+    /// (`estimate_clutter`). `row_points(r)` gives row `r`'s points. Returns the rows whose
+    /// event enumeration failed.
+    #[allow(clippy::too_many_arguments)]
+    pub fn associate<'p, const NT: usize, const RANK: usize, const NX: usize>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
+        lanes: &Lanes<'_, LANES>,
+        pass: &Pass,
+        cfg: &PersistConfig,
+        row_points: impl Fn(usize) -> &'p [f32],
+        estimate_clutter: bool,
+        ev: &mut [Evidence<RANK>; LANES],
+        explained: &mut Explained<ROWS>,
+    ) -> u32 {
+        let h = &tables.hyper;
+        let r_used = (tables.gram_rank as usize).min(RANK).min(POINTS);
+        let (slot, n) = self.begin_pass(filter, lanes.slots, cfg.pd_memory);
+        // P_D,b of every lane for this pass: the discounted estimate before this frame's rows
+        // (docs/design.md §11.5; the counts of this pass take effect from the next one).
+        let mut pd0 = [[0.5f32; POINTS]; LANES];
+        for (l, row) in self.lanes.iter().zip(pd0.iter_mut()) {
+            for (b, v) in row.iter_mut().enumerate() {
+                *v = l.pd(b);
+            }
+        }
+        let bss = |s: usize, t: usize| {
+            let a = usize::from(get(lanes.ranks, s));
+            let b = usize::from(get(lanes.ranks, t));
+            tables.coreg.get((a, b)).copied().unwrap_or(0.0)
+        };
+        let mut unexplained = [0.0f32; POINTS];
+        let mut band_rows = [0.0f32; POINTS];
+        let mut failed = 0u32;
+        for r in 0..pass.rows.min(ROWS) {
+            let pts = row_points(r);
+            let m = pts.len().min(MAX_ROW_POINTS);
+            let pts = pts.get(..m).unwrap_or(&[]);
+            let b = band::<POINTS>(r, pass.k_rows);
+            if let Some(br) = band_rows.get_mut(b) {
+                *br += 1.0;
+            }
+            let u = h.u_min + r as f32 * pass.du;
+            let (c, rho) = row_basis::<NT, LANES, POINTS, RANK>(tables, u, r_used);
+            // The lanes looked at in this row (their row range), predicted.
+            let mut pred = Predicted {
+                idx: [0; LANES],
+                zhat: [0.0; LANES],
+                sdiag: [0.0; LANES],
+                n: 0,
+            };
+            for &s in slot.iter().take(n) {
+                let (lo, hi) = get(&lanes.rows, s);
+                if r < usize::from(lo) || r > usize::from(hi) {
+                    continue;
+                }
+                let k = pred.n;
+                set(&mut pred.zhat, k, mean_at(filter, s, &c, r_used));
+                set(
+                    &mut pred.sdiag,
+                    k,
+                    quad(filter, s, s, &c, r_used) + rho * bss(s, s) + self.noise(b, pass.params.r),
+                );
+                set(&mut pred.idx, k, s);
+                pred.n += 1;
+            }
+            let at = RowAt {
+                r,
+                b,
+                u,
+                c,
+                r_used,
+                params: RowParams {
+                    clutter_density: self.clutter(
+                        b,
+                        pass.params.clutter_density,
+                        cfg.clutter_floor,
+                    ),
+                    r: self.noise(b, pass.params.r),
+                    ..pass.params
+                },
+            };
+            let out = row::associate(
+                &pred.zhat,
+                &pred.sdiag,
+                |a, bb| {
+                    let (s, t) = (get(&pred.idx, a), get(&pred.idx, bb));
+                    quad(filter, s, t, &c, r_used) + rho * bss(s, t)
+                },
+                pred.n,
+                pts,
+                &at.params,
+                pass.max_events,
+                0,
+            );
+            failed += u32::from(out.failed);
+            // Explained points.
+            let mut ex = 0u32;
+            for j in 0..m {
+                let tot: f32 = out.beta.iter().take(pred.n).map(|row| get(row, j)).sum();
+                if tot >= cfg.explained {
+                    ex |= 1 << j;
+                }
+            }
+            if let Some(e) = explained.get_mut(r) {
+                *e |= ex;
+            }
+            if let Some(un) = unexplained.get_mut(b) {
+                *un += (m as u32 - ex.count_ones()) as f32;
+            }
+            for a in 0..pred.n {
+                let s = get(&pred.idx, a);
+                let pd = pd0.get(s).map_or(0.5, |row| get(row, b));
+                if let Some(e) = ev.get_mut(s) {
+                    self.lane_row(e, (s, a, pd), &pred, &out, pts, &at);
+                }
+            }
+        }
+        if estimate_clutter {
+            self.update_clutter(&unexplained, &band_rows, cfg.clutter_memory);
+        }
+        failed
+    }
+
+    /// Collects the active slots among `slots` and discounts their detection counts with a
+    /// memory of `pd_memory` frames.
+    fn begin_pass<const RANK: usize, const NX: usize>(
+        &mut self,
+        filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
+        slots: u32,
+        pd_memory: f32,
+    ) -> ([usize; LANES], usize) {
+        let mut slot = [0usize; LANES];
+        let mut n = 0usize;
+        for s in 0..LANES {
+            if slots & (1 << s) != 0 && filter.is_active(s) {
+                set(&mut slot, n, s);
+                n += 1;
+            }
+        }
+        let pd_decay = if pd_memory > 1.0 {
+            1.0 - 1.0 / pd_memory
+        } else {
+            0.0
+        };
+        for s in slot.iter().take(n) {
+            if let Some(l) = self.lanes.get_mut(*s) {
+                l.passes = l.passes.saturating_add(1);
+                for (hb, lb) in l.hits.iter_mut().zip(l.looks.iter_mut()) {
+                    *hb *= pd_decay;
+                    *lb *= pd_decay;
+                }
+            }
+        }
+        (slot, n)
+    }
+
+    /// One lane's share of a row: `s` is its slot, `a` its place in the row's events, `pd` its
+    /// `P_D` in the row's band. Adds the row's IPDA likelihood ratio and equivalent
+    /// measurement to `e`, records the row's dominant point for the noise estimate, and counts
+    /// the row for the lane's `P_D` when the lane is in view.
+    fn lane_row<const RANK: usize>(
+        &mut self,
+        e: &mut Evidence<RANK>,
+        (s, a, pd): (usize, usize, f32),
+        pred: &Predicted<LANES>,
+        out: &RowOutcome<LANES>,
+        pts: &[f32],
+        at: &RowAt<RANK>,
+    ) {
+        let (r, b, m) = (at.r, at.b, pts.len());
+        let w = (1.0 - get(&out.beta_miss, a)).clamp(0.0, 1.0);
+        let brow = out.beta.get(a).copied().unwrap_or([0.0; MAX_ROW_POINTS]);
+        let st = get(&pred.sdiag, a);
+        let zh = get(&pred.zhat, a);
+        // In view: inside the band's span of points this frame.
+        let [vlo, vhi] = self.span.get(b).copied().unwrap_or([0.0; 2]);
+        let in_view = zh >= vlo && zh <= vhi;
+        // IPDA likelihood ratio of the row. Each gated point counts as far as no other lane
+        // claims it (JIPDA-style).
+        let lambda = at.params.clutter_density;
+        let lr = 1.0 - pd * at.params.pg + pd * get(&out.dens, a) / lambda;
+        if in_view && lr.is_finite() && lr > 0.0 {
+            e.llr += math::ln(lr);
+        }
+        if let Some(rw) = self.rows.get_mut(s).and_then(|rs| rs.get_mut(r)) {
+            *rw = [0.0; 2];
+        }
+        if w > 1e-6 && !out.failed {
+            let zbar: f32 = pts
+                .iter()
+                .zip(brow.iter())
+                .map(|(z, bj)| z * bj)
+                .sum::<f32>()
+                / w;
+            // For the noise estimate: the row's dominant point, when it holds ≥ 90 % of the
+            // lane's weight (a mixture with clutter would count clutter as noise).
+            let (jd, bd) = dominant(&brow, m);
+            if bd >= 0.9 * w {
+                if let Some(rw) = self.rows.get_mut(s).and_then(|rs| rs.get_mut(r)) {
+                    *rw = [pts.get(jd).copied().unwrap_or(zbar), bd];
+                }
+            }
+            if let Some((om, zt)) = equivalent_measurement(pts, &brow, (zh, st, w), at.params.r) {
+                for j in 0..at.r_used {
+                    let cj = get(&at.c, j);
+                    if let Some(iv) = e.i.get_mut(j) {
+                        *iv += om * zt * cj;
+                    }
+                    for k in 0..at.r_used {
+                        if let Some(jv) = e.j.get_mut((j, k)) {
+                            *jv += om * cj * get(&at.c, k);
+                        }
+                    }
+                }
+                e.weight += w;
+                if w >= 0.5 {
+                    e.extent[0] = e.extent[0].min(at.u);
+                    e.extent[1] = e.extent[1].max(at.u);
+                }
+            }
+        }
+        if let (true, Some(ls)) = (in_view, self.lanes.get_mut(s)) {
+            if let (Some(hb), Some(lb)) = (ls.hits.get_mut(b), ls.looks.get_mut(b)) {
+                *hb += w;
+                *lb += 1.0;
+            }
+        }
+    }
+
+    /// The clutter density per band from this pass's unexplained points (points per metre
+    /// per row over the band's span), smoothed with a memory of `memory` frames.
+    fn update_clutter(
+        &mut self,
+        unexplained: &[f32; POINTS],
+        band_rows: &[f32; POINTS],
+        memory: f32,
+    ) {
+        let a = if memory > 1.0 { 1.0 / memory } else { 1.0 };
+        for b in 0..POINTS {
+            let rows = get(band_rows, b);
+            if rows <= 0.0 {
+                continue;
+            }
+            let [lo, hi] = self.span.get(b).copied().unwrap_or([0.0; 2]);
+            let width = if hi > lo { (hi - lo).max(1.0) } else { 1.0 };
+            let est = get(unexplained, b) / (rows * width);
+            if let Some(c) = self.clutter.get_mut(b) {
+                *c = if c.is_finite() {
+                    *c + a * (est - *c)
+                } else {
+                    est
+                };
+            }
+        }
+    }
+}

@@ -1,0 +1,363 @@
+//! Known lanes persist (docs/design.md §11): the temporal prediction is the prior of this frame's
+//! association, existence is a probability, and the clutter density, the point variance and
+//! every lane's detection probability are estimated, not set.
+//!
+//! Each frame, before the spatial JPDACF, every live temporal lane is predicted at every BEV row
+//! `u_r` from its Gram coefficients (the GP conditional of [`crate::tracker::Tracker::lane_at`]):
+//! `ẑ = c_rᵀ a_s`, `c_rj = k(u_r, U)·v_j / λ_j`, with variance `p = c_rᵀ Cov(a_s) c_r + ρ_r B_ss`
+//! (`ρ_r = σ_u² − Σ_j (k·v_j)²/λ_j`) plus the band's point variance `r_b`. The lanes'
+//! cross-covariances at the row, `c_rᵀ Cov(a_s, a_t) c_r + ρ_r B_st`, couple them: one
+//! joint-event enumeration per row ([`crate::spatial::row::associate`]) gives `β_{s,j}` and
+//! `β_{s,miss}`. A row's PDA update of a lane's marginal is replaced by the equivalent
+//! measurement with the same posterior variance (§11.3: `1/(p + v) = W/S − q₂/S²`,
+//! `z̃ = ẑ + ν̄ (p + v)/S`), and the rows are summed in information form on the lane's Gram
+//! components, `J_s = Σ_r c_r c_rᵀ / v_r`, `i_s = Σ_r c_r z̃_r / v_r`. The temporal filter is then
+//! updated with `(J_s, i_s)` ([`crate::temporal::smoother::Temporal::update_info_probed`]): the
+//! frame's points enter the temporal filter once.
+//!
+//! **Existence** (IPDA, Mušicki, Evans & Stanković 1994, per row, §11.5): predicted by
+//! `P ← P·e^{−T/τ_s}`; updated with `L = (1/K) Σ_r ln Λ_r` over the rows where the lane is in
+//! view, `Λ_r = 1 − P_D,b P_G + (P_D,b / λ_b) Σ_{j gated} N(z_j; ẑ, S)(1 − Σ_{t≠s} β_{t,j})`, as
+//! `logit P += ln(p_v e^L + 1 − p_v)` (a frame may not show the lane at all). `P_D,b` is the
+//! lane's own detection probability in index band `b` (Beta(1, 1) posterior mean of discounted
+//! row weights, fixed over a pass); `λ_b` the band's clutter density from the points no known
+//! lane explains; `r_b` the band's point variance from posterior residuals (§11.6).
+//!
+//! Points a known lane explains leave the rows; the spatial JPDACF runs on the rest and may
+//! start new lanes only from them.
+//!
+//! # Cost
+//! Per row: `n·r` for the predictions, `n·r²` for the variances, at most `n(n−1)/2·r²` for the
+//! cross terms of lanes with candidates, one bounded event enumeration; `POINTS` exponentials
+//! and `POINTS·r` multiply-adds for the row basis; then per lane `O(r³)` and the temporal update
+//! (`n_act²·r/2`); the noise estimate another `n·r²` per row with evidence.
+
+use nalgebra::{SMatrix, SVector};
+
+use crate::linalg::{get, set};
+use crate::math;
+use crate::spatial::row::RowParams;
+
+mod associate;
+mod rows;
+
+pub use associate::{Explained, Lanes};
+pub use rows::row_basis;
+
+/// Tuning of the known-lane stage. Values are model constants, not fitted to a data set
+/// (docs/design.md §11 says which data chose which).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PersistConfig {
+    /// `true`: known lanes are associated against their temporal prediction (this module);
+    /// `false`: the round-1 pipeline (every frame's lanes found afresh, matched afterwards), kept
+    /// for the ablation.
+    pub enabled: bool,
+    /// Frames of memory of a lane's per-band detection counts.
+    pub pd_memory: f32,
+    /// Frames of memory of the clutter density estimate.
+    pub clutter_memory: f32,
+    /// Smallest clutter density used, points per metre per row.
+    pub clutter_floor: f32,
+    /// Mean survival time of a lane that is no longer supported, seconds (`τ_s`).
+    pub survival_time: f32,
+    /// Existence of a lane before its first frame's evidence.
+    pub p_birth: f32,
+    /// A lane is published while its existence is at least this.
+    pub p_publish: f32,
+    /// A lane is deleted when its existence falls below this.
+    pub p_delete: f32,
+    /// A point whose summed association probability to the known lanes reaches this is theirs
+    /// and leaves the rows before the spatial filter runs.
+    pub explained: f32,
+    /// Hits that make a spatial track a lane candidate (the spatial filter's `confirm_hits`
+    /// while this stage is on): a candidate starts with existence `p_birth`, and the frames
+    /// that follow decide, so a dashed marking needs only a few hits in one frame.
+    pub confirm_hits: u16,
+    /// Frames of memory of the process-noise scale's adaptation (0: no adaptation).
+    pub q_memory: f32,
+    /// Probability that a lane that exists is visible in a frame (not occluded, not blurred
+    /// out): the rows' evidence of a frame counts only in that case (docs/design.md §11.5).
+    pub p_visible: f32,
+    /// Two lanes closer than this on average over their common observed extent are one
+    /// marking (docs/design.md §11.9), metres: half of a 2 m minimum spacing of markings.
+    pub min_spacing: f32,
+}
+
+impl PersistConfig {
+    /// The defaults: 10 frames of detection memory, 5 of clutter memory, clutter floor
+    /// 0.005 /m, `τ_s` = 10 s, `P_birth` = 0.1, publish at 0.5, delete below 0.01, a point
+    /// explained at 0.5.
+    pub const DEFAULT: Self = Self {
+        enabled: true,
+        pd_memory: 10.0,
+        clutter_memory: 5.0,
+        clutter_floor: 0.005,
+        survival_time: 10.0,
+        p_birth: 0.1,
+        p_publish: 0.5,
+        p_delete: 0.01,
+        explained: 0.5,
+        confirm_hits: 3,
+        q_memory: 2.0,
+        p_visible: 0.9,
+        min_spacing: 1.0,
+    };
+
+    /// The round-1 pipeline (ablation "no temporal prior").
+    pub const ROUND1: Self = Self {
+        enabled: false,
+        ..Self::DEFAULT
+    };
+}
+
+impl Default for PersistConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// One lane's estimated detection probability per index band and its existence.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaneState<const POINTS: usize> {
+    /// Known-lane passes this lane has been through.
+    pub passes: u16,
+    /// Discounted row weights `Σ W_r` per band.
+    pub hits: [f32; POINTS],
+    /// Discounted rows per band.
+    pub looks: [f32; POINTS],
+    /// `P(exists)`.
+    pub existence: f32,
+}
+
+impl<const POINTS: usize> LaneState<POINTS> {
+    /// A lane with no history.
+    pub const NEW: Self = Self {
+        passes: 0,
+        hits: [0.0; POINTS],
+        looks: [0.0; POINTS],
+        existence: 0.0,
+    };
+
+    /// `P_D` in band `b`: the Beta(1, 1) posterior mean.
+    pub fn pd(&self, b: usize) -> f32 {
+        (get(&self.hits, b) + 1.0) / (get(&self.looks, b) + 2.0)
+    }
+}
+
+/// The stage's state: per slot [`LaneState`], per band the clutter density and the point
+/// variance, and this frame's row evidence per slot (for the noise estimate).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Persist<const LANES: usize, const POINTS: usize, const ROWS: usize> {
+    /// Per slot.
+    pub lanes: [LaneState<POINTS>; LANES],
+    /// Clutter density per band, points per metre per row (`NaN` until first estimated).
+    pub clutter: [f32; POINTS],
+    /// Discounted sums of the point-variance estimates per band, and their counts.
+    pub noise: [[f32; 2]; POINTS],
+    /// This frame's `(z̃_r, W_r)` per slot and row (`W_r = 0`: nothing).
+    rows: [[[f32; 2]; ROWS]; LANES],
+    /// This frame's lateral span `[min, max]` of all points per band: where the sensor sees.
+    pub span: [[f32; 2]; POINTS],
+    /// `ln` of the process-noise scale (≥ 0).
+    pub log_q_scale: f32,
+    /// This frame's sum of `ν²/S` and count over the confidently associated rows of lanes
+    /// older than one frame.
+    nis: [f32; 2],
+    /// The last frame's ratio `Σ nis / Σ dof` (0 when not enough was counted).
+    pub last_nis_ratio: f32,
+}
+
+/// One frame's evidence for one lane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Evidence<const RANK: usize> {
+    /// `J = Σ ω_r c_r c_rᵀ`.
+    pub j: SMatrix<f32, RANK, RANK>,
+    /// `i = Σ ω_r z̃_r c_r`.
+    pub i: SVector<f32, RANK>,
+    /// `Σ_r W_r` (expected detected rows).
+    pub weight: f32,
+    /// `Σ_r ln Λ_r`.
+    pub llr: f32,
+    /// `u` of the first and last rows with `W_r ≥ 0.5` (`[+∞, −∞]` when none).
+    pub extent: [f32; 2],
+}
+
+impl<const RANK: usize> Evidence<RANK> {
+    /// No evidence.
+    pub const NONE: Self = Self {
+        j: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; RANK])),
+        i: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; 1])),
+        weight: 0.0,
+        llr: 0.0,
+        extent: [f32::INFINITY, f32::NEG_INFINITY],
+    };
+}
+
+/// What [`Persist::associate`] needs besides the lanes.
+#[derive(Debug, Clone, Copy)]
+pub struct Pass {
+    /// Rows and their spacing.
+    pub rows: usize,
+    /// Row spacing, metres.
+    pub du: f32,
+    /// Rows per index interval (`K`).
+    pub k_rows: usize,
+    /// Row parameters (`P_D`, `P_G`, `γ`, `r`, miss model); the clutter density is the band's.
+    pub params: RowParams,
+    /// Events per row.
+    pub max_events: usize,
+}
+
+impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Default
+    for Persist<LANES, POINTS, ROWS>
+{
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, POINTS, ROWS> {
+    /// No lanes, no clutter or noise estimate.
+    pub const fn new() -> Self {
+        Self {
+            lanes: [LaneState::NEW; LANES],
+            clutter: [f32::NAN; POINTS],
+            noise: [[0.0; 2]; POINTS],
+            rows: [[[0.0; 2]; ROWS]; LANES],
+            span: [[f32::INFINITY, f32::NEG_INFINITY]; POINTS],
+            log_q_scale: 0.0,
+            nis: [0.0; 2],
+            last_nis_ratio: 0.0,
+        }
+    }
+
+    /// The temporal process-noise scale `e^{log_q_scale}` (≥ 1).
+    pub fn q_scale(&self) -> f32 {
+        math::exp(self.log_q_scale.max(0.0))
+    }
+
+    /// Counts one lane update's normalised innovation `nis` with `dof` degrees of freedom
+    /// (lanes through at least two known-lane passes only: a new lane's velocity is unknown).
+    /// Only lanes that are published (`P ≥ p_publish`) count, and each lane's `nis` is capped at
+    /// `3·dof` (about the χ² 99.9 % point for 7 degrees of freedom): one lane gone astray must
+    /// not inflate every lane's process noise.
+    pub fn count_nis(&mut self, s: usize, nis: f32, dof: f32, p_publish: f32) {
+        let ok = self
+            .lanes
+            .get(s)
+            .is_some_and(|l| l.passes >= 2 && l.existence >= p_publish);
+        if ok && nis.is_finite() && nis >= 0.0 {
+            self.nis[0] += nis.min(3.0 * dof);
+            self.nis[1] += dof;
+        }
+    }
+
+    /// Adapts the process-noise scale to this frame's normalised innovations (covariance
+    /// matching): with `ρ = Σ nis / Σ dof` over the lane updates counted (1 when the model
+    /// holds), `ln s += ln ρ / memory`, `s` kept in `[1, 10⁴]`. Nothing changes with fewer than
+    /// `min_dof` degrees of freedom.
+    pub fn adapt_q_scale(&mut self, memory: f32, min_dof: f32) {
+        let [sum, n] = self.nis;
+        self.last_nis_ratio = 0.0;
+        if n >= min_dof && sum > 0.0 && sum.is_finite() {
+            let rho = sum / n;
+            self.last_nis_ratio = rho;
+            let step = math::ln(rho) / memory.max(1.0);
+            if step.is_finite() {
+                self.log_q_scale = (self.log_q_scale + step).clamp(0.0, 9.21);
+            }
+        }
+        self.nis = [0.0; 2];
+    }
+
+    /// Records this frame's lateral span per band from all its binned points (call once per
+    /// frame, before any association): a lane predicted outside its band's span is not in
+    /// view there, so the row counts neither as a detection nor as a miss.
+    pub fn observe_spans<'p>(
+        &mut self,
+        rows: usize,
+        k_rows: usize,
+        row_points: impl Fn(usize) -> &'p [f32],
+    ) {
+        self.span = [[f32::INFINITY, f32::NEG_INFINITY]; POINTS];
+        for r in 0..rows {
+            let b = rows::band::<POINTS>(r, k_rows);
+            if let Some(sp) = self.span.get_mut(b) {
+                for z in row_points(r).iter().filter(|z| z.is_finite()) {
+                    sp[0] = sp[0].min(*z);
+                    sp[1] = sp[1].max(*z);
+                }
+            }
+        }
+    }
+
+    /// The point variance of band `b`: `(S_b + n₀ r₀) / (N_b + n₀)` with the prior `r₀` =
+    /// `fallback` worth `n₀ = 2` rows, floored at `1e-5` m².
+    pub fn noise(&self, b: usize, fallback: f32) -> f32 {
+        let [s, n] = self.noise.get(b).copied().unwrap_or([0.0; 2]);
+        ((s + 2.0 * fallback) / (n + 2.0)).max(1e-5)
+    }
+
+    /// The clutter density of band `b`, or `fallback` before the first estimate.
+    pub fn clutter(&self, b: usize, fallback: f32, floor: f32) -> f32 {
+        let c = get(&self.clutter, b);
+        if c.is_finite() {
+            c.max(floor)
+        } else {
+            fallback.max(floor)
+        }
+    }
+
+    /// Existence prediction over `dt` seconds for every live slot.
+    pub fn predict(&mut self, dt: f32, cfg: &PersistConfig) {
+        let ps = if cfg.survival_time > 0.0 {
+            math::exp(-dt / cfg.survival_time)
+        } else {
+            1.0
+        };
+        for l in &mut self.lanes {
+            l.existence *= ps;
+        }
+    }
+
+    /// Existence update of slot `s` with a frame's summed row log-likelihood ratio `llr`
+    /// (docs/design.md §11.5): the rows of an index interval count as one look, `L = llr / k`,
+    /// and the frame is a mixture of "the lane is visible" (probability `p_visible`, the rows'
+    /// evidence holds) and "it is not" (occlusion, glare, a bump: no information), so
+    /// `logit P += ln(p_v e^L + 1 − p_v)` — a frame that sees nothing of a lane costs at most
+    /// `ln(1 − p_v)`; the change is bounded by ±30.
+    pub fn update_existence(&mut self, s: usize, llr: f32, k: f32, p_visible: f32) {
+        if let Some(l) = self.lanes.get_mut(s) {
+            let big = (llr / k.max(1.0)).clamp(-60.0, 60.0);
+            let pv = p_visible.clamp(0.0, 1.0);
+            // ln(p_v e^L + 1 − p_v), evaluated without overflow.
+            let mixed = if big > 0.0 {
+                big + math::ln(pv + (1.0 - pv) * math::exp(-big))
+            } else {
+                math::ln(1.0 - pv + pv * math::exp(big))
+            };
+            let d = mixed.clamp(-30.0, 30.0);
+            let p = l.existence.clamp(1e-6, 1.0 - 1e-6);
+            let lo = math::ln(p / (1.0 - p)) + if d.is_finite() { d } else { 0.0 };
+            l.existence = 1.0 / (1.0 + math::exp(-lo));
+        }
+    }
+
+    /// Clears slot `s` and gives it the birth existence.
+    pub fn start(&mut self, s: usize, cfg: &PersistConfig) {
+        set(
+            &mut self.lanes,
+            s,
+            LaneState {
+                existence: cfg.p_birth,
+                ..LaneState::NEW
+            },
+        );
+    }
+
+    /// Clears slot `s`.
+    pub fn remove(&mut self, s: usize) {
+        set(&mut self.lanes, s, LaneState::NEW);
+    }
+}

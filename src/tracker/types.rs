@@ -1,0 +1,147 @@
+//! The tracker's contract types: configuration, errors, published lanes and the step report.
+
+use heapless::Vec;
+use nalgebra::SVector;
+
+use crate::persist::PersistConfig;
+use crate::spatial::filter::{Config as SpatialConfig, SpatialReport};
+use crate::temporal::identity::{IdentityConfig, IdentityReport, LaneId};
+
+#[cfg(doc)]
+use super::Tracker;
+
+/// Error of [`Tracker::step`]; the tracker's state is untouched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum StepError {
+    /// `now` is not after the previous frame's time.
+    NonIncreasingTime,
+}
+
+impl core::fmt::Display for StepError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("frame time does not increase")
+    }
+}
+
+impl core::error::Error for StepError {}
+
+/// Tuning of the whole tracker.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackerConfig {
+    /// The spatial JPDACF.
+    pub spatial: SpatialConfig,
+    /// Lane identity.
+    pub identity: IdentityConfig,
+    /// Each frame a lane is not seen multiplies its existence by this factor (round-1
+    /// pipeline only, `persist.enabled == false`).
+    pub existence_decay: f32,
+    /// Known lanes, existence probability, estimated clutter (docs/design.md §11).
+    pub persist: PersistConfig,
+}
+
+impl TrackerConfig {
+    /// Defaults of the stages.
+    pub const DEFAULT: Self = Self {
+        spatial: SpatialConfig::DEFAULT,
+        identity: IdentityConfig::DEFAULT,
+        existence_decay: 0.8,
+        persist: PersistConfig::DEFAULT,
+    };
+
+    /// The round-1 pipeline: no temporal prior in the association (the ablation).
+    pub const ROUND1: Self = Self {
+        persist: PersistConfig::ROUND1,
+        ..Self::DEFAULT
+    };
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// One lane as published.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaneEstimate<const POINTS: usize> {
+    /// Stable id.
+    pub id: LaneId,
+    /// Temporal slot (for [`Tracker::lane_at`]).
+    pub slot: u8,
+    /// Lateral position at each index point, metres.
+    pub z: SVector<f32, POINTS>,
+    /// Its variance, m².
+    pub var: SVector<f32, POINTS>,
+    /// Observed extent, metres ahead: the union over the `LAG + 1` frames ending at the lane's
+    /// frame (the current one for filtered lanes, `LAG` frames back for smoothed lanes).
+    pub u_first: f32,
+    /// Far end of the observed extent.
+    pub u_last: f32,
+    /// Existence figure in [0, 1] (spatial existence when seen, decaying while coasting).
+    pub existence: f32,
+    /// Frames since the lane was last seen (0 when seen this frame).
+    pub misses: u16,
+    /// Frames since the lane started (0 in its first frame); for a smoothed lane, its age at the
+    /// current frame (0 once it is gone).
+    pub age: u32,
+    /// Frames in which the lane was observed, its first frame included (same convention as
+    /// `age` for smoothed lanes).
+    pub hits: u32,
+}
+
+/// What one frame did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    /// The spatial filter's counters.
+    pub spatial: SpatialReport,
+    /// Lane identity's counters.
+    pub identity: IdentityReport,
+    /// Points beyond `MEAS`, ignored.
+    pub over_budget_points: u32,
+    /// Temporal operations that failed numerically (state kept).
+    pub temporal_failures: u32,
+    /// Frame step used, seconds (0 for the first frame).
+    pub dt: f32,
+    /// Lane updates whose pseudo-measurement covariance was not positive definite and was
+    /// repaired (see [`crate::temporal::filter::TemporalFilter::update`]).
+    pub pseudo_cov_repairs: u32,
+    /// Pivots of the temporal covariance raised after this frame's lane updates because f32
+    /// rounding had made it indefinite (see
+    /// [`crate::temporal::filter::TemporalFilter::repair_covariance`]; 0 on almost every frame).
+    pub temporal_cov_repairs: u32,
+    /// The known-lane stage's counters (all 0 when it is off).
+    pub known: KnownReport,
+}
+
+/// What the known-lane stage (docs/design.md §11) did in one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct KnownReport {
+    /// Live lanes associated against their prediction.
+    pub lanes: u32,
+    /// Of those, lanes seen (a row with `W ≥ 0.5`).
+    pub seen: u32,
+    /// Points the known lanes explained (removed before the spatial filter).
+    pub explained_points: u32,
+    /// Rows whose joint events failed numerically (every lane missed there).
+    pub failed_rows: u32,
+    /// Lanes deleted because their existence fell below `p_delete`.
+    pub deleted: u32,
+    /// Lanes removed as duplicates of another (one lane, one track).
+    pub merged: u32,
+    /// The process-noise scale used by this frame's prediction.
+    pub q_scale: f32,
+}
+
+/// The output of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepOutput<const LANES: usize, const POINTS: usize> {
+    /// Filtered lanes at this frame.
+    pub filtered: Vec<LaneEstimate<POINTS>, LANES>,
+    /// Smoothed lanes `LAG` frames back (empty until the window is full).
+    pub smoothed: Vec<LaneEstimate<POINTS>, LANES>,
+    /// Counters.
+    pub report: StepReport,
+}
