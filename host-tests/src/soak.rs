@@ -363,6 +363,8 @@ pub struct SoakSummary {
     pub line_frames_matched: u64,
     /// Published lanes matched to no line (lane-frames).
     pub false_lane_frames: u64,
+    /// Of which lanes not seen this frame (coasting, `misses > 0`).
+    pub false_lane_frames_coasting: u64,
     /// Mean |Δx| of matched lanes against the truth over the observed index points, m.
     pub mean_truth_error: f64,
     /// Tracker B vs the f64 reference.
@@ -485,6 +487,7 @@ impl SoakSummary {
         self.line_frames += o.line_frames;
         self.line_frames_matched += o.line_frames_matched;
         self.false_lane_frames += o.false_lane_frames;
+        self.false_lane_frames_coasting += o.false_lane_frames_coasting;
         match (&mut self.reference, o.reference) {
             (Some(a), Some(b)) => a.merge(b),
             (None, Some(b)) => self.reference = Some(b),
@@ -600,7 +603,7 @@ fn compare_frame(
 fn match_truth(
     lanes: &[LaneEstimate<POINTS>],
     truth: &[(i64, Vec<f64>)],
-) -> (Vec<(i64, u32, f64)>, u64) {
+) -> (Vec<(i64, u32, f64)>, [u64; 2]) {
     let mut cands = Vec::new();
     for (li, l) in lanes.iter().enumerate() {
         let used: Vec<usize> = (0..POINTS)
@@ -634,7 +637,12 @@ fn match_truth(
         }
     }
     let unmatched = lane_used.iter().filter(|u| !**u).count() as u64;
-    (m, unmatched)
+    let coasting = lane_used
+        .iter()
+        .zip(lanes)
+        .filter(|(u, l)| !**u && l.misses > 0)
+        .count() as u64;
+    (m, [unmatched, coasting])
 }
 
 /// One drive of `frames` frames (shard `shard`); `progress` counts frames done.
@@ -730,10 +738,11 @@ pub fn run_drive(
                     max_id = max_id.max(Some(l.id.0));
                 }
                 if !f.blackout {
-                    let (m, unmatched) = match_truth(&out.filtered, &f.truth);
+                    let (m, [unmatched, coasting]) = match_truth(&out.filtered, &f.truth);
                     s.line_frames += f.truth.len() as u64;
                     s.line_frames_matched += m.len() as u64;
                     s.false_lane_frames += unmatched;
+                    s.false_lane_frames_coasting += coasting;
                     let mut seen = BTreeMap::new();
                     for (line, id, e) in m {
                         err_sum += e;

@@ -592,7 +592,9 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
                 rows: row_range(s),
                 pd: (0..POINTS)
                     .map(|b| {
-                        (f64::from(l.hits[b]) * decay + 1.0) / (f64::from(l.looks[b]) * decay + 2.0)
+                        ((f64::from(l.hits[b]) * decay + 1.0)
+                            / (f64::from(l.looks[b]) * decay + 2.0))
+                            .max(f64::from(cfg.persist.pd_floor))
                     })
                     .collect(),
             }

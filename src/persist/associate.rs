@@ -110,7 +110,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         let mut pd0 = [[0.5f32; POINTS]; LANES];
         for (l, row) in self.lanes.iter().zip(pd0.iter_mut()) {
             for (b, v) in row.iter_mut().enumerate() {
-                *v = l.pd(b);
+                *v = l.pd(b).max(cfg.pd_floor);
             }
         }
         let bss = |s: usize, t: usize| {

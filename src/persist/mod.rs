@@ -82,6 +82,12 @@ pub struct PersistConfig {
     /// Two lanes closer than this on average over their common observed extent are one
     /// marking (docs/design.md §11.9), metres: half of a 2 m minimum spacing of markings.
     pub min_spacing: f32,
+    /// Lowest detection probability per row of a lane that exists and is in view
+    /// (docs/design.md §11.5): a lane's own `P_D,b` is used no lower than this. Without it a
+    /// track that is never detected learns `P_D → 0` and its misses stop counting, so clutter
+    /// keeps it alive: existence and detection probability cannot both be learned from the
+    /// same misses.
+    pub pd_floor: f32,
 }
 
 impl PersistConfig {
@@ -102,6 +108,7 @@ impl PersistConfig {
         q_memory: 2.0,
         p_visible: 0.9,
         min_spacing: 1.0,
+        pd_floor: 0.2,
     };
 
     /// The round-1 pipeline (ablation "no temporal prior").
