@@ -65,6 +65,54 @@ pub struct TrackStats {
     pub run_max_ms: f64,
 }
 
+impl TrackStats {
+    /// Checks frame `k` of a run and, when its clip is not `clip` (the previous frame's), counts
+    /// a new clip and names it in `clip`; `Ok(true)` when the frame starts a clip.
+    pub(crate) fn begin_frame<'a>(
+        &mut self,
+        k: usize,
+        f: &'a Frame,
+        clip: &mut Option<&'a str>,
+    ) -> Result<bool> {
+        f.check()
+            .with_context(|| format!("frame {k} (clip {})", f.clip))?;
+        if *clip == Some(f.clip.as_str()) {
+            return Ok(false);
+        }
+        *clip = Some(f.clip.as_str());
+        self.clips += 1;
+        Ok(true)
+    }
+
+    /// Counts a frame whose step took `ms`.
+    pub(crate) fn add_step(&mut self, times: &mut RunTimes, ms: f64) {
+        times.step += ms;
+        self.step_max_ms = self.step_max_ms.max(ms);
+        self.frames += 1;
+    }
+
+    /// Counts `ms` spent on a frame.
+    pub(crate) fn add_run(&mut self, times: &mut RunTimes, ms: f64) {
+        times.run += ms;
+        self.run_max_ms = self.run_max_ms.max(ms);
+    }
+
+    /// Sets the means from the run's sums.
+    pub(crate) fn finish(&mut self, times: &RunTimes) {
+        if self.frames > 0 {
+            self.step_mean_ms = times.step / self.frames as f64;
+            self.run_mean_ms = times.run / self.frames as f64;
+        }
+    }
+}
+
+/// The sums of a run's step and frame times, ms (for [`TrackStats`]' means).
+#[derive(Debug, Default)]
+pub(crate) struct RunTimes {
+    step: f64,
+    run: f64,
+}
+
 /// Builds f32 tables for the reference configuration from a hyperparameter file at run time (the
 /// same computation as `stjpdacf tables`, without the Rust source round trip), leaked to `'static`.
 pub fn tables_from_hyper(h: &HyperFile) -> Result<&'static ReferenceTables> {
@@ -432,14 +480,10 @@ pub fn track_with(
     let mut out = Vec::new();
     let mut tracker: Option<Box<ReferenceTracker>> = None;
     let mut clip: Option<&str> = None;
-    let (mut step_total, mut run_total) = (0.0, 0.0);
+    let mut times = RunTimes::default();
     for (k, f) in frames.iter().enumerate() {
-        f.check()
-            .with_context(|| format!("frame {k} (clip {})", f.clip))?;
-        if clip != Some(f.clip.as_str()) {
+        if stats.begin_frame(k, f, &mut clip)? {
             tracker = Some(Box::new(ReferenceTracker::with_config(tables, config)));
-            clip = Some(f.clip.as_str());
-            stats.clips += 1;
         }
         let Some(tr) = tracker.as_mut() else { continue };
         let start = WallClock::now();
@@ -447,10 +491,7 @@ pub fn track_with(
         let pts = preprocess(&bev_pts, tables);
         let step_start = WallClock::now();
         let res = tr.step(Instant::from_micros((f.t * 1e6).round() as i64), &pts);
-        let step_ms = step_start.elapsed().as_secs_f64() * 1e3;
-        step_total += step_ms;
-        stats.step_max_ms = stats.step_max_ms.max(step_ms);
-        stats.frames += 1;
+        stats.add_step(&mut times, step_start.elapsed().as_secs_f64() * 1e3);
         let output = match res {
             Ok(o) => Some(o),
             Err(_) => {
@@ -487,8 +528,7 @@ pub fn track_with(
             _ => None,
         };
         let run_ms = start.elapsed().as_secs_f64() * 1e3;
-        run_total += run_ms;
-        stats.run_max_ms = stats.run_max_ms.max(run_ms);
+        stats.add_run(&mut times, run_ms);
         let prediction = prediction.map(|p| TuSimpleRecord {
             run_time: Some(run_ms),
             ..p
@@ -507,9 +547,6 @@ pub fn track_with(
             stats.predictions += 1;
         }
     }
-    if stats.frames > 0 {
-        stats.step_mean_ms = step_total / stats.frames as f64;
-        stats.run_mean_ms = run_total / stats.frames as f64;
-    }
+    stats.finish(&times);
     Ok((out, stats))
 }
