@@ -53,6 +53,20 @@ fn golden_frame(g: &Value) -> Frame {
     Frame { lanes }
 }
 
+/// The LML of `frame` at a golden point (`B`, `variance`, `lengthscale`, `noise_variance`; no
+/// offset term).
+fn golden_lml(frame: &Frame, point: &Value) -> f64 {
+    icm_lml(
+        std::slice::from_ref(frame),
+        &mat(&point["B"]),
+        f(&point["variance"]),
+        f(&point["lengthscale"]),
+        0.0,
+        f(&point["noise_variance"]),
+    )
+    .unwrap()
+}
+
 #[test]
 fn golden_lml_at_stored_points() {
     let g = golden();
@@ -60,15 +74,7 @@ fn golden_lml_at_stored_points() {
     let points = g["lml_points"].as_array().unwrap();
     assert_eq!(points.len(), 5);
     for p in points {
-        let lml = icm_lml(
-            std::slice::from_ref(&frame),
-            &mat(&p["B"]),
-            f(&p["variance"]),
-            f(&p["lengthscale"]),
-            0.0,
-            f(&p["noise_variance"]),
-        )
-        .unwrap();
+        let lml = golden_lml(&frame, p);
         let want = f(&p["lml_numpy"]);
         assert!(
             (lml - want).abs() < 1e-8,
@@ -88,15 +94,7 @@ fn golden_lml_at_gpy_optimum() {
     let frame = golden_frame(&g);
     for key in ["fit_fixed_variance", "fit_free_variance"] {
         let fit = &g[key];
-        let lml = icm_lml(
-            std::slice::from_ref(&frame),
-            &mat(&fit["B"]),
-            f(&fit["variance"]),
-            f(&fit["lengthscale"]),
-            0.0,
-            f(&fit["noise_variance"]),
-        )
-        .unwrap();
+        let lml = golden_lml(&frame, fit);
         let want = f(&fit["lml_numpy_at_fitted"]);
         assert!((lml - want).abs() < 1e-8, "{key}: {lml} vs {want}");
     }
