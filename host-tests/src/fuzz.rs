@@ -33,6 +33,7 @@ use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf::tracker::{Instant, ReferenceTracker, StepError};
 use stjpdacf::wire::{self, FrameInfo, LinkStats, Receiver, WireError};
 
+use crate::invariants::present_indices;
 pub use crate::invariants::{
     check_output, check_temporal, check_tracker, cov_health, CovHealth, PsdCheck, LANES, MEAS, NX,
     POINTS, RANK,
@@ -535,7 +536,7 @@ fn check_obs(o: &LaneObservation<POINTS>, tables: &ReferenceTables) -> Result<()
             return Err(format!("observation z[{i}] = {}", o.z[i]));
         }
     }
-    let idx: Vec<usize> = (0..POINTS).filter(|&i| o.present[i]).collect();
+    let idx = present_indices(o);
     cov_health(&o.cov, &idx, PsdCheck::Cholesky).map_err(|e| format!("observation: {e}"))?;
     let (lo, hi) = (tables.hyper.u_min, tables.hyper.u_max);
     if !(o.u_first <= o.u_last

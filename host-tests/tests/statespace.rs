@@ -8,24 +8,24 @@
 use nalgebra::DMatrix;
 use serde_json::Value;
 use stjpdacf_reference::statespace::{Matern32, RbfTaylor};
-use stjpdacf_tools::repo_root;
+use stjpdacf_test_support::golden::{self, mat, num, vecf};
 
 fn golden() -> Value {
-    let p = repo_root().join("data/golden/statespace.json");
-    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+    golden::load("statespace.json")
 }
 
-fn mat(v: &Value) -> DMatrix<f64> {
-    let rows: Vec<Vec<f64>> = serde_json::from_value(v.clone()).unwrap();
-    DMatrix::from_fn(rows.len(), rows[0].len(), |i, j| rows[i][j])
-}
-
-fn num(v: &Value) -> f64 {
-    v.as_f64().unwrap()
-}
-
-fn vecf(v: &Value) -> Vec<f64> {
-    serde_json::from_value(v.clone()).unwrap()
+/// The 27 cases of model `key`, each with its σ², ℓ and step `Ts`.
+fn cases(key: &str) -> Vec<(Value, f64, f64, f64)> {
+    let g = golden();
+    let cases = g[key].as_array().unwrap();
+    assert_eq!(cases.len(), 27);
+    cases
+        .iter()
+        .map(|c| {
+            let (variance, lengthscale) = (num(&c["sigma2"]), num(&c["lengthscale"]));
+            (c.clone(), variance, lengthscale, num(&c["Ts"]))
+        })
+        .collect()
 }
 
 const REL: f64 = 1e-10;
@@ -51,15 +51,11 @@ fn assert_num(got: f64, want: f64, what: &str) {
 
 #[test]
 fn matern32_matches_golden() {
-    let g = golden();
-    let cases = g["matern32"].as_array().unwrap();
-    assert_eq!(cases.len(), 27);
-    for c in cases {
+    for (c, variance, lengthscale, ts) in cases("matern32") {
         let m = Matern32 {
-            variance: num(&c["sigma2"]),
-            lengthscale: num(&c["lengthscale"]),
+            variance,
+            lengthscale,
         };
-        let ts = num(&c["Ts"]);
         let what = format!("matern32 s2={} l={} Ts={ts}", m.variance, m.lengthscale);
         assert_num(m.lambda(), num(&c["lambda"]), &what);
         assert_mat(&m.a(), &mat(&c["A"]), &format!("{what} A"));
@@ -117,16 +113,12 @@ fn assert_roots(got: &[num_complex::Complex64], re: &[f64], im: &[f64], what: &s
 
 #[test]
 fn rbf_taylor2_matches_golden() {
-    let g = golden();
-    let cases = g["rbf_taylor2"].as_array().unwrap();
-    assert_eq!(cases.len(), 27);
-    for c in cases {
+    for (c, variance, lengthscale, ts) in cases("rbf_taylor2") {
         let m = RbfTaylor {
-            variance: num(&c["sigma2"]),
-            lengthscale: num(&c["lengthscale"]),
+            variance,
+            lengthscale,
             order: 2,
         };
-        let ts = num(&c["Ts"]);
         let what = format!("rbf s2={} l={} Ts={ts}", m.variance, m.lengthscale);
         assert_eq!(c["N"].as_u64(), Some(2));
         assert_num(m.kappa(), num(&c["kappa"]), &format!("{what} kappa"));
