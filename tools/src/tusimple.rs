@@ -409,17 +409,14 @@ mod tests {
     }
 
     #[test]
-    fn label_without_h_samples_is_reported() {
-        let s = r#"{"raw_file": "a", "lanes": []}"#;
-        let msg = labels_err(s);
-        assert!(msg.contains("h_samples is empty"), "{msg}");
-    }
-
-    #[test]
-    fn empty_h_samples_is_reported() {
-        let s = "{\"raw_file\": \"a\", \"lanes\": [], \"h_samples\": []}";
-        let msg = labels_err(s);
-        assert!(msg.contains("h_samples is empty"), "{msg}");
+    fn label_without_h_samples_or_with_none_is_reported() {
+        for s in [
+            r#"{"raw_file": "a", "lanes": []}"#,
+            "{\"raw_file\": \"a\", \"lanes\": [], \"h_samples\": []}",
+        ] {
+            let msg = labels_err(s);
+            assert!(msg.contains("h_samples is empty"), "{s}: {msg}");
+        }
     }
 
     #[test]
