@@ -14,16 +14,16 @@ fn golden() -> Value {
     golden::load("statespace.json")
 }
 
-/// The 27 cases of model `key`, each with its σ², ℓ and step `Ts`.
-fn cases(key: &str) -> Vec<(Value, f64, f64, f64)> {
+/// The 27 cases of model `key`, each with its model (`model(σ², ℓ)`) and step `Ts`.
+fn cases<M>(key: &str, model: impl Fn(f64, f64) -> M) -> Vec<(Value, M, f64)> {
     let g = golden();
     let cases = g[key].as_array().unwrap();
     assert_eq!(cases.len(), 27);
     cases
         .iter()
         .map(|c| {
-            let (variance, lengthscale) = (num(&c["sigma2"]), num(&c["lengthscale"]));
-            (c.clone(), variance, lengthscale, num(&c["Ts"]))
+            let m = model(num(&c["sigma2"]), num(&c["lengthscale"]));
+            (c.clone(), m, num(&c["Ts"]))
         })
         .collect()
 }
@@ -49,13 +49,34 @@ fn assert_num(got: f64, want: f64, what: &str) {
     );
 }
 
+/// Matches complex roots as sets: each golden root must have a computed root within tolerance.
+#[track_caller]
+fn assert_roots(got: &[num_complex::Complex64], re: &[f64], im: &[f64], what: &str) {
+    assert_eq!(got.len(), re.len(), "{what}: root count");
+    let scale = re
+        .iter()
+        .zip(im)
+        .map(|(a, b)| a.hypot(*b))
+        .fold(0.0, f64::max);
+    for (r, i) in re.iter().zip(im) {
+        let best = got
+            .iter()
+            .map(|z| (z.re - r).hypot(z.im - i))
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            best <= REL * scale,
+            "{what}: root {r}+{i}i missing (closest {best:e})"
+        );
+    }
+}
+
 #[test]
 fn matern32_matches_golden() {
-    for (c, variance, lengthscale, ts) in cases("matern32") {
-        let m = Matern32 {
-            variance,
-            lengthscale,
-        };
+    let matern32 = |variance, lengthscale| Matern32 {
+        variance,
+        lengthscale,
+    };
+    for (c, m, ts) in cases("matern32", matern32) {
         let what = format!("matern32 s2={} l={} Ts={ts}", m.variance, m.lengthscale);
         assert_num(m.lambda(), num(&c["lambda"]), &what);
         assert_mat(&m.a(), &mat(&c["A"]), &format!("{what} A"));
@@ -90,35 +111,14 @@ fn matern32_matches_golden() {
     }
 }
 
-/// Matches complex roots as sets: each golden root must have a computed root within tolerance.
-#[track_caller]
-fn assert_roots(got: &[num_complex::Complex64], re: &[f64], im: &[f64], what: &str) {
-    assert_eq!(got.len(), re.len(), "{what}: root count");
-    let scale = re
-        .iter()
-        .zip(im)
-        .map(|(a, b)| a.hypot(*b))
-        .fold(0.0, f64::max);
-    for (r, i) in re.iter().zip(im) {
-        let best = got
-            .iter()
-            .map(|z| (z.re - r).hypot(z.im - i))
-            .fold(f64::INFINITY, f64::min);
-        assert!(
-            best <= REL * scale,
-            "{what}: root {r}+{i}i missing (closest {best:e})"
-        );
-    }
-}
-
 #[test]
 fn rbf_taylor2_matches_golden() {
-    for (c, variance, lengthscale, ts) in cases("rbf_taylor2") {
-        let m = RbfTaylor {
-            variance,
-            lengthscale,
-            order: 2,
-        };
+    let rbf2 = |variance, lengthscale| RbfTaylor {
+        variance,
+        lengthscale,
+        order: 2,
+    };
+    for (c, m, ts) in cases("rbf_taylor2", rbf2) {
         let what = format!("rbf s2={} l={} Ts={ts}", m.variance, m.lengthscale);
         assert_eq!(c["N"].as_u64(), Some(2));
         assert_num(m.kappa(), num(&c["kappa"]), &format!("{what} kappa"));
