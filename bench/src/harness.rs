@@ -209,6 +209,59 @@ pub fn timer_call_ns() -> f64 {
     median(&mut runs)
 }
 
+/// The clean passes `v[i]` (those with `clean[i]`), or all of them when none is clean.
+fn keep_clean(v: &[f64], clean: &[bool]) -> Vec<f64> {
+    let c: Vec<f64> = v.iter().zip(clean).filter(|x| *x.1).map(|x| *x.0).collect();
+    if c.is_empty() {
+        v.to_vec()
+    } else {
+        c
+    }
+}
+
+/// One tracker's step times over the passes, µs, `[frame][pass]`, each with its "ran
+/// throughout" flag ([`ran_throughout`]).
+struct Samples {
+    t: Vec<Vec<f64>>,
+    ok: Vec<Vec<bool>>,
+}
+
+impl Samples {
+    fn new(frames: usize) -> Self {
+        Self {
+            t: vec![Vec::new(); frames],
+            ok: vec![Vec::new(); frames],
+        }
+    }
+
+    /// Steps `d` through `probe` as frame `k` and records the step's wall time and flag;
+    /// returns the step's summary and the flag.
+    fn step<S: Step, P: Probe>(
+        &mut self,
+        k: usize,
+        d: &mut Driver<S>,
+        frames: &[Frame],
+        probe: &mut P,
+    ) -> (FrameSummary, bool) {
+        let (w0, c0) = (WallClock::now(), thread_cpu());
+        let s = d.step(frames, probe);
+        let (w, c) = (w0.elapsed(), thread_cpu().saturating_sub(c0));
+        let ok = ran_throughout(w, c);
+        self.t[k].push(us(w));
+        self.ok[k].push(ok);
+        (s, ok)
+    }
+
+    /// Per frame, the clean passes' times ([`keep_clean`]).
+    fn kept(&self) -> Vec<Vec<f64>> {
+        self.t
+            .iter()
+            .zip(&self.ok)
+            .map(|(v, f)| keep_clean(v, f))
+            .collect()
+    }
+}
+
 /// Per-stage time of `frames` on three identical trackers made by `make` (one without a probe,
 /// one with [`CallCounter`], one with [`StageTimer`]), fed the same frames at the same times, so
 /// their states stay identical. After `warm` untimed passes, `passes` passes are timed; in each,
@@ -236,33 +289,20 @@ pub fn profile<S: Step>(
         d.warm_up(frames, warm);
     }
     let n = frames.len();
-    // [frame][pass]
-    let mut t_plain = vec![Vec::new(); n];
-    let mut t_count = vec![Vec::new(); n];
-    let mut t_timed = vec![Vec::new(); n];
+    let mut s_plain = Samples::new(n);
+    let mut s_count = Samples::new(n);
+    let mut s_timed = Samples::new(n);
+    // [frame][stage][pass]
     let mut t_stage = vec![vec![Vec::new(); Stage::COUNT]; n];
-    // Every measurement with its "ran throughout" flag.
-    let mut f_plain = vec![Vec::new(); n];
-    let mut f_count = vec![Vec::new(); n];
-    let mut f_timed = vec![Vec::new(); n];
     let mut calls = vec![0u64; n];
     let mut summary = Vec::with_capacity(n);
     let mut kept = 0usize;
-    let clock = || (WallClock::now(), thread_cpu());
-    let clean = |(w0, c0): (WallClock, Duration)| {
-        let (w, c) = (w0.elapsed(), thread_cpu().saturating_sub(c0));
-        (us(w), ran_throughout(w, c))
-    };
     for pass in 0..passes {
         for k in 0..n {
             for v in 0..3 {
                 match (v + pass) % 3 {
                     0 => {
-                        let t0 = clock();
-                        let s = plain.step(frames, &mut NoProbe);
-                        let (t, ok) = clean(t0);
-                        t_plain[k].push(t);
-                        f_plain[k].push(ok);
+                        let (s, ok) = s_plain.step(k, &mut plain, frames, &mut NoProbe);
                         kept += usize::from(ok);
                         if pass == 0 {
                             summary.push(s);
@@ -270,22 +310,12 @@ pub fn profile<S: Step>(
                     }
                     1 => {
                         let mut c = CallCounter::default();
-                        let t0 = clock();
-                        counted.step(frames, &mut c);
-                        let (t, ok) = clean(t0);
-                        t_count[k].push(t);
-                        f_count[k].push(ok);
-                        kept += usize::from(ok);
+                        kept += usize::from(s_count.step(k, &mut counted, frames, &mut c).1);
                         calls[k] = c.total();
                     }
                     _ => {
                         let mut p = StageTimer::new();
-                        let t0 = clock();
-                        timed.step(frames, &mut p);
-                        let (t, ok) = clean(t0);
-                        t_timed[k].push(t);
-                        f_timed[k].push(ok);
-                        kept += usize::from(ok);
+                        kept += usize::from(s_timed.step(k, &mut timed, frames, &mut p).1);
                         for s in Stage::ALL {
                             t_stage[k][s as usize].push(us(p.get(s)));
                         }
@@ -294,25 +324,13 @@ pub fn profile<S: Step>(
             }
         }
     }
-    // Keep the clean passes of each frame (all of them when none is clean).
-    let keep = |v: &[f64], f: &[bool]| -> Vec<f64> {
-        let c: Vec<f64> = v.iter().zip(f).filter(|x| *x.1).map(|x| *x.0).collect();
-        if c.is_empty() {
-            v.to_vec()
-        } else {
-            c
-        }
-    };
-    let filter = |v: &[Vec<f64>], f: &[Vec<bool>]| -> Vec<Vec<f64>> {
-        v.iter().zip(f).map(|(v, f)| keep(v, f)).collect()
-    };
-    let mut t_plain = filter(&t_plain, &f_plain);
-    let mut t_count = filter(&t_count, &f_count);
-    let mut t_timed_kept = filter(&t_timed, &f_timed);
+    let mut t_plain = s_plain.kept();
+    let mut t_count = s_count.kept();
+    let mut t_timed_kept = s_timed.kept();
     let t_stage: Vec<Vec<Vec<f64>>> = t_stage
         .iter()
-        .zip(&f_timed)
-        .map(|(per_stage, f)| per_stage.iter().map(|v| keep(v, f)).collect())
+        .zip(&s_timed.ok)
+        .map(|(per_stage, f)| per_stage.iter().map(|v| keep_clean(v, f)).collect())
         .collect();
     let mean_of_medians =
         |v: &mut [Vec<f64>]| -> f64 { v.iter_mut().map(|x| median(x)).sum::<f64>() / n as f64 };

@@ -11,7 +11,9 @@
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, ReferenceTracker};
-use stjpdacf_test_support::invariants::{active_indices, eigen_figures};
+use stjpdacf_test_support::invariants::{
+    active_indices, eigen_figures, observation_cov_with_noise,
+};
 use stjpdacf_test_support::soak::Road;
 fn main() {
     let arg = |i: usize| -> u64 {
@@ -35,15 +37,7 @@ fn main() {
         let (n, _) = sf.run(&DEFAULT, &Config::DEFAULT, &pts, &mut out);
         let mut worst = f64::INFINITY;
         for o in out.iter().take(n) {
-            let idx: Vec<usize> = (0..16).filter(|&i| o.present[i]).collect();
-            let r = nalgebra::DMatrix::<f64>::from_fn(idx.len(), idx.len(), |x, y| {
-                f64::from(o.cov[(idx[x], idx[y])])
-                    + if x == y {
-                        f64::from(DEFAULT.hyper.pseudo_noise)
-                    } else {
-                        0.0
-                    }
-            });
+            let r = observation_cov_with_noise(o, DEFAULT.hyper.pseudo_noise);
             worst = worst.min(r.symmetric_eigenvalues().min());
         }
         if worst < 0.0 {

@@ -6,6 +6,7 @@
 //! form ([`cov_health`]). Depends only on `stjpdacf` and `nalgebra`.
 
 use nalgebra::{DMatrix, SMatrix};
+use stjpdacf::spatial::filter::LaneObservation;
 use stjpdacf::tables::{ReferenceTables, DEFAULT};
 use stjpdacf::temporal::filter::TemporalFilter;
 use stjpdacf::temporal::smoother::Temporal;
@@ -174,6 +175,21 @@ pub fn cov_health<const N: usize>(
         }
     }
     Ok(h)
+}
+
+/// The index points present in a spatial observation.
+pub fn present_indices(o: &LaneObservation<POINTS>) -> Vec<usize> {
+    (0..POINTS).filter(|&i| o.present[i]).collect()
+}
+
+/// `R + r₀² I` over the present index points of `o` (`R` its pseudo-measurement covariance,
+/// `r₀² = pseudo_noise`): the measurement covariance the temporal update takes (finding F1: not
+/// positive definite when its smallest eigenvalue is negative).
+pub fn observation_cov_with_noise(o: &LaneObservation<POINTS>, pseudo_noise: f32) -> DMatrix<f64> {
+    let idx = present_indices(o);
+    DMatrix::<f64>::from_fn(idx.len(), idx.len(), |a, b| {
+        f64::from(o.cov[(idx[a], idx[b])]) + if a == b { f64::from(pseudo_noise) } else { 0.0 }
+    })
 }
 
 /// State indices of the active slots of a temporal filter.

@@ -192,6 +192,14 @@ fn recover(t: &mut ReferenceTracker, road: &mut Road, limit: usize) -> (usize, O
     panic!("no recovery within {limit} frames");
 }
 
+/// Runs normal frames until all lines are tracked ([`recover`], at most 10); prints `what` with
+/// the number of frames that took and asserts it is at most `max`.
+fn assert_recovers(t: &mut ReferenceTracker, road: &mut Road, max: usize, what: &str) {
+    let (frames, _) = recover(t, road, 10);
+    println!("{what}; tracking again after {frames} frame(s)");
+    assert!(frames <= max, "{frames}");
+}
+
 /// **Camera blackout** of N empty frames, then the camera returns.
 ///
 /// Expected: every blackout frame is accepted with 0 points in; the lanes coast (identity
@@ -260,9 +268,9 @@ fn all_clutter_frames() {
         false_lanes += out.filtered.iter().filter(|l| l.misses == 0).count();
     }
     assert!(clutter > 0);
-    let (frames, _) = recover(&mut t, &mut road, 10);
-    println!("all-clutter 30 frames: {clutter} clutter points, {false_lanes} false lane-frames; tracking again after {frames} frame(s)");
-    assert!(frames <= 6, "{frames}");
+    let what =
+        format!("all-clutter 30 frames: {clutter} clutter points, {false_lanes} false lane-frames");
+    assert_recovers(&mut t, &mut road, 6, &what);
 }
 
 /// **Frame rate 5× and 0.2× the nominal**: 150 frames at 150 fps (6.7 ms steps), then 30 frames
@@ -377,9 +385,8 @@ fn burst_of_over_budget_frames() {
         assert_eq!(out.report.spatial.points_in, 256);
         over += u64::from(out.report.over_budget_points);
     }
-    let (frames, _) = recover(&mut t, &mut road, 10);
-    println!("over-budget burst: {over} points over budget in 10 frames; tracking again after {frames} frame(s)");
-    assert!(frames <= 3, "{frames}");
+    let what = format!("over-budget burst: {over} points over budget in 10 frames");
+    assert_recovers(&mut t, &mut road, 3, &what);
 }
 
 /// **A lane disappears under a truck for 2 s** (60 frames): the right line produces no points
@@ -633,6 +640,31 @@ fn reseal(f: &mut [u8]) {
     f[body..].copy_from_slice(&crc.to_le_bytes());
 }
 
+/// Checks what one receiver path (`path`: accept or read) answered for frame `k` against what
+/// was expected: an accepted frame carries the sent `(seq, time, count)`; a refused one gives the
+/// expected error and leaves the points `p` unwritten. Returns the answer.
+fn check_path<E: PartialEq + std::fmt::Debug>(
+    k: u32,
+    path: &str,
+    r: Result<wire::FrameInfo, E>,
+    expected: Result<(), E>,
+    sent: (u32, Instant, usize),
+    p: &[[f32; 2]],
+) -> Result<wire::FrameInfo, E> {
+    match (r, expected) {
+        (Ok(i), Ok(())) => {
+            assert_eq!((i.seq, i.time, i.count), sent);
+            Ok(i)
+        }
+        (Err(e), Err(w)) => {
+            assert_eq!(e, w, "frame {k}");
+            assert!(p.iter().all(|v| v[0].is_nan()), "refused, points written");
+            Err(e)
+        }
+        (r, w) => panic!("frame {k}: {path} gives {r:?}, expected {w:?}"),
+    }
+}
+
 /// Adds `e` to the counter `LinkStats` keeps for it.
 fn count(s: &mut LinkStats, e: WireError) {
     let c = match e {
@@ -796,37 +828,20 @@ fn corrupted_spi_frames_mid_stream() {
             } else {
                 rx.accept(&s.bytes, &mut p)
             };
-            match (r, s.accept) {
-                _ if s.spi_fails => {}
-                (Ok(i), Ok(())) => {
-                    assert_eq!((i.seq, i.time, i.count), (seq, at, info.count));
-                    outs.push(("accept", step(&mut via_accept, i.time, &p[..i.count])));
+            if !s.spi_fails {
+                match check_path(k, "accept", r, s.accept, (seq, at, info.count), &p) {
+                    Ok(i) => outs.push(("accept", step(&mut via_accept, i.time, &p[..i.count]))),
+                    Err(e) => count(&mut want, e),
                 }
-                (Err(e), Err(w)) => {
-                    assert_eq!(e, w, "frame {k}");
-                    assert!(p.iter().all(|v| v[0].is_nan()), "refused, points written");
-                    count(&mut want, e);
-                }
-                (r, w) => panic!("frame {k}: accept gives {r:?}, expected {w:?}"),
             }
             fe.current.clone_from(&s.bytes);
             fe.fail = s.spi_fails;
             let mut p = [[f32::NAN; 2]; 256];
             let r = rx_spi.read(&mut fe, &mut spi_buf, &mut p);
-            match (r, s.read) {
-                (Ok(i), Ok(())) => {
-                    assert_eq!((i.seq, i.time, i.count), (seq, at, info.count));
-                    outs.push(("read", step(&mut via_spi, i.time, &p[..i.count])));
-                }
-                (Err(e), Err(w)) => {
-                    assert_eq!(e, w, "frame {k}");
-                    assert!(p.iter().all(|v| v[0].is_nan()), "refused, points written");
-                    match e {
-                        ReadError::Frame(e) => count(&mut want_spi, e),
-                        ReadError::Spi(_) => want_spi.spi_errors += 1,
-                    }
-                }
-                (r, w) => panic!("frame {k}: read gives {r:?}, expected {w:?}"),
+            match check_path(k, "read", r, s.read, (seq, at, info.count), &p) {
+                Ok(i) => outs.push(("read", step(&mut via_spi, i.time, &p[..i.count]))),
+                Err(ReadError::Frame(e)) => count(&mut want_spi, e),
+                Err(ReadError::Spi(_)) => want_spi.spi_errors += 1,
             }
         }
         assert_eq!(outs.len(), if then_good { 2 } else { 0 }, "frame {k}");

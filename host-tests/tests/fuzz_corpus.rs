@@ -15,7 +15,7 @@ use std::path::PathBuf;
 
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
-use stjpdacf_test_support::invariants::PsdCheck;
+use stjpdacf_test_support::invariants::{observation_cov_with_noise, present_indices, PsdCheck};
 use stjpdacf_tools::repo_root;
 
 fn files(dir: &str, prefix: &str) -> Vec<PathBuf> {
@@ -107,16 +107,10 @@ fn f1_observation() -> (LaneObservation<16>, f64) {
     let (n, _) = sf.run(&DEFAULT, &Config::DEFAULT, pts, &mut out);
     assert_eq!(n, 1);
     let o = &out[0];
-    let idx: Vec<usize> = (0..16).filter(|&i| o.present[i]).collect();
-    let r = nalgebra::DMatrix::<f64>::from_fn(idx.len(), idx.len(), |a, b| {
-        f64::from(o.cov[(idx[a], idx[b])])
-            + if a == b {
-                f64::from(DEFAULT.hyper.pseudo_noise)
-            } else {
-                0.0
-            }
-    });
-    let min_r = r.symmetric_eigenvalues().min();
+    let idx = present_indices(o);
+    let min_r = observation_cov_with_noise(o, DEFAULT.hyper.pseudo_noise)
+        .symmetric_eigenvalues()
+        .min();
     println!("F1: R + r0² I over the present points: smallest eigenvalue {min_r:.3e} m²");
     (
         *o,
@@ -132,7 +126,7 @@ fn f2_update_with_indefinite_observation() -> (
     Result<(), String>,
 ) {
     let (mut obs, _) = f1_observation();
-    let idx: Vec<usize> = (0..16).filter(|&i| obs.present[i]).collect();
+    let idx = present_indices(&obs);
     for &i in &idx {
         for &j in &idx {
             if i != j {
@@ -140,15 +134,9 @@ fn f2_update_with_indefinite_observation() -> (
             }
         }
     }
-    let r = nalgebra::DMatrix::<f64>::from_fn(idx.len(), idx.len(), |a, b| {
-        f64::from(obs.cov[(idx[a], idx[b])])
-            + if a == b {
-                f64::from(DEFAULT.hyper.pseudo_noise)
-            } else {
-                0.0
-            }
-    });
-    let min_r = r.symmetric_eigenvalues().min();
+    let min_r = observation_cov_with_noise(&obs, DEFAULT.hyper.pseudo_noise)
+        .symmetric_eigenvalues()
+        .min();
     assert!(
         min_r < -1e-3,
         "the test covariance is not indefinite: {min_r}"
@@ -226,6 +214,25 @@ fn finding_f4_validator_refuses_tables_off_their_model() {
     );
 }
 
+/// Prints, for each `temporal_ops` regression input named `prefix*`, `describe` of its first
+/// unrepaired break ([`first_unrepaired_break`] with `check`); then replays them with the repair
+/// and returns how many pass ([`replay`]).
+fn report_then_replay(
+    prefix: &str,
+    check: PsdCheck,
+    describe: impl Fn(Option<f32>) -> String,
+) -> usize {
+    for f in files("regressions/temporal_ops", prefix) {
+        let data = std::fs::read(&f).expect("read");
+        println!(
+            "{}: {}",
+            f.display(),
+            describe(first_unrepaired_break(&data, check))
+        );
+    }
+    replay("regressions/temporal_ops", prefix, harness::temporal_ops)
+}
+
 /// Replays a `temporal_ops` input without the covariance repair; for the first successful
 /// operation after which the temporal state breaks an invariant, the smallest ratio of an active
 /// variance to its value before that operation (its largest variance cut); `None` if none does.
@@ -268,18 +275,10 @@ fn finding_f5_informative_update_repaired_to_psd() {
     // Since the temporal length-scale became 11.15 s (docs/design.md §11) these inputs, found
     // with the 30 s tables, no longer break the unrepaired update: the repair is still checked
     // by the replays below and by F7's; whether they break is reported, not asserted.
-    for f in files("regressions/temporal_ops", "f5-") {
-        let data = std::fs::read(&f).expect("read");
-        println!(
-            "{}: breaks the unrepaired update: {}",
-            f.display(),
-            first_unrepaired_break(&data, PsdCheck::Cholesky).is_some()
-        );
-    }
-    assert_eq!(
-        replay("regressions/temporal_ops", "f5-", harness::temporal_ops),
-        3
-    );
+    let passed = report_then_replay("f5-", PsdCheck::Cholesky, |b| {
+        format!("breaks the unrepaired update: {}", b.is_some())
+    });
+    assert_eq!(passed, 3);
 }
 
 /// **F6** (fixed in `src/temporal/filter/`): the first long `temporal_ops` run after F5's
@@ -311,16 +310,8 @@ fn finding_f6_published_variances_not_below_their_rounding_bound() {
 #[test]
 fn finding_f7_update_below_the_old_trigger_repaired_to_psd() {
     // As F5's: found with the 30 s tables; whether it still breaks is reported, not asserted.
-    for f in files("regressions/temporal_ops", "f7-") {
-        let data = std::fs::read(&f).expect("read");
-        println!(
-            "{}: breaking update's variance cut: {:?}",
-            f.display(),
-            first_unrepaired_break(&data, PsdCheck::Eigen)
-        );
-    }
-    assert_eq!(
-        replay("regressions/temporal_ops", "f7-", harness::temporal_ops),
-        1
-    );
+    let passed = report_then_replay("f7-", PsdCheck::Eigen, |b| {
+        format!("breaking update's variance cut: {b:?}")
+    });
+    assert_eq!(passed, 1);
 }

@@ -192,38 +192,52 @@ fn compare(
     let (lanes, rep) = core;
     let c = &r.counters;
     let failed = r.rows.iter().filter(|d| d.failed).count();
-    let counters_core = [
-        ("started", rep.started as usize),
-        ("confirmed", rep.confirmed as usize),
-        ("deleted (misses + tentative merged)", rep.deleted as usize),
-        ("ended", rep.ended as usize),
-        ("merged", rep.merged as usize),
-        ("no_slot", rep.no_slot as usize),
-        ("clutter_points", rep.clutter_points as usize),
-        ("rejected_non_finite", rep.rejected_non_finite as usize),
-        ("rejected_window", rep.rejected_window as usize),
-        ("rejected_duplicate", rep.rejected_duplicate as usize),
-        ("rejected_row_full", rep.rejected_row_full as usize),
-        ("rows_over_budget", rep.rows_approximated as usize),
-        ("rows_failed", rep.rows_failed as usize),
+    // (name, core, reference)
+    let counters = [
+        ("started", rep.started as usize, c.initiated),
+        ("confirmed", rep.confirmed as usize, c.confirmed),
+        (
+            "deleted (misses + tentative merged)",
+            rep.deleted as usize,
+            c.deleted + c.merged_tentative,
+        ),
+        ("ended", rep.ended as usize, c.ended),
+        ("merged", rep.merged as usize, c.merged),
+        ("no_slot", rep.no_slot as usize, c.no_slot),
+        (
+            "clutter_points",
+            rep.clutter_points as usize,
+            c.clutter_points,
+        ),
+        (
+            "rejected_non_finite",
+            rep.rejected_non_finite as usize,
+            c.rejected.non_finite,
+        ),
+        (
+            "rejected_window",
+            rep.rejected_window as usize,
+            c.rejected.out_of_window,
+        ),
+        (
+            "rejected_duplicate",
+            rep.rejected_duplicate as usize,
+            c.rejected.duplicate,
+        ),
+        (
+            "rejected_row_full",
+            rep.rejected_row_full as usize,
+            c.rejected.row_full,
+        ),
+        (
+            "rows_over_budget",
+            rep.rows_approximated as usize,
+            c.over_budget_rows,
+        ),
+        ("rows_failed", rep.rows_failed as usize, failed),
     ];
-    let counters_ref = [
-        c.initiated,
-        c.confirmed,
-        c.deleted + c.merged_tentative,
-        c.ended,
-        c.merged,
-        c.no_slot,
-        c.clutter_points,
-        c.rejected.non_finite,
-        c.rejected.out_of_window,
-        c.rejected.duplicate,
-        c.rejected.row_full,
-        c.over_budget_rows,
-        failed,
-    ];
-    for ((name, vc), vr) in counters_core.iter().zip(counters_ref) {
-        if *vc != vr {
+    for (name, vc, vr) in counters {
+        if vc != vr {
             return Err(format!("counter {name}: core {vc} vs reference {vr}"));
         }
     }

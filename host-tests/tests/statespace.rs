@@ -8,24 +8,24 @@
 use nalgebra::DMatrix;
 use serde_json::Value;
 use stjpdacf_reference::statespace::{Matern32, RbfTaylor};
-use stjpdacf_tools::repo_root;
+use stjpdacf_test_support::golden::{self, mat, num, vecf};
 
 fn golden() -> Value {
-    let p = repo_root().join("data/golden/statespace.json");
-    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+    golden::load("statespace.json")
 }
 
-fn mat(v: &Value) -> DMatrix<f64> {
-    let rows: Vec<Vec<f64>> = serde_json::from_value(v.clone()).unwrap();
-    DMatrix::from_fn(rows.len(), rows[0].len(), |i, j| rows[i][j])
-}
-
-fn num(v: &Value) -> f64 {
-    v.as_f64().unwrap()
-}
-
-fn vecf(v: &Value) -> Vec<f64> {
-    serde_json::from_value(v.clone()).unwrap()
+/// The 27 cases of model `key`, each with its model (`model(σ², ℓ)`) and step `Ts`.
+fn cases<M>(key: &str, model: impl Fn(f64, f64) -> M) -> Vec<(Value, M, f64)> {
+    let g = golden();
+    let cases = g[key].as_array().unwrap();
+    assert_eq!(cases.len(), 27);
+    cases
+        .iter()
+        .map(|c| {
+            let m = model(num(&c["sigma2"]), num(&c["lengthscale"]));
+            (c.clone(), m, num(&c["Ts"]))
+        })
+        .collect()
 }
 
 const REL: f64 = 1e-10;
@@ -49,17 +49,34 @@ fn assert_num(got: f64, want: f64, what: &str) {
     );
 }
 
+/// Matches complex roots as sets: each golden root must have a computed root within tolerance.
+#[track_caller]
+fn assert_roots(got: &[num_complex::Complex64], re: &[f64], im: &[f64], what: &str) {
+    assert_eq!(got.len(), re.len(), "{what}: root count");
+    let scale = re
+        .iter()
+        .zip(im)
+        .map(|(a, b)| a.hypot(*b))
+        .fold(0.0, f64::max);
+    for (r, i) in re.iter().zip(im) {
+        let best = got
+            .iter()
+            .map(|z| (z.re - r).hypot(z.im - i))
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            best <= REL * scale,
+            "{what}: root {r}+{i}i missing (closest {best:e})"
+        );
+    }
+}
+
 #[test]
 fn matern32_matches_golden() {
-    let g = golden();
-    let cases = g["matern32"].as_array().unwrap();
-    assert_eq!(cases.len(), 27);
-    for c in cases {
-        let m = Matern32 {
-            variance: num(&c["sigma2"]),
-            lengthscale: num(&c["lengthscale"]),
-        };
-        let ts = num(&c["Ts"]);
+    let matern32 = |variance, lengthscale| Matern32 {
+        variance,
+        lengthscale,
+    };
+    for (c, m, ts) in cases("matern32", matern32) {
         let what = format!("matern32 s2={} l={} Ts={ts}", m.variance, m.lengthscale);
         assert_num(m.lambda(), num(&c["lambda"]), &what);
         assert_mat(&m.a(), &mat(&c["A"]), &format!("{what} A"));
@@ -94,39 +111,14 @@ fn matern32_matches_golden() {
     }
 }
 
-/// Matches complex roots as sets: each golden root must have a computed root within tolerance.
-#[track_caller]
-fn assert_roots(got: &[num_complex::Complex64], re: &[f64], im: &[f64], what: &str) {
-    assert_eq!(got.len(), re.len(), "{what}: root count");
-    let scale = re
-        .iter()
-        .zip(im)
-        .map(|(a, b)| a.hypot(*b))
-        .fold(0.0, f64::max);
-    for (r, i) in re.iter().zip(im) {
-        let best = got
-            .iter()
-            .map(|z| (z.re - r).hypot(z.im - i))
-            .fold(f64::INFINITY, f64::min);
-        assert!(
-            best <= REL * scale,
-            "{what}: root {r}+{i}i missing (closest {best:e})"
-        );
-    }
-}
-
 #[test]
 fn rbf_taylor2_matches_golden() {
-    let g = golden();
-    let cases = g["rbf_taylor2"].as_array().unwrap();
-    assert_eq!(cases.len(), 27);
-    for c in cases {
-        let m = RbfTaylor {
-            variance: num(&c["sigma2"]),
-            lengthscale: num(&c["lengthscale"]),
-            order: 2,
-        };
-        let ts = num(&c["Ts"]);
+    let rbf2 = |variance, lengthscale| RbfTaylor {
+        variance,
+        lengthscale,
+        order: 2,
+    };
+    for (c, m, ts) in cases("rbf_taylor2", rbf2) {
         let what = format!("rbf s2={} l={} Ts={ts}", m.variance, m.lengthscale);
         assert_eq!(c["N"].as_u64(), Some(2));
         assert_num(m.kappa(), num(&c["kappa"]), &format!("{what} kappa"));

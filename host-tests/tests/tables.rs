@@ -36,39 +36,36 @@ fn committed_tables_are_regenerated_exactly() {
     assert_eq!(tablegen::FORMAT_VERSION, FORMAT_VERSION);
 }
 
-#[track_caller]
-fn close_scaled<const R: usize, const C: usize>(
-    got: &SMatrix<f32, R, C>,
-    want: &DMatrix<f64>,
-    tol: f64,
-    what: &str,
-) {
-    assert_eq!((R, C), want.shape(), "{what}: shape");
-    let scale = want.abs().max().max(f64::MIN_POSITIVE);
-    for i in 0..R {
-        for j in 0..C {
-            let (g, w) = (got[(i, j)] as f64, want[(i, j)]);
-            assert!(
-                (g - w).abs() <= tol * scale + 1e-30,
-                "{what}[{i},{j}]: {g:e} vs {w:e} (scale {scale:e})"
-            );
-        }
-    }
+/// How [`close`] bounds the error of an entry `w` of the reference.
+#[derive(Debug, Clone, Copy)]
+enum Tol {
+    /// `tol × max |want|` (shapes must match).
+    Scaled(f64),
+    /// `tol × |w|`.
+    Each(f64),
 }
 
 #[track_caller]
-fn close_each<const R: usize, const C: usize>(
+fn close<const R: usize, const C: usize>(
     got: &SMatrix<f32, R, C>,
     want: &DMatrix<f64>,
-    tol: f64,
+    tol: Tol,
     what: &str,
 ) {
+    let scale = want.abs().max().max(f64::MIN_POSITIVE);
+    if let Tol::Scaled(_) = tol {
+        assert_eq!((R, C), want.shape(), "{what}: shape");
+    }
     for i in 0..R {
         for j in 0..C {
             let (g, w) = (got[(i, j)] as f64, want[(i, j)]);
+            let (bound, note) = match tol {
+                Tol::Scaled(t) => (t * scale, format!(" (scale {scale:e})")),
+                Tol::Each(t) => (t * w.abs(), String::new()),
+            };
             assert!(
-                (g - w).abs() <= tol * w.abs() + 1e-30,
-                "{what}[{i},{j}]: {g:e} vs {w:e}"
+                (g - w).abs() <= bound + 1e-30,
+                "{what}[{i},{j}]: {g:e} vs {w:e}{note}"
             );
         }
     }
@@ -83,16 +80,21 @@ fn committed_tables_hold_the_f64_model() {
     let t = default_model();
     let d = &DEFAULT;
     assert_eq!(d.validate(), Ok(()));
-    close_scaled(&d.spatial.model.A, &t.spatial_a, 1e-6, "A_u");
-    close_scaled(&d.spatial.model.p_inf, &t.spatial_p_inf, 1e-6, "P∞_u");
-    close_scaled(&d.spatial.f, &t.spatial_f, 1e-6, "F_u");
-    close_scaled(&d.spatial.q, &t.spatial_q, 1e-6, "Q_u");
-    close_scaled(&d.temporal.f, &t.temporal_f, 1e-6, "F_t");
-    close_scaled(&d.temporal.q, &t.temporal_q, 1e-6, "Q_t");
-    close_scaled(&d.gram, &t.gram, 1e-6, "K_u");
-    close_scaled(&d.gram_eigvec, &t.gram_eigvec, 1e-6, "V");
-    close_scaled(&d.coreg, &t.coreg, 1e-6, "B");
-    close_scaled(&d.coreg_chol, &t.coreg_chol, 1e-6, "chol B");
+    close(&d.spatial.model.A, &t.spatial_a, Tol::Scaled(1e-6), "A_u");
+    close(
+        &d.spatial.model.p_inf,
+        &t.spatial_p_inf,
+        Tol::Scaled(1e-6),
+        "P∞_u",
+    );
+    close(&d.spatial.f, &t.spatial_f, Tol::Scaled(1e-6), "F_u");
+    close(&d.spatial.q, &t.spatial_q, Tol::Scaled(1e-6), "Q_u");
+    close(&d.temporal.f, &t.temporal_f, Tol::Scaled(1e-6), "F_t");
+    close(&d.temporal.q, &t.temporal_q, Tol::Scaled(1e-6), "Q_t");
+    close(&d.gram, &t.gram, Tol::Scaled(1e-6), "K_u");
+    close(&d.gram_eigvec, &t.gram_eigvec, Tol::Scaled(1e-6), "V");
+    close(&d.coreg, &t.coreg, Tol::Scaled(1e-6), "B");
+    close(&d.coreg_chol, &t.coreg_chol, Tol::Scaled(1e-6), "chol B");
     assert_eq!(d.gram_rank as usize, t.gram_rank);
     // The eigenbasis reconstructs K_u and is orthonormal (in f32).
     let v = dm(&d.gram_eigvec);
@@ -121,10 +123,15 @@ fn core_matern_matches_reference_for_any_step() {
         for t in [0.05, 0.1, 0.25, 0.0371, 1.0, 3.0, 60.0] {
             let (f, q) = core.transition(t as f32).unwrap();
             let (fr, qr) = reference.transition(t);
-            close_scaled(&f, &fr, 2e-6, &format!("F s2={s2} l={l} T={t}"));
-            close_each(&q, &qr, 2e-4, &format!("Q s2={s2} l={l} T={t}"));
+            close(
+                &f,
+                &fr,
+                Tol::Scaled(2e-6),
+                &format!("F s2={s2} l={l} T={t}"),
+            );
+            close(&q, &qr, Tol::Each(2e-4), &format!("Q s2={s2} l={l} T={t}"));
             let p = core.p_inf();
-            close_scaled(&p, &reference.p_inf_closed(), 1e-6, "P∞");
+            close(&p, &reference.p_inf_closed(), Tol::Scaled(1e-6), "P∞");
             assert!((core.eval(t as f32) as f64 - reference.kernel(t)).abs() < 1e-6 * s2);
         }
     }
@@ -149,8 +156,8 @@ fn check_rbf_order<const NT: usize>(s2: f64, l: f64) {
         // Steps up to ℓ are the operating range (rows are ~ℓ/20 apart); longer steps take more
         // squarings of a decaying exponential, each of which roughly doubles f32 round-off.
         let tol = if du <= l { 1e-5 } else { 1e-4 };
-        close_scaled(&f, &fr, tol, &format!("order {NT} F du={du}"));
-        close_scaled(&q, &qr, tol, &format!("order {NT} Q du={du}"));
+        close(&f, &fr, Tol::Scaled(tol), &format!("order {NT} F du={du}"));
+        close(&q, &qr, Tol::Scaled(tol), &format!("order {NT} Q du={du}"));
         let k = core.covariance(du as f32).unwrap() as f64;
         assert!(
             (k - r.kernel_statespace(du).unwrap()).abs() < 1e-5 * s2,

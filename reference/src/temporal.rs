@@ -109,15 +109,30 @@ fn symmetrize(p: &DMatrix<f64>) -> DMatrix<f64> {
     (p + p.transpose()) * 0.5
 }
 
+/// The two matrices of a Kalman step (`F` and `Q`, or `H` and `R`, with their names) against
+/// the shapes the step needs; the error names the step, both shapes and `context()`.
+fn check_step_shapes(
+    step: &str,
+    [(a_name, a), (b_name, b)]: [(&str, &DMatrix<f64>); 2],
+    [a_want, b_want]: [(usize, usize); 2],
+    context: impl FnOnce() -> String,
+) -> Result<()> {
+    ensure!(
+        a.shape() == a_want && b.shape() == b_want,
+        "{step}: {a_name} is {:?}, {b_name} is {:?} for {}",
+        a.shape(),
+        b.shape(),
+        context()
+    );
+    Ok(())
+}
+
 /// Kalman predict (paper Eqs. 45–46): `x ← F x`, `P ← F P Fᵀ + Q` (symmetrised).
 pub fn predict(x: &Gaussian, f: &DMatrix<f64>, q: &DMatrix<f64>) -> Result<Gaussian> {
     let n = x.dim();
-    ensure!(
-        f.shape() == (n, n) && q.shape() == (n, n),
-        "predict: F is {:?}, Q is {:?} for state dimension {n}",
-        f.shape(),
-        q.shape()
-    );
+    check_step_shapes("predict", [("F", f), ("Q", q)], [(n, n); 2], || {
+        format!("state dimension {n}")
+    })?;
     let mean = f * &x.mean;
     let cov = symmetrize(&(f * &x.cov * f.transpose() + q));
     Ok(Gaussian { mean, cov })
@@ -156,12 +171,9 @@ pub fn update_full(
 ) -> Result<Gaussian> {
     let n = x.dim();
     let m = z.len();
-    ensure!(
-        h.shape() == (m, n) && r.shape() == (m, m),
-        "update: H is {:?}, R is {:?} for z of length {m} and state dimension {n}",
-        h.shape(),
-        r.shape()
-    );
+    check_step_shapes("update", [("H", h), ("R", r)], [(m, n), (m, m)], || {
+        format!("z of length {m} and state dimension {n}")
+    })?;
     if m == 0 {
         return Ok(x.clone());
     }

@@ -39,7 +39,7 @@
 
 use std::time::Instant as WallClock;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use nalgebra::{Matrix3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -47,7 +47,7 @@ use serde::Serialize;
 use stjpdacf::tables::ReferenceTables;
 
 use crate::camera::Camera;
-use crate::track::{self, Space, TrackStats};
+use crate::track::{self, RunTimes, Space, TrackStats};
 use crate::tusimple::{Frame, TuSimpleRecord};
 
 /// The baseline's parameters (see the module doc for how the defaults were chosen).
@@ -279,14 +279,9 @@ pub fn track(
     let mut stats = TrackStats::default();
     let mut out = Vec::new();
     let mut clip: Option<&str> = None;
-    let (mut fit_total, mut run_total) = (0.0, 0.0);
+    let mut times = RunTimes::default();
     for (k, f) in frames.iter().enumerate() {
-        f.check()
-            .with_context(|| format!("frame {k} (clip {})", f.clip))?;
-        if clip != Some(f.clip.as_str()) {
-            clip = Some(f.clip.as_str());
-            stats.clips += 1;
-        }
+        stats.begin_frame(k, f, &mut clip)?;
         let start = WallClock::now();
         let bev = track::bev_points(f, cam, space, &mut stats.unmapped_points);
         let pts: Vec<(f64, f64)> = track::preprocess(&bev, tables)
@@ -295,17 +290,13 @@ pub fn track(
             .collect();
         let fit_start = WallClock::now();
         let lanes = fit_frame(&pts, params);
-        let fit_ms = fit_start.elapsed().as_secs_f64() * 1e3;
-        fit_total += fit_ms;
-        stats.step_max_ms = stats.step_max_ms.max(fit_ms);
-        stats.frames += 1;
+        stats.add_step(&mut times, fit_start.elapsed().as_secs_f64() * 1e3);
         let prediction = match (&f.raw_file, &f.h_samples) {
             (Some(raw), Some(rows)) => Some(lanes_record(&lanes, cam, raw, rows, None)),
             _ => None,
         };
         let run_ms = start.elapsed().as_secs_f64() * 1e3;
-        run_total += run_ms;
-        stats.run_max_ms = stats.run_max_ms.max(run_ms);
+        stats.add_run(&mut times, run_ms);
         if let Some(p) = prediction {
             out.push(TuSimpleRecord {
                 run_time: Some(run_ms),
@@ -315,10 +306,7 @@ pub fn track(
         }
         progress(k);
     }
-    if stats.frames > 0 {
-        stats.step_mean_ms = fit_total / stats.frames as f64;
-        stats.run_mean_ms = run_total / stats.frames as f64;
-    }
+    stats.finish(&times);
     Ok((out, stats))
 }
 

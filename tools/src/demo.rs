@@ -629,13 +629,7 @@ pub fn robustness(
 pub fn label_points_frame(l: &TuSimpleRecord) -> Frame {
     let mut points = Vec::new();
     for lane in &l.lanes {
-        let pts: Vec<(f64, f64)> = l
-            .h_samples
-            .iter()
-            .zip(lane)
-            .filter(|(_, x)| **x >= 0.0)
-            .map(|(&r, &x)| (r, x))
-            .collect();
+        let pts: Vec<(f64, f64)> = l.points_of(lane).map(|(x, r)| (r, x)).collect();
         for w in pts.windows(2) {
             let ((r0, x0), (r1, x1)) = (w[0], w[1]);
             let n = (r1 - r0).round().max(1.0) as usize;
@@ -1396,11 +1390,9 @@ fn draw_frame_overlay(
         }
         if let Some(g) = gt {
             for lane in &g.lanes {
-                let pts: Vec<(i32, i32)> = lane
-                    .iter()
-                    .zip(&g.h_samples)
-                    .filter(|(x, _)| **x >= 0.0)
-                    .map(|(&x, &r)| (x.round() as i32, (r + dy).round() as i32))
+                let pts: Vec<(i32, i32)> = g
+                    .points_of(lane)
+                    .map(|(x, r)| (x.round() as i32, (r + dy).round() as i32))
                     .collect();
                 root.draw(&PathElement::new(pts, GT.stroke_width(3)))
                     .map_err(plot_err)?;
@@ -1514,11 +1506,9 @@ fn plot_bev(
             .find(|g| Some(g.raw_file.as_str()) == snap.frame.raw_file.as_deref())
         {
             for lane in &g.lanes {
-                let pts: Vec<(f64, f64)> = lane
-                    .iter()
-                    .zip(&g.h_samples)
-                    .filter(|(x, _)| **x >= 0.0)
-                    .filter_map(|(&c, &r)| cam.to_bev(c, r))
+                let pts: Vec<(f64, f64)> = g
+                    .points_of(lane)
+                    .filter_map(|(c, r)| cam.to_bev(c, r))
                     .filter(|&(u, x)| inside(u, x))
                     .map(|(u, x)| (x, u))
                     .collect();

@@ -365,6 +365,13 @@ mod tests {
         vec![x; 20]
     }
 
+    /// `n` vertical lanes 200 px apart, the first at column 100.
+    fn spaced_verticals(n: u32) -> Vec<Vec<f64>> {
+        (0..n)
+            .map(|i| vertical(100.0 + 200.0 * f64::from(i)))
+            .collect()
+    }
+
     /// `lane` with the first `n` rows moved by `dx`.
     fn off(mut lane: Vec<f64>, n: usize, dx: f64) -> Vec<f64> {
         for v in lane.iter_mut().take(n) {
@@ -558,9 +565,7 @@ mod tests {
     #[test]
     fn more_than_four_lanes_drops_the_worst_and_forgives_one_fn() {
         let ys = rows20();
-        let gt5: Vec<Vec<f64>> = (0..5)
-            .map(|i| vertical(100.0 + 200.0 * f64::from(i)))
-            .collect();
+        let gt5 = spaced_verticals(5);
         // Fifth prediction far off: accs [1, 1, 1, 1, 0] -> s = 4 - 0, /4; fn 1 -> 0; fp 1/5.
         let mut pred = gt5.clone();
         pred[4] = vertical(1200.0);
@@ -586,9 +591,7 @@ mod tests {
     #[test]
     fn fn_is_divided_by_at_most_four_lanes() {
         let ys = rows20();
-        let gt6: Vec<Vec<f64>> = (0..6)
-            .map(|i| vertical(100.0 + 200.0 * f64::from(i)))
-            .collect();
+        let gt6 = spaced_verticals(6);
         // First 4 found: accs [1, 1, 1, 1, 0, 0]; fn 2 -> 1, / 4; s = 4 - 0, / 4; fp 0 / 4.
         let pred = gt6[..4].to_vec();
         assert_eq!(bench(&pred, &gt6, &ys, 0.0).unwrap(), score(1.0, 0.0, 0.25));

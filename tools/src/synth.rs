@@ -624,6 +624,25 @@ fn uniform(rng: &mut ChaCha8Rng, (a, b): (f64, f64)) -> f64 {
     }
 }
 
+/// +1 or −1 with equal odds.
+fn random_sign(rng: &mut ChaCha8Rng) -> f64 {
+    if rng.random_bool(0.5) {
+        1.0
+    } else {
+        -1.0
+    }
+}
+
+/// The outermost lane of `order` (sorted left to right) on the left (`left`) or right side, and
+/// the side's sign (−1 left, +1 right). `order` must not be empty.
+fn outermost(order: &[usize], left: bool) -> (usize, f64) {
+    if left {
+        (order[0], -1.0)
+    } else {
+        (order[order.len() - 1], 1.0)
+    }
+}
+
 /// The generator of one clip.
 struct ClipGen<'a> {
     p: &'a SynthParams,
@@ -1019,11 +1038,9 @@ pub fn synth_clip(
         .lanes
         .iter()
         .map(|cols| {
-            let mut pts: Vec<(f64, f64)> = cols
-                .iter()
-                .zip(&label.h_samples)
-                .filter(|(c, _)| **c >= 0.0)
-                .filter_map(|(&c, &r)| camera.to_bev(c, r))
+            let mut pts: Vec<(f64, f64)> = label
+                .points_of(cols)
+                .filter_map(|(c, r)| camera.to_bev(c, r))
                 .collect();
             pts.sort_by(|a, b| a.0.total_cmp(&b.0));
             SrcLane {
@@ -1048,12 +1065,12 @@ pub fn synth_clip(
     let yaw_rate = sym(&mut rng, p.yaw_rate);
     let curv_rate = sym(&mut rng, p.curvature_rate);
     let lane_change = rng.random_bool(p.lane_change_prob).then(|| {
-        let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let sign = random_sign(&mut rng);
         (sign * p.lane_width, rng.random_range(0.0..0.15))
     });
     let far_end = (rng.random_bool(p.far_end_prob) && !order.is_empty()).then(|| {
         let i = order[rng.random_range(0..order.len())];
-        let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let sign = random_sign(&mut rng);
         (i, sign * uniform(&mut rng, p.far_end_rate))
     });
     let mut curves: Vec<Curve> = Vec::new();
@@ -1072,11 +1089,7 @@ pub fn synth_clip(
     let merge_dashed = rng.random_bool(p.dashed_prob);
     let merge_phase = rng.random_range(0.0..(p.dash_paint + p.dash_gap));
     if merge {
-        let (src, sign) = if merge_left {
-            (order[0], -1.0)
-        } else {
-            (order[order.len() - 1], 1.0)
-        };
+        let (src, sign) = outermost(&order, merge_left);
         curves.push(Curve {
             src,
             kind: Kind::Branch(Merge {
@@ -1091,11 +1104,7 @@ pub fn synth_clip(
     let edge_left = rng.random_bool(0.5);
     let edge_off = rng.random_range(0.5..1.5);
     if road_edge {
-        let (src, sign) = if edge_left {
-            (order[0], -1.0)
-        } else {
-            (order[order.len() - 1], 1.0)
-        };
+        let (src, sign) = outermost(&order, edge_left);
         curves.push(Curve {
             src,
             kind: Kind::Edge(sign * edge_off),

@@ -18,16 +18,13 @@ use std::time::Instant as WallClock;
 use anyhow::{bail, Context, Result};
 
 use serde::Serialize;
-use stjpdacf::kernel::{Matern32, RbfStateSpace};
-use stjpdacf::tables::{
-    Hyper, ReferenceTables, SpatialTables, Tables, TemporalTables, FORMAT_VERSION,
-};
+use stjpdacf::tables::ReferenceTables;
 use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, StepOutput, TrackerConfig};
 
 use crate::camera::Camera;
+use crate::tablegen;
 use crate::tusimple::{Frame, TuSimpleRecord, NO_POINT};
 use stjpdacf_reference::hyper::HyperFile;
-use stjpdacf_reference::model::ModelTables;
 
 /// Lanes not seen for more frames than this are not written.
 pub const MAX_REPORT_MISSES: u16 = 2;
@@ -65,58 +62,62 @@ pub struct TrackStats {
     pub run_max_ms: f64,
 }
 
+impl TrackStats {
+    /// Checks frame `k` of a run and, when its clip is not `clip` (the previous frame's), counts
+    /// a new clip and names it in `clip`; `Ok(true)` when the frame starts a clip.
+    pub(crate) fn begin_frame<'a>(
+        &mut self,
+        k: usize,
+        f: &'a Frame,
+        clip: &mut Option<&'a str>,
+    ) -> Result<bool> {
+        f.check()
+            .with_context(|| format!("frame {k} (clip {})", f.clip))?;
+        if *clip == Some(f.clip.as_str()) {
+            return Ok(false);
+        }
+        *clip = Some(f.clip.as_str());
+        self.clips += 1;
+        Ok(true)
+    }
+
+    /// Counts a frame whose step took `ms`.
+    pub(crate) fn add_step(&mut self, times: &mut RunTimes, ms: f64) {
+        times.step += ms;
+        self.step_max_ms = self.step_max_ms.max(ms);
+        self.frames += 1;
+    }
+
+    /// Counts `ms` spent on a frame.
+    pub(crate) fn add_run(&mut self, times: &mut RunTimes, ms: f64) {
+        times.run += ms;
+        self.run_max_ms = self.run_max_ms.max(ms);
+    }
+
+    /// Sets the means from the run's sums.
+    pub(crate) fn finish(&mut self, times: &RunTimes) {
+        if self.frames > 0 {
+            self.step_mean_ms = times.step / self.frames as f64;
+            self.run_mean_ms = times.run / self.frames as f64;
+        }
+    }
+}
+
+/// The sums of a run's step and frame times, ms (for [`TrackStats`]' means).
+#[derive(Debug, Default)]
+pub(crate) struct RunTimes {
+    step: f64,
+    run: f64,
+}
+
 /// Builds f32 tables for the reference configuration from a hyperparameter file at run time (the
-/// same computation as `stjpdacf tables`, without the Rust source round trip), leaked to `'static`.
+/// same computation as `stjpdacf tables`, without the Rust source round trip:
+/// [`tablegen::static_tables`]), leaked to `'static`.
 pub fn tables_from_hyper(h: &HyperFile) -> Result<&'static ReferenceTables> {
     if h.spatial.order != 2 || h.lanes() != 6 || h.index_points != 16 {
         bail!("the reference tracker needs N_T = 2, 6 lane slots and 16 index points");
     }
-    let t = ModelTables::from_hyper(h)?;
-    let m = |d: &nalgebra::DMatrix<f64>| d.map(|v| v as f32);
-    let tables: Tables<2, 6, 16> = Tables {
-        version: FORMAT_VERSION,
-        hyper: Hyper {
-            spatial_order: 2,
-            spatial_variance: h.spatial.variance as f32,
-            spatial_lengthscale: h.spatial.lengthscale as f32,
-            offset_variance: h.spatial.offset_variance as f32,
-            temporal_variance: h.temporal.variance as f32,
-            temporal_lengthscale: h.temporal.lengthscale as f32,
-            meas_noise: h.noise.measurement as f32,
-            pseudo_noise: h.noise.pseudo as f32,
-            u_min: h.window.u_min as f32,
-            u_max: h.window.u_max as f32,
-            row_step: h.spatial.row_step as f32,
-            frame_step: h.temporal.frame_step as f32,
-            gram_variance_fraction: h.temporal.gram_variance_fraction as f32,
-        },
-        spatial: SpatialTables {
-            model: RbfStateSpace {
-                A: m(&t.spatial_a).fixed_view::<2, 2>(0, 0).into_owned(),
-                qc: t.spatial_qc as f32,
-                p_inf: m(&t.spatial_p_inf).fixed_view::<2, 2>(0, 0).into_owned(),
-            },
-            f: m(&t.spatial_f).fixed_view::<2, 2>(0, 0).into_owned(),
-            q: m(&t.spatial_q).fixed_view::<2, 2>(0, 0).into_owned(),
-        },
-        temporal: TemporalTables {
-            kernel: Matern32::new(h.temporal.variance as f32, h.temporal.lengthscale as f32),
-            f: m(&t.temporal_f).fixed_view::<2, 2>(0, 0).into_owned(),
-            q: m(&t.temporal_q).fixed_view::<2, 2>(0, 0).into_owned(),
-            p_inf: m(&t.temporal_p_inf).fixed_view::<2, 2>(0, 0).into_owned(),
-        },
-        index_u: nalgebra::SVector::from_fn(|i, _| t.index_u[i] as f32),
-        gram: m(&t.gram).fixed_view::<16, 16>(0, 0).into_owned(),
-        gram_eigvec: m(&t.gram_eigvec).fixed_view::<16, 16>(0, 0).into_owned(),
-        gram_eigval: nalgebra::SVector::from_fn(|i, _| t.gram_eigval[i] as f32),
-        gram_rank: t.gram_rank as u32,
-        coreg: m(&t.coreg).fixed_view::<6, 6>(0, 0).into_owned(),
-        coreg_chol: m(&t.coreg_chol).fixed_view::<6, 6>(0, 0).into_owned(),
-    };
-    tables
-        .validate()
-        .map_err(|e| anyhow::anyhow!("generated tables are invalid: {e}"))?;
-    Ok(Box::leak(Box::new(tables)))
+    tablegen::static_tables::<2, 6, 16>(h)
 }
 
 /// Lateral gap (metres) that separates two feature-point clusters in one BEV row.
@@ -432,14 +433,10 @@ pub fn track_with(
     let mut out = Vec::new();
     let mut tracker: Option<Box<ReferenceTracker>> = None;
     let mut clip: Option<&str> = None;
-    let (mut step_total, mut run_total) = (0.0, 0.0);
+    let mut times = RunTimes::default();
     for (k, f) in frames.iter().enumerate() {
-        f.check()
-            .with_context(|| format!("frame {k} (clip {})", f.clip))?;
-        if clip != Some(f.clip.as_str()) {
+        if stats.begin_frame(k, f, &mut clip)? {
             tracker = Some(Box::new(ReferenceTracker::with_config(tables, config)));
-            clip = Some(f.clip.as_str());
-            stats.clips += 1;
         }
         let Some(tr) = tracker.as_mut() else { continue };
         let start = WallClock::now();
@@ -447,10 +444,7 @@ pub fn track_with(
         let pts = preprocess(&bev_pts, tables);
         let step_start = WallClock::now();
         let res = tr.step(Instant::from_micros((f.t * 1e6).round() as i64), &pts);
-        let step_ms = step_start.elapsed().as_secs_f64() * 1e3;
-        step_total += step_ms;
-        stats.step_max_ms = stats.step_max_ms.max(step_ms);
-        stats.frames += 1;
+        stats.add_step(&mut times, step_start.elapsed().as_secs_f64() * 1e3);
         let output = match res {
             Ok(o) => Some(o),
             Err(_) => {
@@ -487,8 +481,7 @@ pub fn track_with(
             _ => None,
         };
         let run_ms = start.elapsed().as_secs_f64() * 1e3;
-        run_total += run_ms;
-        stats.run_max_ms = stats.run_max_ms.max(run_ms);
+        stats.add_run(&mut times, run_ms);
         let prediction = prediction.map(|p| TuSimpleRecord {
             run_time: Some(run_ms),
             ..p
@@ -507,9 +500,6 @@ pub fn track_with(
             stats.predictions += 1;
         }
     }
-    if stats.frames > 0 {
-        stats.step_mean_ms = step_total / stats.frames as f64;
-        stats.run_mean_ms = run_total / stats.frames as f64;
-    }
+    stats.finish(&times);
     Ok((out, stats))
 }

@@ -252,29 +252,50 @@ impl IcmParams {
     pub fn b(&self) -> DMatrix<f64> {
         &self.w * self.w.transpose() + DMatrix::from_diagonal(&self.kappa)
     }
+
+    /// The kernel of these parameters with `b` as `B` (normally [`Self::b`]).
+    pub fn kernel<'a>(&self, b: &'a DMatrix<f64>) -> IcmKernel<'a> {
+        IcmKernel {
+            b,
+            variance: self.variance,
+            lengthscale: self.lengthscale,
+            offset_variance: self.offset_variance,
+            noise: self.noise,
+        }
+    }
 }
 
-/// The covariance of one frame's stacked points (lane-major) under `B`, σ², ℓ, σ_c², noise.
-/// `B` must have at least as many rows as the frame has lanes.
-pub fn icm_covariance(
-    frame: &Frame,
-    b: &DMatrix<f64>,
-    variance: f64,
-    lengthscale: f64,
-    offset_variance: f64,
-    noise: f64,
-) -> DMatrix<f64> {
+/// The ICM kernel under an explicit `B` (any symmetric positive definite matrix): what the
+/// covariance of a frame needs.
+#[derive(Debug, Clone, Copy)]
+pub struct IcmKernel<'a> {
+    /// `B`, at least as large as the frames' lane counts.
+    pub b: &'a DMatrix<f64>,
+    /// RBF variance σ².
+    pub variance: f64,
+    /// RBF length-scale ℓ, metres.
+    pub lengthscale: f64,
+    /// Per-lane offset variance σ_c², m².
+    pub offset_variance: f64,
+    /// Noise variance, m².
+    pub noise: f64,
+}
+
+/// The covariance of one frame's stacked points (lane-major) under the kernel `k`. `k.b` must
+/// have at least as many rows as the frame has lanes.
+pub fn icm_covariance(frame: &Frame, k: &IcmKernel<'_>) -> DMatrix<f64> {
     let (lane, u, _) = stack(frame);
     let n = u.len();
     DMatrix::from_fn(n, n, |i, j| {
         let (a, c) = (lane[i], lane[j]);
         let d = u[i] - u[j];
-        let mut v = b[(a, c)] * variance * (-d * d / (2.0 * lengthscale * lengthscale)).exp();
+        let mut v =
+            k.b[(a, c)] * k.variance * (-d * d / (2.0 * k.lengthscale * k.lengthscale)).exp();
         if a == c {
-            v += offset_variance;
+            v += k.offset_variance;
         }
         if i == j {
-            v += noise;
+            v += k.noise;
         }
         v
     })
@@ -294,20 +315,12 @@ fn stack(frame: &Frame) -> (Vec<usize>, Vec<f64>, DVector<f64>) {
     (lane, u, DVector::from_vec(x))
 }
 
-/// The summed LML of independent frames under an explicit `B` (any symmetric positive
-/// definite matrix, at least as large as the frames' lane counts).
-pub fn icm_lml(
-    frames: &[Frame],
-    b: &DMatrix<f64>,
-    variance: f64,
-    lengthscale: f64,
-    offset_variance: f64,
-    noise: f64,
-) -> Result<f64> {
+/// The summed LML of independent frames under the kernel `k`.
+pub fn icm_lml(frames: &[Frame], k: &IcmKernel<'_>) -> Result<f64> {
     let mut total = 0.0;
     for f in frames {
-        ensure!(f.lanes.len() <= b.nrows(), "frame has more lanes than B");
-        let k = icm_covariance(f, b, variance, lengthscale, offset_variance, noise);
+        ensure!(f.lanes.len() <= k.b.nrows(), "frame has more lanes than B");
+        let k = icm_covariance(f, k);
         let (_, _, y) = stack(f);
         total += gaussian_lml(k, &y)?.0;
     }
@@ -471,14 +484,7 @@ pub fn simulate_frames(p: &IcmParams, grids: &[Vec<Vec<f64>>], seed: u64) -> Res
                     })
                     .collect(),
             };
-            let k = icm_covariance(
-                &f,
-                &b,
-                p.variance,
-                p.lengthscale,
-                p.offset_variance,
-                p.noise,
-            );
+            let k = icm_covariance(&f, &p.kernel(&b));
             let l = k.cholesky().context("model covariance not PD")?.unpack();
             let z = DVector::from_fn(l.nrows(), |_, _| rng.sample::<f64, _>(StandardNormal));
             let y = l * z;

@@ -55,6 +55,15 @@ pub fn as_predictions(gts: &[TuSimpleRecord], run_time_ms: f64) -> Vec<TuSimpleR
 }
 
 impl TuSimpleRecord {
+    /// The labelled points `(column, row)` of `lane` (one of [`Self::lanes`]) in `h_samples`
+    /// order; the rows where the lane has no point (column < 0) are left out.
+    pub fn points_of<'a>(&'a self, lane: &'a [f64]) -> impl Iterator<Item = (f64, f64)> + 'a {
+        lane.iter()
+            .zip(&self.h_samples)
+            .filter(|(c, _)| **c >= 0.0)
+            .map(|(&c, &r)| (c, r))
+    }
+
     /// Multiply every column (≥ 0) and every row by `s`; negative "no point" values become
     /// [`NO_POINT`].
     pub fn scale_pixels(&mut self, s: f64) {
@@ -180,10 +189,16 @@ where
     Ok(out)
 }
 
+/// Open `path` and parse it with `parse`, which gets the buffered file and the path as the
+/// source name of its error messages.
+fn read_with<T>(path: &Path, parse: impl FnOnce(BufReader<File>, &str) -> Result<T>) -> Result<T> {
+    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+    parse(BufReader::new(f), &path.display().to_string())
+}
+
 /// Read a JSON-lines file (see [`parse_jsonl`]).
 pub fn read_jsonl<T: DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
-    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    parse_jsonl(BufReader::new(f), &path.display().to_string())
+    read_with(path, parse_jsonl)
 }
 
 /// Write items as JSON lines (one compact JSON object per line).
@@ -215,8 +230,7 @@ pub fn parse_labels<R: BufRead>(reader: R, source: &str) -> Result<Vec<TuSimpleR
 
 /// Read a TuSimple ground-truth file (JSON lines), checking shapes.
 pub fn read_labels(path: &Path) -> Result<Vec<TuSimpleRecord>> {
-    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    parse_labels(BufReader::new(f), &path.display().to_string())
+    read_with(path, parse_labels)
 }
 
 /// Parse TuSimple predictions. Like the official scorer, `raw_file`, `lanes` and `run_time` are
@@ -236,8 +250,7 @@ pub fn parse_predictions<R: BufRead>(reader: R, source: &str) -> Result<Vec<TuSi
 
 /// Read a TuSimple prediction file (JSON lines); see [`parse_predictions`].
 pub fn read_predictions(path: &Path) -> Result<Vec<TuSimpleRecord>> {
-    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    parse_predictions(BufReader::new(f), &path.display().to_string())
+    read_with(path, parse_predictions)
 }
 
 /// Write TuSimple records as JSON lines.
@@ -296,8 +309,7 @@ pub fn check_sequence(frames: &[(usize, Frame)], source: &str) -> Result<()> {
 
 /// Read a frames file (JSON lines), checking each frame.
 pub fn read_frames(path: &Path) -> Result<Vec<Frame>> {
-    let f = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    parse_frames(BufReader::new(f), &path.display().to_string())
+    read_with(path, parse_frames)
 }
 
 /// Write frames as JSON lines.
@@ -308,6 +320,16 @@ pub fn write_frames(path: &Path, frames: &[Frame]) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The error (with its causes) of parsing labels `s` named `gt.json`.
+    fn labels_err(s: &str) -> String {
+        format!("{:#}", parse_labels(s.as_bytes(), "gt.json").unwrap_err())
+    }
+
+    /// The error (with its causes) of parsing frames `s` named `f.jsonl`.
+    fn frames_err(s: &str) -> String {
+        format!("{:#}", parse_frames(s.as_bytes(), "f.jsonl").unwrap_err())
+    }
 
     #[test]
     fn ground_truth_line_parses_without_run_time() {
@@ -350,8 +372,7 @@ mod tests {
     #[test]
     fn malformed_line_names_source_and_line() {
         let s = "{\"raw_file\": \"a\", \"lanes\": [], \"h_samples\": [1]}\n\n{\"raw_file\": \"b\", \"lanes\": 3}\n";
-        let e = parse_labels(s.as_bytes(), "gt.json").unwrap_err();
-        let msg = format!("{e:#}");
+        let msg = labels_err(s);
         assert!(
             msg.starts_with("gt.json:3: malformed TuSimple label"),
             "{msg}"
@@ -361,7 +382,7 @@ mod tests {
     #[test]
     fn lane_length_mismatch_is_reported() {
         let s = "{\"raw_file\": \"a\", \"lanes\": [[1, 2]], \"h_samples\": [1, 2, 3]}";
-        let msg = format!("{:#}", parse_labels(s.as_bytes(), "gt.json").unwrap_err());
+        let msg = labels_err(s);
         assert!(msg.contains("gt.json:1: bad TuSimple label"), "{msg}");
         assert!(
             msg.contains("lane 0 has 2 values but h_samples has 3 rows"),
@@ -388,17 +409,14 @@ mod tests {
     }
 
     #[test]
-    fn label_without_h_samples_is_reported() {
-        let s = r#"{"raw_file": "a", "lanes": []}"#;
-        let msg = format!("{:#}", parse_labels(s.as_bytes(), "gt.json").unwrap_err());
-        assert!(msg.contains("h_samples is empty"), "{msg}");
-    }
-
-    #[test]
-    fn empty_h_samples_is_reported() {
-        let s = "{\"raw_file\": \"a\", \"lanes\": [], \"h_samples\": []}";
-        let msg = format!("{:#}", parse_labels(s.as_bytes(), "gt.json").unwrap_err());
-        assert!(msg.contains("h_samples is empty"), "{msg}");
+    fn label_without_h_samples_or_with_none_is_reported() {
+        for s in [
+            r#"{"raw_file": "a", "lanes": []}"#,
+            "{\"raw_file\": \"a\", \"lanes\": [], \"h_samples\": []}",
+        ] {
+            let msg = labels_err(s);
+            assert!(msg.contains("h_samples is empty"), "{s}: {msg}");
+        }
     }
 
     #[test]
@@ -425,7 +443,7 @@ mod tests {
     #[test]
     fn malformed_frame_names_line() {
         let s = "{\"clip\": \"c\", \"t\": 0, \"points\": []}\n{\"clip\": \"c\", \"t\": 1, \"points\": [[1]]}\n";
-        let msg = format!("{:#}", parse_frames(s.as_bytes(), "f.jsonl").unwrap_err());
+        let msg = frames_err(s);
         assert!(msg.starts_with("f.jsonl:2: malformed frame"), "{msg}");
     }
 
@@ -436,17 +454,11 @@ mod tests {
         let ok = line("a", 0.0) + &line("a", 0.05) + "\n" + &line("b", 0.0);
         assert_eq!(parse_frames(ok.as_bytes(), "f").unwrap().len(), 3);
         let back = line("a", 0.0) + &line("a", 0.05) + &line("a", 0.05);
-        let msg = format!(
-            "{:#}",
-            parse_frames(back.as_bytes(), "f.jsonl").unwrap_err()
-        );
+        let msg = frames_err(&back);
         assert!(msg.starts_with("f.jsonl:3: time 0.05 s of clip a"), "{msg}");
         assert!(msg.contains("(line 2)"), "{msg}");
         let again = line("a", 0.0) + &line("b", 0.0) + "\n" + &line("a", 1.0);
-        let msg = format!(
-            "{:#}",
-            parse_frames(again.as_bytes(), "f.jsonl").unwrap_err()
-        );
+        let msg = frames_err(&again);
         assert!(msg.starts_with("f.jsonl:4: clip a appears again"), "{msg}");
         assert!(msg.contains("ended at line 1"), "{msg}");
     }
@@ -454,27 +466,18 @@ mod tests {
     #[test]
     fn frame_prediction_keys_are_checked() {
         let no_raw = r#"{"clip": "c", "t": 0, "points": [], "h_samples": [1, 2]}"#;
-        let msg = format!(
-            "{:#}",
-            parse_frames(no_raw.as_bytes(), "f.jsonl").unwrap_err()
-        );
+        let msg = frames_err(no_raw);
         assert!(msg.starts_with("f.jsonl:1: bad frame"), "{msg}");
         assert!(msg.contains("h_samples without raw_file"), "{msg}");
         let empty = r#"{"clip": "c", "t": 0, "points": [], "raw_file": "x", "h_samples": []}"#;
-        let msg = format!(
-            "{:#}",
-            parse_frames(empty.as_bytes(), "f.jsonl").unwrap_err()
-        );
+        let msg = frames_err(empty);
         assert!(msg.contains("non-empty"), "{msg}");
         let twice = concat!(
             r#"{"clip": "c", "t": 0, "points": [], "raw_file": "x", "h_samples": [1]}"#,
             "\n",
             r#"{"clip": "d", "t": 0, "points": [], "raw_file": "x", "h_samples": [1]}"#
         );
-        let msg = format!(
-            "{:#}",
-            parse_frames(twice.as_bytes(), "f.jsonl").unwrap_err()
-        );
+        let msg = frames_err(twice);
         assert!(
             msg.starts_with("f.jsonl:2: raw_file x already asks for a prediction at line 1"),
             "{msg}"

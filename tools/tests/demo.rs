@@ -5,9 +5,11 @@
 //! Scores are taken without the metric's run_time penalty (`score_run_time: false`): this test
 //! build is unoptimised, ~100× slower than release, and the 200 ms rule would score the build.
 
-use std::path::PathBuf;
-use std::process::Command;
+mod common;
 
+use std::path::PathBuf;
+
+use common::{assert_failure_mentions, assert_success, stjpdacf};
 use stjpdacf_tools::demo::{self, Coupling, DemoOptions, Input, GT, LANE_COLOURS};
 use stjpdacf_tools::metric;
 use stjpdacf_tools::synth::NoiseLevel;
@@ -263,7 +265,7 @@ fn reduced_demo_scores_and_writes_its_files() {
 #[test]
 fn demo_cli_prints_the_table() {
     let out = temp_dir("cli");
-    let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+    let o = stjpdacf()
         .args([
             "demo",
             "--clips",
@@ -278,7 +280,7 @@ fn demo_cli_prints_the_table() {
         .arg(&out)
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_success(&o);
     let text = String::from_utf8(o.stdout).unwrap();
     for level in ["low", "high"] {
         for b in ["B (coupled)", "diag(B)"] {
@@ -307,15 +309,13 @@ fn demo_cli_prints_the_table() {
     assert_eq!(v["rows"][2]["frames"], 3);
     assert_eq!(v["rows"][4]["input"], "real");
     // Missing bundled data is a clear error naming the file.
-    let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+    let o = stjpdacf()
         .args(["demo", "--no-images", "--data"])
         .arg(out.join("nowhere"))
         .arg("--out")
         .arg(&out)
         .output()
         .unwrap();
-    assert!(!o.status.success());
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("train_subset.json"), "{err}");
+    assert_failure_mentions(&o, "train_subset.json");
     std::fs::remove_dir_all(&out).unwrap();
 }

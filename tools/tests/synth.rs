@@ -2,9 +2,11 @@
 //! bundled subset of TuSimple training labels (`data/tusimple/train_subset.json`: 40 labels of
 //! `label_data_0313.json`, every 71st line; 1280×720).
 
-use std::path::PathBuf;
-use std::process::Command;
+mod common;
 
+use std::path::PathBuf;
+
+use common::{assert_failure_mentions, assert_success, stjpdacf};
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::metric::bench_one_submit;
 use stjpdacf_tools::synth::{synth_clip, synthesize, NoiseLevel, SynthOutput, SynthParams};
@@ -354,7 +356,7 @@ fn cli_writes_frames_and_ground_truth() {
     let d = temp_dir("cli");
     let labels = stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json");
     let gen = |name: &str, seed: &str| {
-        let out = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+        let out = stjpdacf()
             .args(["synth", "--labels"])
             .arg(&labels)
             .arg("--out")
@@ -366,11 +368,7 @@ fn cli_writes_frames_and_ground_truth() {
             .args(["--seed", seed, "--clips", "5", "--noise", "low"])
             .output()
             .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        assert_success(&out);
         std::fs::read(d.join(format!("{name}.jsonl"))).unwrap()
     };
     let a = gen("a", "4");
@@ -386,13 +384,12 @@ fn cli_writes_frames_and_ground_truth() {
     let mut b = Vec::new();
     write_jsonl_to(&mut b, &o.frames).unwrap();
     assert_eq!(a, b);
-    let bad = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+    let bad = stjpdacf()
         .args(["synth", "--labels", "/nonexistent/labels.json", "--out"])
         .arg(d.join("x.jsonl"))
         .output()
         .unwrap();
-    assert!(!bad.status.success());
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("/nonexistent/labels.json"));
+    assert_failure_mentions(&bad, "/nonexistent/labels.json");
     std::fs::remove_dir_all(&d).unwrap();
 }
 

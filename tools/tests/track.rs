@@ -1,9 +1,11 @@
 //! `stjpdacf track` end to end: real-geometry replay clips (`synth`, bundled TuSimple labels) →
 //! the core tracker → TuSimple predictions → the official metric; plus the run-time tables.
 
-use std::path::PathBuf;
-use std::process::Command;
+mod common;
 
+use std::path::PathBuf;
+
+use common::{assert_failure_mentions, assert_success, stjpdacf};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_reference::hyper::HyperFile;
@@ -219,10 +221,7 @@ fn lane_x_extends_beyond_the_window_and_bands_carry_the_variance() {
 }
 
 fn run_cli(args: &[&std::ffi::OsStr]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
-        .args(args)
-        .output()
-        .unwrap()
+    stjpdacf().args(args).output().unwrap()
 }
 
 /// `stjpdacf track --frames <frames> --out <out> <extra>`.
@@ -265,9 +264,9 @@ fn track_cli_camera_file_scale_and_bad_files() {
     std::fs::write(&cam_file, serde_json::to_string(&small).unwrap()).unwrap();
     let (p1, p2, p3) = (d.join("p1.jsonl"), d.join("p2.jsonl"), d.join("p3.jsonl"));
     let o = run_track(&fpath, &p1, &["--scale".as_ref(), "0.4".as_ref()]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_success(&o);
     let o = run_track(&fpath, &p2, &["--camera".as_ref(), cam_file.as_ref()]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_success(&o);
     let (a, b) = (
         read_predictions(&p1).unwrap(),
         read_predictions(&p2).unwrap(),
@@ -312,8 +311,6 @@ fn track_cli_camera_file_scale_and_bad_files() {
     text.push('\n');
     std::fs::write(&fpath, text).unwrap();
     let o = run_track(&fpath, &p3, &[]);
-    let err = String::from_utf8_lossy(&o.stderr).to_string();
-    assert!(!o.status.success());
-    assert!(err.contains("f.jsonl:4: time 0.01 s of clip c"), "{err}");
+    assert_failure_mentions(&o, "f.jsonl:4: time 0.01 s of clip c");
     std::fs::remove_dir_all(&d).unwrap();
 }

@@ -7,7 +7,7 @@ use nalgebra::{DMatrix, DVector};
 use serde_json::Value;
 use stjpdacf_tools::train::{
     fit_icm, fit_matern, icm_lml, icm_lml_grad, matern_lml_grad, simulate_frames, FitConfig, Frame,
-    IcmParams, Lane, Layout, MaternParams, Series,
+    IcmKernel, IcmParams, Lane, Layout, MaternParams, Series,
 };
 
 fn golden() -> Value {
@@ -53,6 +53,20 @@ fn golden_frame(g: &Value) -> Frame {
     Frame { lanes }
 }
 
+/// The LML of `frame` at a golden point (`B`, `variance`, `lengthscale`, `noise_variance`; no
+/// offset term).
+fn golden_lml(frame: &Frame, point: &Value) -> f64 {
+    let b = mat(&point["B"]);
+    let kernel = IcmKernel {
+        b: &b,
+        variance: f(&point["variance"]),
+        lengthscale: f(&point["lengthscale"]),
+        offset_variance: 0.0,
+        noise: f(&point["noise_variance"]),
+    };
+    icm_lml(std::slice::from_ref(frame), &kernel).unwrap()
+}
+
 #[test]
 fn golden_lml_at_stored_points() {
     let g = golden();
@@ -60,15 +74,7 @@ fn golden_lml_at_stored_points() {
     let points = g["lml_points"].as_array().unwrap();
     assert_eq!(points.len(), 5);
     for p in points {
-        let lml = icm_lml(
-            std::slice::from_ref(&frame),
-            &mat(&p["B"]),
-            f(&p["variance"]),
-            f(&p["lengthscale"]),
-            0.0,
-            f(&p["noise_variance"]),
-        )
-        .unwrap();
+        let lml = golden_lml(&frame, p);
         let want = f(&p["lml_numpy"]);
         assert!(
             (lml - want).abs() < 1e-8,
@@ -88,17 +94,41 @@ fn golden_lml_at_gpy_optimum() {
     let frame = golden_frame(&g);
     for key in ["fit_fixed_variance", "fit_free_variance"] {
         let fit = &g[key];
-        let lml = icm_lml(
-            std::slice::from_ref(&frame),
-            &mat(&fit["B"]),
-            f(&fit["variance"]),
-            f(&fit["lengthscale"]),
-            0.0,
-            f(&fit["noise_variance"]),
-        )
-        .unwrap();
+        let lml = golden_lml(&frame, fit);
         let want = f(&fit["lml_numpy_at_fitted"]);
         assert!((lml - want).abs() < 1e-8, "{key}: {lml} vs {want}");
+    }
+}
+
+/// Index grids of simulated frames: frame `f` has `lanes[f]` lanes of `points` points, point
+/// `i` of lane `l` at `3 + step·i + shift·l` m.
+fn grids(
+    lanes: impl IntoIterator<Item = usize>,
+    points: usize,
+    step: f64,
+    shift: f64,
+) -> Vec<Vec<Vec<f64>>> {
+    lanes
+        .into_iter()
+        .map(|d| {
+            (0..d)
+                .map(|l| {
+                    (0..points)
+                        .map(|i| 3.0 + step * i as f64 + shift * l as f64)
+                        .collect()
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The layout of a `lanes × rank` factor `W` with σ² and σ_c² fixed (override what is trained).
+fn layout(lanes: usize, rank: usize) -> Layout {
+    Layout {
+        lanes,
+        rank,
+        train_variance: false,
+        train_offset: false,
     }
 }
 
@@ -141,10 +171,8 @@ fn gradient_matches_finite_differences_golden() {
         noise: 0.012,
     };
     let layout = Layout {
-        lanes: 3,
-        rank: 3,
         train_variance: true,
-        train_offset: false,
+        ..layout(3, 3)
     };
     check_gradient(std::slice::from_ref(&frame), &p, &layout);
 }
@@ -160,19 +188,11 @@ fn gradient_matches_finite_differences_with_offset_and_sub_blocks() {
         offset_variance: 4.0,
         noise: 0.02,
     };
-    let grids: Vec<Vec<Vec<f64>>> = (1..=3)
-        .map(|d| {
-            (0..d)
-                .map(|l| (0..8).map(|i| 3.0 + 7.0 * i as f64 + l as f64).collect())
-                .collect()
-        })
-        .collect();
-    let frames = simulate_frames(&truth, &grids, 7).unwrap();
+    let frames = simulate_frames(&truth, &grids(1..=3, 8, 7.0, 1.0), 7).unwrap();
     let layout = Layout {
-        lanes: 4,
-        rank: 2,
         train_variance: true,
         train_offset: true,
+        ..layout(4, 2)
     };
     let mut p = truth.clone();
     p.lengthscale = 9.0;
@@ -186,12 +206,7 @@ fn optimiser_reaches_gpy_optimum() {
     let g = golden();
     let frame = golden_frame(&g);
     let fit = &g["fit_fixed_variance"];
-    let layout = Layout {
-        lanes: 3,
-        rank: 3,
-        train_variance: false,
-        train_offset: false,
-    };
+    let layout = layout(3, 3);
     let cfg = FitConfig {
         layout,
         init: IcmParams {
@@ -246,20 +261,11 @@ fn recovers_known_hyperparameters() {
         offset_variance: 9.0,
         noise: 0.01,
     };
-    let grids: Vec<Vec<Vec<f64>>> = (0..150)
-        .map(|k| {
-            let d = 1 + k % 3;
-            (0..d)
-                .map(|_| (0..14).map(|i| 3.0 + 5.8 * i as f64).collect())
-                .collect()
-        })
-        .collect();
-    let frames = simulate_frames(&truth, &grids, 2024).unwrap();
+    let lanes = (0..150).map(|k| 1 + k % 3);
+    let frames = simulate_frames(&truth, &grids(lanes, 14, 5.8, 0.0), 2024).unwrap();
     let layout = Layout {
-        lanes: 3,
-        rank: 3,
-        train_variance: false,
         train_offset: true,
+        ..layout(3, 3)
     };
     let cfg = FitConfig {
         layout,

@@ -1,10 +1,12 @@
 //! End-to-end tests of the TuSimple metric and the `eval` subcommand on the bundled
 //! 512×288 TuSimple labels (`data/tusimple/sample_512x288/label_data.json`, 10 frames).
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use approx::assert_relative_eq;
+use common::{assert_failure_mentions, assert_success, stjpdacf};
 use stjpdacf_tools::metric::{self, bench, bench_one_submit, lane_angle, lane_threshold};
 use stjpdacf_tools::tusimple::{self, read_labels, write_records, TuSimpleRecord};
 
@@ -28,7 +30,7 @@ fn temp_dir(tag: &str) -> PathBuf {
 }
 
 fn eval_cli(pred: &Path, gt: &Path, json: bool) -> std::process::Output {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_stjpdacf"));
+    let mut c = stjpdacf();
     c.arg("eval").arg("--pred").arg(pred).arg("--gt").arg(gt);
     if json {
         c.arg("--json");
@@ -101,11 +103,7 @@ fn eval_cli_prints_json_and_table() {
     preds[3].run_time = Some(250.0); // one frame penalised: (0, 0, 1)
     write_records(&pred, &preds).unwrap();
     let out = eval_cli(&pred, &labels_path(), true);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["Accuracy"].as_f64(), Some(0.9));
     assert_eq!(v["FP"].as_f64(), Some(0.0));
@@ -126,28 +124,20 @@ fn eval_cli_reports_bad_inputs() {
     // Unreadable prediction file.
     let missing = dir.join("missing.json");
     let out = eval_cli(&missing, &labels_path(), false);
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.json"));
+    assert_failure_mentions(&out, "missing.json");
     // A prediction whose raw_file is not in the ground truth.
     let mut preds = as_predictions(&gts);
     preds[2].raw_file = "clips/nowhere/20.jpg".into();
     let pred = dir.join("pred.json");
     write_records(&pred, &preds).unwrap();
     let out = eval_cli(&pred, &labels_path(), false);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr).to_string();
-    assert!(
-        err.contains("clips/nowhere/20.jpg: raw_file not in the ground truth"),
-        "{err}"
+    assert_failure_mentions(
+        &out,
+        "clips/nowhere/20.jpg: raw_file not in the ground truth",
     );
     // Ground truth used as predictions: no run_time, named with file and line.
     let out = eval_cli(&labels_path(), &labels_path(), false);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr).to_string();
-    assert!(
-        err.contains("label_data.json:1: bad TuSimple prediction"),
-        "{err}"
-    );
+    let err = assert_failure_mentions(&out, "label_data.json:1: bad TuSimple prediction");
     assert!(err.contains("run_time missing"), "{err}");
     // A predicted lane of the wrong length.
     let mut preds = as_predictions(&gts);
@@ -183,18 +173,14 @@ fn pixel_scale_scores_512_files_at_1280() {
     // Measured 0.563 accuracy, 0.475 FN (the steep outer lanes still match).
     assert!(full.accuracy < 0.7 && full.fn_ > 0.3, "{full:?}");
     // The same through the CLI.
-    let out = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+    let out = stjpdacf()
         .args(["eval", "--json", "--pixel-scale", "2.5", "--pred"])
         .arg(&pred)
         .arg("--gt")
         .arg(labels_path())
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["Accuracy"].as_f64(), Some(full.accuracy));
     // Scaling keeps −2 and scales the rows.

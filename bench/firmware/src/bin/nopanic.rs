@@ -165,25 +165,12 @@ fn main() -> ! {
     let n_row = u();
     let row_pts = row_pts.get(..n_row).unwrap_or(&[]);
     let h: SVector<f32, 3> = mat();
+    let skip: u32 = black_box(0);
     black_box(row::update(&mut st, &h, row_pts, &params, u()));
-    black_box(row::update_masked(
-        &mut st,
-        &h,
-        row_pts,
-        &params,
-        u(),
-        black_box(0),
-    ));
+    black_box(row::update_masked(&mut st, &h, row_pts, &params, u(), skip));
     let mut counter = Counter(0);
-    black_box(row::update_probed(
-        &mut st,
-        &h,
-        row_pts,
-        &params,
-        u(),
-        black_box(0),
-        &mut counter,
-    ));
+    let probed = row::update_probed(&mut st, &h, row_pts, &params, u(), skip, &mut counter);
+    black_box(probed);
 
     let points: [[f32; 2]; 300] = black_box([[0.0; 2]; 300]);
     let n_pts = u();
