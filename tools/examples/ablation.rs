@@ -7,12 +7,9 @@ use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::metric;
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
 use stjpdacf_tools::track::{self, Space};
-use stjpdacf_tools::tusimple;
 
 fn main() -> anyhow::Result<()> {
-    let labels = tusimple::read_labels(
-        &stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json"),
-    )?;
+    let labels = stjpdacf_tools::demo::replay_labels()?;
     let cam = Camera::tusimple();
     println!("| noise | configuration | accuracy | FP | FN |");
     println!("|---|---|---|---|---|");

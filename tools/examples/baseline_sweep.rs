@@ -10,7 +10,7 @@ use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::metric;
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
 use stjpdacf_tools::track::Space;
-use stjpdacf_tools::tusimple::{read_labels, TuSimpleRecord};
+use stjpdacf_tools::tusimple::TuSimpleRecord;
 
 fn score(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> anyhow::Result<metric::Score> {
     let files: std::collections::HashSet<&str> = gts.iter().map(|g| g.raw_file.as_str()).collect();
@@ -23,7 +23,7 @@ fn score(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> anyhow::Result<met
 }
 
 fn main() -> anyhow::Result<()> {
-    let labels = read_labels(&stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json"))?;
+    let labels = stjpdacf_tools::demo::replay_labels()?;
     let cam = Camera::tusimple();
     let o = synth::synthesize(&labels, &SynthParams::preset(NoiseLevel::Mid), &cam, 1)?;
     let tables = &stjpdacf::tables::DEFAULT;

@@ -76,6 +76,15 @@ use stjpdacf_reference::hyper::HyperFile;
 
 /// Replay labels, relative to the data folder.
 pub const REPLAY_LABELS: &str = "tusimple/train_subset.json";
+
+/// The bundled replay labels (`data/` + [`REPLAY_LABELS`] in this checkout): the 40 TuSimple
+/// labels the demo, the ablation and the diagnostics replay.
+///
+/// # Errors
+/// When the file cannot be read or parsed.
+pub fn replay_labels() -> Result<Vec<TuSimpleRecord>> {
+    tusimple::read_labels(&crate::repo_root().join("data").join(REPLAY_LABELS))
+}
 /// The diag(B) ablation hyperparameters, relative to the data folder.
 pub const ABLATION_HYPER: &str = "hyper/ablation_diag_b.json";
 /// The real frames, relative to the data folder.

@@ -38,10 +38,8 @@ use stjpdacf::tracker::Instant;
 use stjpdacf::wire;
 
 use crate::camera::Camera;
-use crate::repo_root;
 use crate::synth::{synth_clip, NoiseLevel, SynthParams};
 use crate::track::preprocess;
-use crate::tusimple::read_labels;
 
 /// Where the scenario files live, relative to the repository root.
 pub const SCENARIO_DIR: &str = "bench/firmware/scenarios";
@@ -115,7 +113,7 @@ pub fn write_all(dir: &Path) -> Result<Vec<PathBuf>> {
 }
 
 fn typical() -> Result<Scenario> {
-    let labels = read_labels(&repo_root().join("data/tusimple/train_subset.json"))?;
+    let labels = crate::demo::replay_labels()?;
     let label = labels.first().context("no bundled label")?;
     let params = SynthParams {
         frames_per_clip: 60,

@@ -141,11 +141,26 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        if !(M.iter().chain(w.iter()).all(|v| v.is_finite())) {
+        self.write_parts(parts, (s, r), M, w, (repaired, 0.0))
+    }
+
+    /// Writes lane `s`'s gain parts over its first `r` components: `M` and `w` (both checked
+    /// finite: [`TemporalError::Numerical`] otherwise, `parts` then holds nothing meaningful),
+    /// `G = P[:, a_s]` (only the active rows are non-zero; row-major, written in place: the
+    /// parts are 2.6 KiB, no copy on the stack), the repaired pivots and the NIS.
+    #[inline(always)]
+    fn write_parts(
+        &self,
+        parts: &mut UpdateParts<RANK, NX>,
+        (s, r): (usize, usize),
+        m: SMatrix<f32, RANK, RANK>,
+        w: SVector<f32, RANK>,
+        (repaired, nis): (u8, f32),
+    ) -> Result<(), TemporalError> {
+        if !(m.iter().chain(w.iter()).all(|v| v.is_finite())) {
             return Err(TemporalError::Numerical);
         }
-        // G = P[:, a_s] (only the active rows are non-zero), row-major, written in place (the
-        // parts are 2.6 KiB: no copy on the stack).
+        let a0 = Self::idx(s, 0, 0);
         for (i, row) in parts.g.iter_mut().enumerate() {
             for (k, e) in row.iter_mut().enumerate() {
                 *e = if k < r { self.pg(i, a0 + 2 * k) } else { 0.0 };
@@ -153,10 +168,10 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         }
         parts.slot = s;
         parts.r = r;
-        parts.m = M;
+        parts.m = m;
         parts.w = w;
         parts.repaired = repaired;
-        parts.nis = 0.0;
+        parts.nis = nis;
         Ok(())
     }
 
@@ -277,21 +292,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        if !(M.iter().chain(w.iter()).all(|v| v.is_finite())) {
-            return Err(TemporalError::Numerical);
-        }
-        for (i, row) in parts.g.iter_mut().enumerate() {
-            for (k, e) in row.iter_mut().enumerate() {
-                *e = if k < r { self.pg(i, a0 + 2 * k) } else { 0.0 };
-            }
-        }
-        parts.slot = s;
-        parts.r = r;
-        parts.nis = normalised_innovation(&M, &w, r);
-        parts.m = M;
-        parts.w = w;
-        parts.repaired = 0;
-        Ok(())
+        let nis = normalised_innovation(&M, &w, r);
+        self.write_parts(parts, (s, r), M, w, (0, nis))
     }
 
     /// Checks that applying `g` keeps the state finite (bounds on the products, before anything
