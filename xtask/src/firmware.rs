@@ -43,6 +43,9 @@ const STAGES: [&str; 12] = [
 ];
 /// The binary that is the no-panic proof (never run).
 const NOPANIC: &str = "nopanic";
+/// The binary that prints every lane for the C API's comparison (`cargo xtask capi`), not a
+/// benchmark.
+pub const LANES: &str = "lanes_typical";
 /// A count may exceed its budget by this fraction...
 const TOLERANCE: f64 = 0.02;
 /// ...plus this many instructions (a SysTick reading is quantised to 5 instructions, so a stage
@@ -602,7 +605,10 @@ fn cmd_run(
     timeout: u64,
     no_build: bool,
 ) -> Result<()> {
-    let bins: Vec<String> = binaries()?.into_iter().filter(|b| b != NOPANIC).collect();
+    let bins: Vec<String> = binaries()?
+        .into_iter()
+        .filter(|b| b != NOPANIC && b != LANES)
+        .collect();
     let target = if qemu_ram {
         fw_dir().join("target/qemu-ram")
     } else {
