@@ -1,6 +1,6 @@
 //! `cargo xtask ci`: every check CI runs, in order, stopping at the first failure. `.ci/run`
-//! installs the tools first (rustup targets and components, qemu-system-arm, flip-link,
-//! cargo-fuzz), then runs this.
+//! installs the tools first (rustup targets and components, qemu-system-arm, gcc-arm-none-eabi,
+//! flip-link, cbindgen, cargo-fuzz), then runs this.
 
 use std::process::Command;
 
@@ -150,6 +150,9 @@ pub fn run() -> Result<()> {
 
     step("firmware: no-panic proof");
     crate::firmware::nopanic()?;
+
+    step("C API: header, staticlibs, C examples against the Rust output (host and Cortex-M4F)");
+    crate::capi::run_all()?;
 
     step("done");
     Ok(())

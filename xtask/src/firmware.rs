@@ -123,10 +123,10 @@ struct ScenarioFigures {
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-struct Sizes {
-    text: u64,
-    data: u64,
-    bss: u64,
+pub(crate) struct Sizes {
+    pub(crate) text: u64,
+    pub(crate) data: u64,
+    pub(crate) bss: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -180,11 +180,11 @@ struct Budget {
     binaries: BTreeMap<String, BudgetEntry>,
 }
 
-fn fw_dir() -> PathBuf {
+pub(crate) fn fw_dir() -> PathBuf {
     repo_root().join("bench/firmware")
 }
 
-fn cargo() -> Command {
+pub(crate) fn cargo() -> Command {
     let mut c = Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
     // The firmware is its own workspace with its own target and flags.
     for v in [
@@ -199,7 +199,7 @@ fn cargo() -> Command {
     c
 }
 
-fn llvm_tool(name: &str) -> Result<PathBuf> {
+pub(crate) fn llvm_tool(name: &str) -> Result<PathBuf> {
     let out = Command::new("rustc")
         .args(["--print", "sysroot"])
         .output()?;
@@ -223,7 +223,7 @@ fn llvm_tool(name: &str) -> Result<PathBuf> {
 }
 
 /// The QEMU command line of `bench/firmware/.cargo/config.toml` (one source of truth).
-fn runner() -> Result<Vec<String>> {
+pub(crate) fn runner() -> Result<Vec<String>> {
     let cfg = std::fs::read_to_string(fw_dir().join(".cargo/config.toml"))?;
     let line = cfg
         .lines()
@@ -247,7 +247,10 @@ fn binaries() -> Result<Vec<String>> {
 }
 
 /// Runs `cmd` with a time limit; returns (exit code or None when killed, stdout, stderr).
-fn run_with_timeout(mut cmd: Command, limit: Duration) -> Result<(Option<i32>, String, String)> {
+pub(crate) fn run_with_timeout(
+    mut cmd: Command,
+    limit: Duration,
+) -> Result<(Option<i32>, String, String)> {
     let mut child = cmd
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -282,7 +285,7 @@ fn run_with_timeout(mut cmd: Command, limit: Duration) -> Result<(Option<i32>, S
     Ok((code, out, err))
 }
 
-fn kv(line: &str) -> BTreeMap<&str, u64> {
+pub(crate) fn kv(line: &str) -> BTreeMap<&str, u64> {
     line.split_whitespace()
         .filter_map(|t| t.split_once('='))
         .filter_map(|(k, v)| Some((k, v.parse().ok()?)))
@@ -304,7 +307,7 @@ fn stack_region(elf: &Path) -> Result<u64> {
     Ok(sym("_stack_start")?.saturating_sub(sym("_stack_end")?))
 }
 
-fn sizes(elf: &Path) -> Result<Sizes> {
+pub(crate) fn sizes(elf: &Path) -> Result<Sizes> {
     let out = Command::new(llvm_tool("llvm-size")?).arg(elf).output()?;
     ensure!(out.status.success(), "llvm-size {} failed", elf.display());
     let text = String::from_utf8(out.stdout)?;
