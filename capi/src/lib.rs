@@ -575,8 +575,9 @@ fn required<T>(p: *mut T) -> Result<*mut T, stjpdacf_status> {
     }
 }
 
-fn status_of(r: Result<stjpdacf_status, stjpdacf_status>) -> stjpdacf_status {
-    r.unwrap_or_else(|e| e)
+/// Runs `f` and turns its refusal (`Err`) into the status returned.
+fn checked(f: impl FnOnce() -> Result<stjpdacf_status, stjpdacf_status>) -> stjpdacf_status {
+    f().unwrap_or_else(|e| e)
 }
 
 /// Initialises a tracker in the caller's buffer `memory` of `size` bytes and stores the tracker
@@ -650,53 +651,34 @@ pub unsafe extern "C" fn stjpdacf_step(
     capacity: usize,
     report: *mut stjpdacf_report,
 ) -> stjpdacf_status {
-    // SAFETY: the caller's contract above, passed on to each helper.
-    status_of(unsafe {
-        step_checked(
-            tracker, time_us, points, n_points, out_lanes, capacity, report,
-        )
-    })
-}
-
-/// [`stjpdacf_step`] with `?`.
-///
-/// # Safety
-/// As [`stjpdacf_step`].
-unsafe fn step_checked(
-    tracker: *mut stjpdacf_tracker,
-    time_us: i64,
-    points: *const f32,
-    n_points: usize,
-    out_lanes: *mut stjpdacf_lane,
-    capacity: usize,
-    report: *mut stjpdacf_report,
-) -> Result<stjpdacf_status, stjpdacf_status> {
-    // SAFETY: the caller's contract: `tracker` from `stjpdacf_init`, not shared.
-    let t = unsafe { tracker_mut(tracker) }?;
-    // `{u, x}` pairs: `[f32; 2]` has the alignment of `f32`.
-    // SAFETY: the caller's contract: `points` holds `2 · n_points` floats.
-    let pts = unsafe { slice_in(points.cast::<[f32; 2]>(), n_points, STJPDACF_MAX_POINTS_IN) }?;
-    // SAFETY: the caller's contract: room for `capacity` lanes.
-    let lanes = unsafe { slice_out(out_lanes, capacity) }?;
-    let report = if report.is_null() {
-        None
-    } else {
-        Some(required(report)?)
-    };
-    let out = t.tracker.step(Instant::from_micros(time_us), pts)?;
-    t.n_filtered = copy_lanes(&out.filtered, &mut t.filtered);
-    t.n_smoothed = copy_lanes(&out.smoothed, &mut t.smoothed);
-    if let Some(l) = lanes {
-        for (d, s) in l.iter_mut().zip(&t.filtered) {
-            *d = *s;
+    checked(|| {
+        // SAFETY: the caller's contract: `tracker` from `stjpdacf_init`, not shared.
+        let t = unsafe { tracker_mut(tracker) }?;
+        // `{u, x}` pairs: `[f32; 2]` has the alignment of `f32`.
+        // SAFETY: the caller's contract: `points` holds `2 · n_points` floats.
+        let pts = unsafe { slice_in(points.cast::<[f32; 2]>(), n_points, STJPDACF_MAX_POINTS_IN) }?;
+        // SAFETY: the caller's contract: room for `capacity` lanes.
+        let lanes = unsafe { slice_out(out_lanes, capacity) }?;
+        let report = if report.is_null() {
+            None
+        } else {
+            Some(required(report)?)
+        };
+        let out = t.tracker.step(Instant::from_micros(time_us), pts)?;
+        t.n_filtered = copy_lanes(&out.filtered, &mut t.filtered);
+        t.n_smoothed = copy_lanes(&out.smoothed, &mut t.smoothed);
+        if let Some(l) = lanes {
+            for (d, s) in l.iter_mut().zip(&t.filtered) {
+                *d = *s;
+            }
         }
-    }
-    let rep = stjpdacf_report::new(&out.report, out.filtered.len(), out.smoothed.len());
-    if let Some(p) = report {
-        // SAFETY: non-null and aligned (checked by `required`), writable (the caller).
-        unsafe { write_out(p, rep) }?;
-    }
-    Ok(rep.status())
+        let rep = stjpdacf_report::new(&out.report, out.filtered.len(), out.smoothed.len());
+        if let Some(p) = report {
+            // SAFETY: non-null and aligned (checked by `required`), writable (the caller).
+            unsafe { write_out(p, rep) }?;
+        }
+        Ok(rep.status())
+    })
 }
 
 fn copy_lanes(src: &[LaneEstimate<16>], dst: &mut [stjpdacf_lane; STJPDACF_MAX_LANES]) -> u8 {
@@ -754,7 +736,7 @@ pub unsafe extern "C" fn stjpdacf_filtered(
     count: *mut usize,
 ) -> stjpdacf_status {
     // SAFETY: the caller's contract above.
-    status_of(unsafe { read_lanes(tracker, out_lanes, capacity, count, false) })
+    checked(|| unsafe { read_lanes(tracker, out_lanes, capacity, count, false) })
 }
 
 /// The smoothed lanes (`STJPDACF_LAG` frames before the last processed frame; none until the
@@ -770,7 +752,7 @@ pub unsafe extern "C" fn stjpdacf_smoothed(
     count: *mut usize,
 ) -> stjpdacf_status {
     // SAFETY: the caller's contract above.
-    status_of(unsafe { read_lanes(tracker, out_lanes, capacity, count, true) })
+    checked(|| unsafe { read_lanes(tracker, out_lanes, capacity, count, true) })
 }
 
 /// A lane's lateral position `*x` (metres) and its variance `*var` (m²) at `u` metres ahead,
@@ -794,37 +776,24 @@ pub unsafe extern "C" fn stjpdacf_lane_at(
     x: *mut f32,
     var: *mut f32,
 ) -> stjpdacf_status {
-    // SAFETY: the caller's contract above.
-    status_of(unsafe { lane_at_checked(tracker, slot, u, x, var) })
-}
-
-/// [`stjpdacf_lane_at`] with `?`.
-///
-/// # Safety
-/// As [`stjpdacf_lane_at`].
-unsafe fn lane_at_checked(
-    tracker: *const stjpdacf_tracker,
-    slot: u32,
-    u: f32,
-    x: *mut f32,
-    var: *mut f32,
-) -> Result<stjpdacf_status, stjpdacf_status> {
-    // SAFETY: the caller's contract: `tracker` from `stjpdacf_init`, not written meanwhile.
-    let t = unsafe { tracker_ref(tracker) }?;
-    let x = required(x)?;
-    if !var.is_null() {
-        required(var)?;
-    }
-    let (m, v) = t
-        .tracker
-        .lane_at(slot as usize, u)
-        .ok_or(STJPDACF_NO_LANE)?;
-    // SAFETY: the caller's contract: `x` and `var` (when not null) are writable.
-    unsafe {
-        write_out(x, m)?;
-        write_out(var, v)?;
-    }
-    Ok(STJPDACF_OK)
+    checked(|| {
+        // SAFETY: the caller's contract: `tracker` from `stjpdacf_init`, not written meanwhile.
+        let t = unsafe { tracker_ref(tracker) }?;
+        let x = required(x)?;
+        if !var.is_null() {
+            required(var)?;
+        }
+        let (m, v) = t
+            .tracker
+            .lane_at(slot as usize, u)
+            .ok_or(STJPDACF_NO_LANE)?;
+        // SAFETY: the caller's contract: `x` and `var` (when not null) are writable.
+        unsafe {
+            write_out(x, m)?;
+            write_out(var, v)?;
+        }
+        Ok(STJPDACF_OK)
+    })
 }
 
 /// The BEV window and index points of the built-in model.
@@ -842,7 +811,7 @@ pub unsafe extern "C" fn stjpdacf_model_info(out: *mut stjpdacf_model) -> stjpda
         index_u: DEFAULT.index_u.into(),
     };
     // SAFETY: the caller's contract: `out` is writable (null and alignment are checked).
-    status_of(unsafe { required(out).and_then(|p| write_out(p, m)) }.map(|()| STJPDACF_OK))
+    checked(|| unsafe { required(out).and_then(|p| write_out(p, m)) }.map(|()| STJPDACF_OK))
 }
 
 /// Decodes one frame of the SPI wire format (see `src/wire.rs`) from the start of `bytes`
@@ -867,46 +836,33 @@ pub unsafe extern "C" fn stjpdacf_decode_frame(
     capacity: usize,
     info: *mut stjpdacf_frame_info,
 ) -> stjpdacf_status {
-    // SAFETY: the caller's contract above.
-    status_of(unsafe { decode_checked(bytes, len, points, capacity, info) })
-}
-
-/// [`stjpdacf_decode_frame`] with `?`.
-///
-/// # Safety
-/// As [`stjpdacf_decode_frame`].
-unsafe fn decode_checked(
-    bytes: *const u8,
-    len: usize,
-    points: *mut f32,
-    capacity: usize,
-    info: *mut stjpdacf_frame_info,
-) -> Result<stjpdacf_status, stjpdacf_status> {
-    // SAFETY: the caller's contract: `len` readable bytes. The bound only rules out lengths no
-    // object can have (`isize::MAX`).
-    let bytes = unsafe { slice_in(bytes, len, isize::MAX as usize) }?;
-    let info = required(info)?;
-    let pts: &mut [[f32; 2]] = if capacity == 0 {
-        &mut []
-    } else {
-        let p = required(points.cast::<[f32; 2]>())?;
-        if capacity > STJPDACF_MAX_POINTS_IN {
-            return Err(STJPDACF_TOO_MANY_POINTS);
-        }
-        // SAFETY: non-null and aligned (checked), `capacity` bounded (checked); the caller
-        // guarantees room for `capacity` pairs, not overlapping `bytes`; floats are plain data.
-        unsafe { core::slice::from_raw_parts_mut(p, capacity) }
-    };
-    let fi = wire::decode(bytes, pts)?;
-    let v = stjpdacf_frame_info {
-        seq: fi.seq,
-        count: fi.count as u32,
-        time_us: fi.time.as_micros(),
-        len: wire::frame_len(fi.count),
-    };
-    // SAFETY: non-null and aligned (checked by `required`), writable (the caller).
-    unsafe { write_out(info, v) }?;
-    Ok(STJPDACF_OK)
+    checked(|| {
+        // SAFETY: the caller's contract: `len` readable bytes. The bound only rules out lengths no
+        // object can have (`isize::MAX`).
+        let bytes = unsafe { slice_in(bytes, len, isize::MAX as usize) }?;
+        let info = required(info)?;
+        let pts: &mut [[f32; 2]] = if capacity == 0 {
+            &mut []
+        } else {
+            let p = required(points.cast::<[f32; 2]>())?;
+            if capacity > STJPDACF_MAX_POINTS_IN {
+                return Err(STJPDACF_TOO_MANY_POINTS);
+            }
+            // SAFETY: non-null and aligned (checked), `capacity` bounded (checked); the caller
+            // guarantees room for `capacity` pairs, not overlapping `bytes`; floats are plain data.
+            unsafe { core::slice::from_raw_parts_mut(p, capacity) }
+        };
+        let fi = wire::decode(bytes, pts)?;
+        let v = stjpdacf_frame_info {
+            seq: fi.seq,
+            count: fi.count as u32,
+            time_us: fi.time.as_micros(),
+            len: wire::frame_len(fi.count),
+        };
+        // SAFETY: non-null and aligned (checked by `required`), writable (the caller).
+        unsafe { write_out(info, v) }?;
+        Ok(STJPDACF_OK)
+    })
 }
 
 /// The panic handler of the bare-metal staticlibs. Never reached: the core does not panic
