@@ -10,7 +10,9 @@
 //! 4. the Cortex-M4F C example (`capi/examples/m4f`), built with `arm-none-eabi-gcc` and run under
 //!    the firmware's QEMU machine, prints the same lanes as the Rust firmware's `lanes_typical`
 //!    on the same frames; its link keeps no panic path (no `rust_begin_unwind`); the sizes and
-//!    stack high-water marks of both are printed side by side.
+//!    stack high-water marks of both are printed side by side;
+//! 5. the board example (`board/`, see [`crate::board`]) reads the same frames over an emulated
+//!    SPI front end and writes the same lanes to its UART.
 //!
 //! Needs cbindgen [`CBINDGEN_VERSION`], a C compiler (`cc`), `gcc-arm-none-eabi`,
 //! `qemu-system-arm`, flip-link and llvm-tools (`.ci/run` installs them).
@@ -77,7 +79,8 @@ pub fn run_all() -> Result<()> {
     header()?;
     staticlibs()?;
     host_example()?;
-    m4f_example()
+    let rust_out = m4f_example()?;
+    crate::board::run(FRAMES, &lane_lines(&rust_out))
 }
 
 /// The committed header equals cbindgen's output.
@@ -347,8 +350,8 @@ fn symbol_size(elf: &Path, name: &str) -> Result<u64> {
         .with_context(|| format!("no symbol {name} in {}", elf.display()))
 }
 
-/// The Cortex-M4F C example against the Rust firmware.
-fn m4f_example() -> Result<()> {
+/// The Cortex-M4F C example against the Rust firmware; returns the firmware's output.
+fn m4f_example() -> Result<String> {
     let elf = out_dir().join("m4f.elf");
     run(Command::new("arm-none-eabi-gcc")
         .args([
@@ -446,5 +449,5 @@ fn m4f_example() -> Result<()> {
         "(text includes the {frames} B of frames; the C API keeps the tracker's initial image, \
          {init} B, in flash (`INIT`, copied by stjpdacf_init), the Rust firmware in `data`)"
     );
-    Ok(())
+    Ok(rust_out)
 }

@@ -224,12 +224,18 @@ pub(crate) fn llvm_tool(name: &str) -> Result<PathBuf> {
 
 /// The QEMU command line of `bench/firmware/.cargo/config.toml` (one source of truth).
 pub(crate) fn runner() -> Result<Vec<String>> {
-    let cfg = std::fs::read_to_string(fw_dir().join(".cargo/config.toml"))?;
+    runner_in(&fw_dir())
+}
+
+/// The (first, uncommented) runner line of `<dir>/.cargo/config.toml`, split into words.
+pub(crate) fn runner_in(dir: &Path) -> Result<Vec<String>> {
+    let path = dir.join(".cargo/config.toml");
+    let cfg = std::fs::read_to_string(&path)?;
     let line = cfg
         .lines()
         .find_map(|l| l.trim().strip_prefix("runner = \""))
         .and_then(|l| l.strip_suffix('"'))
-        .context("no runner in bench/firmware/.cargo/config.toml")?;
+        .with_context(|| format!("no runner in {}", path.display()))?;
     Ok(line.split_whitespace().map(str::to_string).collect())
 }
 
