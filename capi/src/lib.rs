@@ -175,205 +175,31 @@ impl From<&LaneEstimate<16>> for stjpdacf_lane {
     }
 }
 
-/// The spatial JPDACF's counters of one frame (Rust `SpatialReport`).
+/// What one frame did: the lane counts and the core's `StepReport` as it is (`repr(C)`; its
+/// `spatial`, `identity` and `known` parts are `stjpdacf_spatial_report`,
+/// `stjpdacf_identity_report` and `stjpdacf_known_report`).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-#[allow(non_camel_case_types)]
-pub struct stjpdacf_spatial_report {
-    /// Points given.
-    pub points_in: u32,
-    /// Rejected: non-finite coordinate.
-    pub rejected_non_finite: u32,
-    /// Rejected: outside the BEV window.
-    pub rejected_window: u32,
-    /// Rejected: a duplicate of a point kept in its row.
-    pub rejected_duplicate: u32,
-    /// Rejected: the row was full.
-    pub rejected_row_full: u32,
-    /// (track, point) pairs inside the gate, summed over rows.
-    pub gated: u32,
-    /// Points valid for no track.
-    pub clutter_points: u32,
-    /// Free points that could not start a track.
-    pub no_slot: u32,
-    /// Joint events scored.
-    pub events: u32,
-    /// Rows whose events were pruned.
-    pub rows_approximated: u32,
-    /// Row updates that failed numerically (state kept; `STJPDACF_DEGRADED`).
-    pub rows_failed: u32,
-    /// Tentative tracks started.
-    pub started: u32,
-    /// Tracks confirmed.
-    pub confirmed: u32,
-    /// Tentative tracks deleted.
-    pub deleted: u32,
-    /// Confirmed tracks ended.
-    pub ended: u32,
-    /// Tracks removed as near-duplicates.
-    pub merged: u32,
-    /// Confirmed lanes reported.
-    pub lanes_out: u32,
-    /// Backward passes that failed numerically (`STJPDACF_DEGRADED`).
-    pub smoother_failed: u32,
-    /// Pseudo-measurement covariances repaired.
-    pub cov_repaired: u32,
-    /// The configuration or tables do not fit the capacities (`STJPDACF_DEGRADED`).
-    pub bad_config: bool,
-}
-
-/// Lane identity's counters of one frame (Rust `IdentityReport`).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-#[allow(non_camel_case_types)]
-pub struct stjpdacf_identity_report {
-    /// Observations considered.
-    pub observations: u32,
-    /// Observations beyond the lane slots, ignored.
-    pub excess_observations: u32,
-    /// Pairs not allowed because they read a non-finite value.
-    pub non_finite_pairs: u32,
-    /// Pairs with too few common points.
-    pub too_few_common: u32,
-    /// Pairs with a cost above the gate.
-    pub gated_out: u32,
-    /// Allowed pairs.
-    pub allowed_pairs: u32,
-    /// Observations matched to a lane.
-    pub matched: u32,
-    /// Lanes started.
-    pub started: u32,
-    /// Observations dropped for want of a slot.
-    pub dropped_no_slot: u32,
-    /// Observations dropped as unusable.
-    pub dropped_unusable: u32,
-    /// Lanes coasting after this frame.
-    pub coasting: u32,
-    /// Lanes removed this frame.
-    pub removed: u32,
-    /// Leaves visited by the assignment search.
-    pub leaves: u32,
-    /// Total cost of the chosen assignment.
-    pub total_cost: f32,
-}
-
-/// The known-lane stage's counters of one frame (Rust `KnownReport`).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-#[allow(non_camel_case_types)]
-pub struct stjpdacf_known_report {
-    /// Live lanes associated against their prediction.
-    pub lanes: u32,
-    /// Of those, lanes seen.
-    pub seen: u32,
-    /// Points the known lanes explained.
-    pub explained_points: u32,
-    /// Rows whose joint events failed numerically (`STJPDACF_DEGRADED`).
-    pub failed_rows: u32,
-    /// Lanes deleted for low existence.
-    pub deleted: u32,
-    /// Lanes removed as duplicates.
-    pub merged: u32,
-    /// Process-noise scale of this frame's prediction.
-    pub q_scale: f32,
-}
-
-/// What one frame did (Rust `StepReport`, plus the lane counts).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 #[allow(non_camel_case_types)]
 pub struct stjpdacf_report {
     /// Filtered lanes at this frame (read them with [`stjpdacf_filtered`]).
     pub filtered_lanes: u32,
     /// Smoothed lanes `STJPDACF_LAG` frames back ([`stjpdacf_smoothed`]).
     pub smoothed_lanes: u32,
-    /// Frame step used, seconds (0 for the first frame).
-    pub dt: f32,
-    /// Points beyond `STJPDACF_MAX_POINTS`, ignored (`STJPDACF_DEGRADED`).
-    pub over_budget_points: u32,
-    /// Temporal operations that failed numerically (`STJPDACF_DEGRADED`).
-    pub temporal_failures: u32,
-    /// Lane updates whose pseudo-measurement covariance was repaired.
-    pub pseudo_cov_repairs: u32,
-    /// Temporal covariance pivots raised after rounding.
-    pub temporal_cov_repairs: u32,
-    /// The spatial filter.
-    pub spatial: stjpdacf_spatial_report,
-    /// Lane identity.
-    pub identity: stjpdacf_identity_report,
-    /// The known-lane stage.
-    pub known: stjpdacf_known_report,
+    /// The counters of every stage.
+    pub step: StepReport,
 }
 
 impl stjpdacf_report {
-    fn new(r: &StepReport, filtered: usize, smoothed: usize) -> Self {
-        let (s, i, k) = (&r.spatial, &r.identity, &r.known);
-        Self {
-            filtered_lanes: filtered as u32,
-            smoothed_lanes: smoothed as u32,
-            dt: r.dt,
-            over_budget_points: r.over_budget_points,
-            temporal_failures: r.temporal_failures,
-            pseudo_cov_repairs: r.pseudo_cov_repairs,
-            temporal_cov_repairs: r.temporal_cov_repairs,
-            spatial: stjpdacf_spatial_report {
-                points_in: s.points_in,
-                rejected_non_finite: s.rejected_non_finite,
-                rejected_window: s.rejected_window,
-                rejected_duplicate: s.rejected_duplicate,
-                rejected_row_full: s.rejected_row_full,
-                gated: s.gated,
-                clutter_points: s.clutter_points,
-                no_slot: s.no_slot,
-                events: s.events,
-                rows_approximated: s.rows_approximated,
-                rows_failed: s.rows_failed,
-                started: u32::from(s.started),
-                confirmed: u32::from(s.confirmed),
-                deleted: u32::from(s.deleted),
-                ended: u32::from(s.ended),
-                merged: u32::from(s.merged),
-                lanes_out: u32::from(s.lanes_out),
-                smoother_failed: u32::from(s.smoother_failed),
-                cov_repaired: u32::from(s.cov_repaired),
-                bad_config: s.bad_config,
-            },
-            identity: stjpdacf_identity_report {
-                observations: i.observations,
-                excess_observations: i.excess_observations,
-                non_finite_pairs: i.non_finite_pairs,
-                too_few_common: i.too_few_common,
-                gated_out: i.gated_out,
-                allowed_pairs: i.allowed_pairs,
-                matched: i.matched,
-                started: i.started,
-                dropped_no_slot: i.dropped_no_slot,
-                dropped_unusable: i.dropped_unusable,
-                coasting: i.coasting,
-                removed: i.removed,
-                leaves: i.leaves,
-                total_cost: i.total_cost,
-            },
-            known: stjpdacf_known_report {
-                lanes: k.lanes,
-                seen: k.seen,
-                explained_points: k.explained_points,
-                failed_rows: k.failed_rows,
-                deleted: k.deleted,
-                merged: k.merged,
-                q_scale: k.q_scale,
-            },
-        }
-    }
-
     /// `STJPDACF_DEGRADED` when work was dropped or failed, else `STJPDACF_OK`.
     fn status(&self) -> stjpdacf_status {
-        let degraded = self.over_budget_points > 0
-            || self.temporal_failures > 0
-            || self.spatial.rows_failed > 0
-            || self.spatial.smoother_failed > 0
-            || self.spatial.bad_config
-            || self.known.failed_rows > 0;
+        let r = &self.step;
+        let degraded = r.over_budget_points > 0
+            || r.temporal_failures > 0
+            || r.spatial.rows_failed > 0
+            || r.spatial.smoother_failed > 0
+            || r.spatial.bad_config
+            || r.known.failed_rows > 0;
         if degraded {
             STJPDACF_DEGRADED
         } else {
@@ -672,7 +498,11 @@ pub unsafe extern "C" fn stjpdacf_step(
                 *d = *s;
             }
         }
-        let rep = stjpdacf_report::new(&out.report, out.filtered.len(), out.smoothed.len());
+        let rep = stjpdacf_report {
+            filtered_lanes: out.filtered.len() as u32,
+            smoothed_lanes: out.smoothed.len() as u32,
+            step: out.report,
+        };
         if let Some(p) = report {
             // SAFETY: non-null and aligned (checked by `required`), writable (the caller).
             unsafe { write_out(p, rep) }?;
