@@ -107,20 +107,30 @@ pub struct Tracker<
 /// E = 512, L = 4, spatial order 2, Gram rank ≤ 7.
 pub type ReferenceTracker = Tracker<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>;
 
-impl<
-        const NT: usize,
-        const NS: usize,
-        const LANES: usize,
-        const POINTS: usize,
-        const ROWS: usize,
-        const PER_ROW: usize,
-        const MEAS: usize,
-        const RANK: usize,
-        const NX: usize,
-        const NA: usize,
-        const LAG: usize,
-    > Tracker<NT, NS, LANES, POINTS, ROWS, PER_ROW, MEAS, RANK, NX, NA, LAG>
-{
+/// An `impl` block of [`Tracker`] over all its parameters: the eleven-parameter header is written
+/// once, here, for the files of this module (`impl_tracker! { fn … }`).
+macro_rules! impl_tracker {
+    ($($item:item)*) => {
+        impl<
+            const NT: usize,
+            const NS: usize,
+            const LANES: usize,
+            const POINTS: usize,
+            const ROWS: usize,
+            const PER_ROW: usize,
+            const MEAS: usize,
+            const RANK: usize,
+            const NX: usize,
+            const NA: usize,
+            const LAG: usize,
+        > Tracker<NT, NS, LANES, POINTS, ROWS, PER_ROW, MEAS, RANK, NX, NA, LAG>
+        {
+            $($item)*
+        }
+    };
+}
+
+impl_tracker! {
     const EMPTY_OBS: LaneObservation<POINTS> = LaneObservation::EMPTY;
 
     /// A tracker on `tables` with the default configuration (`const`: it can live in a `static`).

@@ -15,20 +15,7 @@ use crate::temporal::identity::SlotFate;
 
 use super::{LaneEstimate, StepReport, Tracker, NO_INFO};
 
-impl<
-        const NT: usize,
-        const NS: usize,
-        const LANES: usize,
-        const POINTS: usize,
-        const ROWS: usize,
-        const PER_ROW: usize,
-        const MEAS: usize,
-        const RANK: usize,
-        const NX: usize,
-        const NA: usize,
-        const LAG: usize,
-    > Tracker<NT, NS, LANES, POINTS, ROWS, PER_ROW, MEAS, RANK, NX, NA, LAG>
-{
+impl_tracker! {
     /// Step 3 (docs/design.md §11): the live lanes' row evidence against their prediction, the
     /// temporal update with it, their existence; the points they explain leave the rows.
     /// Returns the lanes seen (bit = slot).

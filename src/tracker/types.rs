@@ -91,8 +91,9 @@ pub struct LaneEstimate<const POINTS: usize> {
     pub hits: u32,
 }
 
-/// What one frame did.
+/// What one frame did (`repr(C)`: the C API hands it to C as is).
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[repr(C)]
 pub struct StepReport {
     /// The spatial filter's counters.
     pub spatial: SpatialReport,
@@ -115,9 +116,11 @@ pub struct StepReport {
     pub known: KnownReport,
 }
 
-/// What the known-lane stage (docs/design.md §11) did in one frame.
+/// What the known-lane stage (docs/design.md §11) did in one frame (`repr(C)`: the C API hands
+/// it to C as is).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(C)]
 pub struct KnownReport {
     /// Live lanes associated against their prediction.
     pub lanes: u32,

@@ -70,6 +70,10 @@ enum Command {
         /// `[x lateral, u ahead]` (then the camera only maps the lanes back to the h_samples rows).
         #[arg(long, value_enum, default_value_t = SpaceArg::Image)]
         space: SpaceArg,
+        /// Also write the BEV points the tracker gets, with the rows of each prediction: the
+        /// input of the C example `capi/examples/track.c` (format: `track::write_points_header`).
+        #[arg(long)]
+        export_points: Option<PathBuf>,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -269,6 +273,7 @@ fn main() -> Result<()> {
             camera,
             scale,
             space,
+            export_points,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -288,10 +293,40 @@ fn main() -> Result<()> {
                 SpaceArg::Image => stjpdacf_tools::track::Space::Image,
                 SpaceArg::Bev => stjpdacf_tools::track::Space::Bev,
             };
-            let (preds, stats) = stjpdacf_tools::track::track(&frames, tables, &cam, space, |k| {
-                bar.set_position(k as u64 + 1)
-            })?;
+            let mut export = match &export_points {
+                Some(p) => {
+                    let mut w = std::io::BufWriter::new(std::fs::File::create(p)?);
+                    stjpdacf_tools::track::write_points_header(&mut w, &cam)?;
+                    Some(w)
+                }
+                None => None,
+            };
+            let (mut clip_no, mut last_clip, mut export_err) = (0usize, None::<String>, None);
+            let (preds, stats) = stjpdacf_tools::track::track_with(
+                &frames,
+                tables,
+                &cam,
+                space,
+                stjpdacf::tracker::TrackerConfig::DEFAULT,
+                |v| {
+                    bar.set_position(v.index as u64 + 1);
+                    let Some(w) = export.as_mut() else { return };
+                    if last_clip.as_deref() != Some(v.frame.clip.as_str()) {
+                        clip_no += 1;
+                        last_clip = Some(v.frame.clip.clone());
+                    }
+                    if let Err(e) = stjpdacf_tools::track::write_points_frame(w, clip_no, &v) {
+                        export_err.get_or_insert(e);
+                    }
+                },
+            )?;
             bar.finish_and_clear();
+            if let Some(e) = export_err {
+                return Err(e).context("writing the points file");
+            }
+            if let Some(mut w) = export {
+                std::io::Write::flush(&mut w)?;
+            }
             tusimple::write_records(&out, &preds)?;
             eprintln!(
                 "{} frames in {} clips, {} predictions to {}; run_time {:.3} ms mean, {:.3} ms max (Tracker::step {:.3} / {:.3} ms); {} points above the horizon or non-finite; {} steps rejected",

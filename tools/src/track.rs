@@ -392,6 +392,72 @@ pub fn bev_points(f: &Frame, cam: &Camera, space: Space, unmapped: &mut usize) -
     bev_pts
 }
 
+/// A frame's time stamp as the tracker gets it, integer microseconds.
+pub fn frame_micros(f: &Frame) -> i64 {
+    (f.t * 1e6).round() as i64
+}
+
+/// Writes the header of a points file (`stjpdacf track --export-points`): the input of the C
+/// example `capi/examples/track.c`, which must write the same predictions. Text, one record a
+/// line, numbers in Rust's shortest round-trip form (`strtod`/`strtof` read them back exactly):
+///
+/// ```text
+/// stjpdacf-points 1
+/// camera <width> <height> <vp_col> <vp_row> <height_m> <focal_px>
+/// frame <clip number> <time µs> <points> <rows> <raw_file or ->   (then, per frame:)
+/// <u> <x>                                                         (points lines: f32, after preprocess)
+/// <row>                                                           (rows lines: h_samples, f64)
+/// ```
+///
+/// # Errors
+/// Writing.
+pub fn write_points_header(w: &mut impl std::io::Write, cam: &Camera) -> std::io::Result<()> {
+    writeln!(w, "stjpdacf-points 1")?;
+    writeln!(
+        w,
+        "camera {} {} {} {} {} {}",
+        cam.width, cam.height, cam.vp_col, cam.vp_row, cam.height_m, cam.focal_px
+    )
+}
+
+/// Writes one frame of a points file (see [`write_points_header`]): the points the tracker got
+/// and, when a prediction is due, the rows it is written at. `clip` numbers the clips (a change
+/// resets the tracker).
+///
+/// # Errors
+/// Writing.
+pub fn write_points_frame(
+    w: &mut impl std::io::Write,
+    clip: usize,
+    v: &FrameView<'_>,
+) -> std::io::Result<()> {
+    let rows = match (&v.frame.raw_file, &v.frame.h_samples) {
+        (Some(raw), Some(rows)) => Some((raw.as_str(), rows.as_slice())),
+        _ => None,
+    };
+    if rows.is_some_and(|r| r.0.is_empty() || r.0.contains(char::is_whitespace)) {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "a raw_file with white space (or empty) cannot go into a points file",
+        ));
+    }
+    writeln!(
+        w,
+        "frame {clip} {} {} {} {}",
+        frame_micros(v.frame),
+        v.points.len(),
+        rows.map_or(0, |r| r.1.len()),
+        rows.map_or("-", |r| r.0)
+    )?;
+    for p in v.points {
+        writeln!(w, "{} {}", p[0], p[1])?;
+    }
+    for r in rows.map_or(&[][..], |r| r.1) {
+        writeln!(w, "{r}")?;
+    }
+    Ok(())
+}
+
 /// Runs the tracker over `frames`; returns the predictions for the frames with `h_samples`.
 /// `progress(k)` is called after frame `k`.
 ///
@@ -443,7 +509,7 @@ pub fn track_with(
         let bev_pts = bev_points(f, cam, space, &mut stats.unmapped_points);
         let pts = preprocess(&bev_pts, tables);
         let step_start = WallClock::now();
-        let res = tr.step(Instant::from_micros((f.t * 1e6).round() as i64), &pts);
+        let res = tr.step(Instant::from_micros(frame_micros(f)), &pts);
         stats.add_step(&mut times, step_start.elapsed().as_secs_f64() * 1e3);
         let output = match res {
             Ok(o) => Some(o),

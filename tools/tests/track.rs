@@ -15,7 +15,8 @@ use stjpdacf_tools::repo_root;
 use stjpdacf_tools::synth::{synthesize, NoiseLevel, SynthParams};
 use stjpdacf_tools::tablegen;
 use stjpdacf_tools::track::{
-    lane_band, lane_x, preprocess, tables_from_hyper, track, track_with, FrameView, Space,
+    lane_band, lane_x, preprocess, tables_from_hyper, track, track_with, write_points_frame,
+    write_points_header, FrameView, Space,
 };
 use stjpdacf_tools::tusimple::{
     read_labels, read_predictions, write_frames, Frame, TuSimpleRecord,
@@ -156,6 +157,72 @@ fn bev_frames_give_predictions_at_every_row() {
         }
         assert!(lane.last().unwrap() >= &0.0);
     }
+}
+
+/// The points file (`--export-points`, the C example's input) holds exactly what the tracker got:
+/// every frame's points (f32, read back bit for bit), its time, its clip and its rows.
+#[test]
+fn points_file_holds_the_tracker_input_exactly() {
+    let cam = Camera::tusimple();
+    let rows = [300.0, 400.5, 710.0];
+    let mut frames = bev_clip(&[-1.8, 1.7], 60.0, 3, &rows);
+    frames.extend(bev_clip(&[0.3], 40.0, 2, &rows).into_iter().map(|f| Frame {
+        clip: "d".into(),
+        ..f
+    }));
+    let mut file = Vec::new();
+    write_points_header(&mut file, &cam).unwrap();
+    let mut seen: Vec<(usize, i64, Vec<[f32; 2]>)> = Vec::new();
+    let mut clip_no = 0;
+    track_with(
+        &frames,
+        &DEFAULT,
+        &cam,
+        Space::Bev,
+        TrackerConfig::DEFAULT,
+        |v| {
+            clip_no += usize::from(v.index == 0 || frames[v.index - 1].clip != v.frame.clip);
+            write_points_frame(&mut file, clip_no, &v).unwrap();
+            let t = (v.frame.t * 1e6).round() as i64;
+            seen.push((clip_no, t, v.points.to_vec()));
+        },
+    )
+    .unwrap();
+    let text = String::from_utf8(file).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("stjpdacf-points 1"));
+    assert_eq!(lines.next(), Some("camera 1280 720 654 238.5 1.67 1000"));
+    for (k, (clip, t, pts)) in seen.iter().enumerate() {
+        let head: Vec<&str> = lines.next().unwrap().split(' ').collect();
+        let last = frames[k].h_samples.is_some();
+        let want_rows = if last { "3" } else { "0" };
+        let want_raw = if last { "clips/c/20.jpg" } else { "-" };
+        let want = [
+            "frame",
+            &clip.to_string(),
+            &t.to_string(),
+            &pts.len().to_string(),
+        ];
+        assert_eq!(head[..4], want, "frame {k}");
+        assert_eq!((head[4], head[5]), (want_rows, want_raw), "frame {k}");
+        for p in pts {
+            let xy: Vec<f32> = lines
+                .next()
+                .unwrap()
+                .split(' ')
+                .map(|v| v.parse().unwrap())
+                .collect();
+            assert_eq!(
+                xy.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                p.map(f32::to_bits)
+            );
+        }
+        for r in rows.iter().filter(|_| last) {
+            assert_eq!(lines.next().unwrap().parse::<f64>().unwrap(), *r);
+        }
+    }
+    assert_eq!(lines.next(), None);
+    assert_eq!(seen.last().map(|s| s.0), Some(2));
 }
 
 #[test]

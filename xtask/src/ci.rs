@@ -1,6 +1,6 @@
 //! `cargo xtask ci`: every check CI runs, in order, stopping at the first failure. `.ci/run`
-//! installs the tools first (rustup targets and components, qemu-system-arm, flip-link,
-//! cargo-fuzz), then runs this.
+//! installs the tools first (rustup targets and components, qemu-system-arm, gcc-arm-none-eabi,
+//! flip-link, cbindgen, cargo-fuzz), then runs this.
 
 use std::process::Command;
 
@@ -34,13 +34,20 @@ fn cargo(args: &[&str]) -> Result<()> {
 
 /// `cargo xtask ci`.
 pub fn run() -> Result<()> {
-    step("format (workspace, fuzz, firmware)");
+    step("format (workspace, fuzz, firmware, board)");
     cargo(&["fmt", "--all", "--", "--check"])?;
     cargo(&["fmt", "--manifest-path", "fuzz/Cargo.toml", "--", "--check"])?;
     cargo(&[
         "fmt",
         "--manifest-path",
         "bench/firmware/Cargo.toml",
+        "--",
+        "--check",
+    ])?;
+    cargo(&[
+        "fmt",
+        "--manifest-path",
+        "board/Cargo.toml",
         "--",
         "--check",
     ])?;
@@ -138,6 +145,14 @@ pub fn run() -> Result<()> {
         &["clippy", "--release", "--bins", "--", "-D", "warnings"],
     )?;
 
+    step("board example: clippy (board/ is its own workspace)");
+    run_in(
+        "board",
+        &[],
+        "cargo",
+        &["clippy", "--release", "--bins", "--", "-D", "warnings"],
+    )?;
+
     step("firmware: build, run every binary under QEMU, check bench/firmware/budget.json");
     crate::firmware::run(crate::firmware::RunArgs {
         json: None,
@@ -150,6 +165,9 @@ pub fn run() -> Result<()> {
 
     step("firmware: no-panic proof");
     crate::firmware::nopanic()?;
+
+    step("C API: header, staticlibs, C examples against the Rust output (host and Cortex-M4F); board example under QEMU");
+    crate::capi::run_all()?;
 
     step("done");
     Ok(())

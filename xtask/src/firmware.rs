@@ -43,6 +43,9 @@ const STAGES: [&str; 12] = [
 ];
 /// The binary that is the no-panic proof (never run).
 const NOPANIC: &str = "nopanic";
+/// The binary that prints every lane for the C API's comparison (`cargo xtask capi`), not a
+/// benchmark.
+pub const LANES: &str = "lanes_typical";
 /// A count may exceed its budget by this fraction...
 const TOLERANCE: f64 = 0.02;
 /// ...plus this many instructions (a SysTick reading is quantised to 5 instructions, so a stage
@@ -120,10 +123,10 @@ struct ScenarioFigures {
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-struct Sizes {
-    text: u64,
-    data: u64,
-    bss: u64,
+pub(crate) struct Sizes {
+    pub(crate) text: u64,
+    pub(crate) data: u64,
+    pub(crate) bss: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -177,11 +180,11 @@ struct Budget {
     binaries: BTreeMap<String, BudgetEntry>,
 }
 
-fn fw_dir() -> PathBuf {
+pub(crate) fn fw_dir() -> PathBuf {
     repo_root().join("bench/firmware")
 }
 
-fn cargo() -> Command {
+pub(crate) fn cargo() -> Command {
     let mut c = Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
     // The firmware is its own workspace with its own target and flags.
     for v in [
@@ -196,7 +199,7 @@ fn cargo() -> Command {
     c
 }
 
-fn llvm_tool(name: &str) -> Result<PathBuf> {
+pub(crate) fn llvm_tool(name: &str) -> Result<PathBuf> {
     let out = Command::new("rustc")
         .args(["--print", "sysroot"])
         .output()?;
@@ -220,13 +223,19 @@ fn llvm_tool(name: &str) -> Result<PathBuf> {
 }
 
 /// The QEMU command line of `bench/firmware/.cargo/config.toml` (one source of truth).
-fn runner() -> Result<Vec<String>> {
-    let cfg = std::fs::read_to_string(fw_dir().join(".cargo/config.toml"))?;
+pub(crate) fn runner() -> Result<Vec<String>> {
+    runner_in(&fw_dir())
+}
+
+/// The (first, uncommented) runner line of `<dir>/.cargo/config.toml`, split into words.
+pub(crate) fn runner_in(dir: &Path) -> Result<Vec<String>> {
+    let path = dir.join(".cargo/config.toml");
+    let cfg = std::fs::read_to_string(&path)?;
     let line = cfg
         .lines()
         .find_map(|l| l.trim().strip_prefix("runner = \""))
         .and_then(|l| l.strip_suffix('"'))
-        .context("no runner in bench/firmware/.cargo/config.toml")?;
+        .with_context(|| format!("no runner in {}", path.display()))?;
     Ok(line.split_whitespace().map(str::to_string).collect())
 }
 
@@ -244,7 +253,10 @@ fn binaries() -> Result<Vec<String>> {
 }
 
 /// Runs `cmd` with a time limit; returns (exit code or None when killed, stdout, stderr).
-fn run_with_timeout(mut cmd: Command, limit: Duration) -> Result<(Option<i32>, String, String)> {
+pub(crate) fn run_with_timeout(
+    mut cmd: Command,
+    limit: Duration,
+) -> Result<(Option<i32>, String, String)> {
     let mut child = cmd
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -279,7 +291,7 @@ fn run_with_timeout(mut cmd: Command, limit: Duration) -> Result<(Option<i32>, S
     Ok((code, out, err))
 }
 
-fn kv(line: &str) -> BTreeMap<&str, u64> {
+pub(crate) fn kv(line: &str) -> BTreeMap<&str, u64> {
     line.split_whitespace()
         .filter_map(|t| t.split_once('='))
         .filter_map(|(k, v)| Some((k, v.parse().ok()?)))
@@ -301,7 +313,7 @@ fn stack_region(elf: &Path) -> Result<u64> {
     Ok(sym("_stack_start")?.saturating_sub(sym("_stack_end")?))
 }
 
-fn sizes(elf: &Path) -> Result<Sizes> {
+pub(crate) fn sizes(elf: &Path) -> Result<Sizes> {
     let out = Command::new(llvm_tool("llvm-size")?).arg(elf).output()?;
     ensure!(out.status.success(), "llvm-size {} failed", elf.display());
     let text = String::from_utf8(out.stdout)?;
@@ -602,7 +614,10 @@ fn cmd_run(
     timeout: u64,
     no_build: bool,
 ) -> Result<()> {
-    let bins: Vec<String> = binaries()?.into_iter().filter(|b| b != NOPANIC).collect();
+    let bins: Vec<String> = binaries()?
+        .into_iter()
+        .filter(|b| b != NOPANIC && b != LANES)
+        .collect();
     let target = if qemu_ram {
         fw_dir().join("target/qemu-ram")
     } else {

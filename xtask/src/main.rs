@@ -8,9 +8,12 @@
 //! | `fuzz-smoke [--cap S]` | the seeded, bounded cargo-fuzz run CI does |
 //! | `bench-report [--committed]` | turns the criterion benches' measurements into `docs/bench/` |
 //! | `deps` | checks the crates' dependency graph (no test crate under a non-test crate; the reference shares no code with the core) |
+//! | `capi` | the C API: header up to date, staticlibs (host, Cortex-M4F, Cortex-R5F with nightly), the host and Cortex-M4F C examples against the Rust output, sizes and stack; the board example under QEMU |
 //! | `ci` | every check CI runs, in order (tools must be installed: `.ci/run` does that first) |
 
 mod bench_report;
+mod board;
+mod capi;
 mod ci;
 mod deps;
 mod firmware;
@@ -40,6 +43,8 @@ enum Cmd {
     BenchReport(bench_report::ReportArgs),
     /// Check the crates' dependency graph.
     Deps,
+    /// The C API's checks: header, staticlibs, the C examples against the Rust output.
+    Capi,
     /// Every check CI runs, in order.
     Ci,
 }
@@ -52,6 +57,7 @@ fn main() -> Result<()> {
         Cmd::FuzzSmoke(a) => fuzz_smoke::run(&a),
         Cmd::BenchReport(a) => bench_report::run(a),
         Cmd::Deps => deps::check(),
+        Cmd::Capi => capi::run_all(),
         Cmd::Ci => ci::run(),
     }
 }

@@ -40,11 +40,11 @@ use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::{exception, ExceptionFrame};
-use cortex_m_semihosting::{debug, hprintln};
+use cortex_m_semihosting::{debug, hprint, hprintln};
 use stjpdacf::probe::{Probe, Stage};
 use stjpdacf::spatial::filter::{Config as SpatialConfig, LaneObservation, SpatialFilter};
 use stjpdacf::tables::DEFAULT;
-use stjpdacf::tracker::ReferenceTracker;
+use stjpdacf::tracker::{LaneEstimate, ReferenceTracker, StepOutput};
 use stjpdacf::wire::{self, frame_len, Receiver};
 
 /// Instructions per SysTick tick: `-icount shift=3` makes an instruction 8 ns of virtual time and
@@ -265,13 +265,27 @@ fn calibration() -> u32 {
 /// `static` [`ReferenceTracker`], fresh from reset), prints the figures and exits QEMU with
 /// success, or failure when a frame is rejected or a step fails.
 pub fn run_tracker(name: &str, frames: &[u8], syst: SYST) -> ! {
+    run_tracker_with(name, frames, syst, |_, _| {})
+}
+
+/// [`run_tracker`], handing each frame's output to `each(frame index, output)` after the
+/// frame's instructions are counted (so the counts do not include it).
+pub fn run_tracker_with(
+    name: &str,
+    frames: &[u8],
+    syst: SYST,
+    mut each: impl FnMut(usize, &StepOutput<6, 16>),
+) -> ! {
     start_systick(syst);
     let overhead = probe_overhead();
     let ok = cortex_m::interrupt::free(|cs| {
         let mut tracker = TRACKER.borrow(cs).borrow_mut();
         let mut points = POINTS.borrow(cs).borrow_mut();
+        let mut k = 0usize;
         run_frames(name, frames, &mut points, overhead, |info, pts, probe| {
             let out = tracker.step_probed(info.time, pts, probe).ok()?;
+            each(k, &out);
+            k += 1;
             Some((
                 out.filtered.len(),
                 out.report.spatial.events,
@@ -280,6 +294,46 @@ pub fn run_tracker(name: &str, frames: &[u8], syst: SYST) -> ! {
         })
     });
     finish(ok)
+}
+
+/// Runs the scenario as [`run_tracker`] does and prints every filtered and smoothed lane of
+/// every frame, exactly (floats as their IEEE-754 bits in hex):
+///
+/// ```text
+/// LANE <F|S> <frame> <id> <slot> <misses> <age> <hits> <u_first> <u_last> <existence> <z[0..16]> <var[0..16]>
+/// ```
+///
+/// The C API's Cortex-M4F example (`capi/examples/m4f`) prints the same lines on the same
+/// frames; `cargo xtask capi` compares them.
+pub fn run_lanes(name: &str, frames: &[u8], syst: SYST) -> ! {
+    run_tracker_with(name, frames, syst, |k, out| {
+        for (tag, lanes) in [("F", &out.filtered), ("S", &out.smoothed)] {
+            for l in lanes {
+                print_lane(tag, k, l);
+            }
+        }
+    })
+}
+
+fn print_lane(tag: &str, k: usize, l: &LaneEstimate<16>) {
+    let b = f32::to_bits;
+    hprint!(
+        "LANE {} {} {} {} {} {} {} {:08x} {:08x} {:08x}",
+        tag,
+        k,
+        l.id.0,
+        l.slot,
+        l.misses,
+        l.age,
+        l.hits,
+        b(l.u_first),
+        b(l.u_last),
+        b(l.existence)
+    );
+    for v in l.z.iter().chain(l.var.iter()) {
+        hprint!(" {:08x}", b(*v));
+    }
+    hprintln!("");
 }
 
 /// The decoded points of the current frame (2 KiB: a static, not stack).

@@ -166,9 +166,10 @@ impl<const NS: usize> Rec<NS> {
     };
 }
 
-/// Counters of one frame of the spatial filter.
+/// Counters of one frame of the spatial filter (`repr(C)`: the C API hands it to C as is).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(C)]
 pub struct SpatialReport {
     /// Points given.
     pub points_in: u32,

@@ -27,6 +27,9 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
         out: &mut [LaneObservation<POINTS>; LANES],
         rep: &mut SpatialReport,
     ) -> usize {
+        // The callers pass `k_rows ≥ 1`; the guard lets every build prove `r % k_rows` cannot
+        // divide by zero (`smooth` is not inlined: the C API's staticlib kept that panic path).
+        let k_rows = k_rows.max(1);
         let f = F.data.0;
         let [h] = hv.data.0;
         let mut n_out = 0usize;

@@ -511,26 +511,19 @@ fn fit_budget<const LANES: usize>(
     lg: &Logs,
 ) {
     let budget = max_events.max(1) as u64;
-    let bound: u64 = out
-        .valid
+    if event_bound(&out.valid, n) > budget && count_events(&out.valid, n, budget) > budget {
+        out.approximated = true;
+        prune(out, (sbar, zhat, points), n, budget, lg);
+    }
+}
+
+/// `Π_t (1 + n_t)` over the first `n` tracks' gates: an upper bound of the joint events.
+fn event_bound<const LANES: usize>(valid: &[u32; LANES], n: usize) -> u64 {
+    valid
         .iter()
         .take(n)
         .map(|v| 1 + u64::from(v.count_ones()))
-        .product();
-    if bound > budget && count_events(&out.valid, n, budget) > budget {
-        out.approximated = true;
-        prune(
-            out,
-            sbar,
-            zhat,
-            points,
-            n,
-            budget,
-            lg.ln_pd_lambda,
-            lg.ln_miss,
-            lg.ln_2pi,
-        );
-    }
+        .product()
 }
 
 /// `β_miss` and `β` of the first `n` tracks from the mixture sums (`inv = 1 / Σ w`); masked
@@ -624,23 +617,23 @@ fn weigh<const LANES: usize>(ctx: &Ctx<'_, LANES>, acc: &mut Acc<LANES>) -> bool
 }
 
 /// Drops (track, point) candidates in order of increasing single-track PDA probability until
-/// the bound `Π (1 + n_t)` on the event count fits `budget` (step 5); `ln_pd_lambda` is
-/// `ln P_D − ln λ_c`.
+/// the bound `Π (1 + n_t)` on the event count fits `budget` (step 5), given the first `n`
+/// tracks' `S̄`, `ẑ` and the row's points.
 ///
 /// # Complexity
 /// `O(C²)` compares (insertion sort) for the `C ≤ n·m` candidates; 4 KiB of stack for the candidate list.
-#[allow(clippy::too_many_arguments)]
 fn prune<const LANES: usize>(
     out: &mut RowOutcome<LANES>,
-    sbar: &[[f32; LANES]; LANES],
-    zhat: &[f32; LANES],
-    points: &[f32],
+    (sbar, zhat, points): (&[[f32; LANES]; LANES], &[f32; LANES], &[f32]),
     n: usize,
     budget: u64,
-    ln_pd_lambda: f32,
-    ln_miss: f32,
-    ln_2pi: f32,
+    lg: &Logs,
 ) {
+    let Logs {
+        ln_pd_lambda,
+        ln_miss,
+        ln_2pi,
+    } = *lg;
     let mut cand = [(0.0f32, 0u8, 0u8); CANDIDATES];
     let mut nc = 0usize;
     for t in 0..n {
@@ -673,13 +666,7 @@ fn prune<const LANES: usize>(
         crate::linalg::sort_by(c, |a, b| a.0.total_cmp(&b.0).is_lt());
     }
     for &(_, t, j) in cand.iter().take(nc) {
-        let bound: u64 = out
-            .valid
-            .iter()
-            .take(n)
-            .map(|v| 1 + u64::from(v.count_ones()))
-            .product();
-        if bound <= budget {
+        if event_bound(&out.valid, n) <= budget {
             break;
         }
         let t = usize::from(t);

@@ -226,9 +226,10 @@ pub enum SlotFate {
     },
 }
 
-/// Counters of one [`LaneTable::associate`] call.
+/// Counters of one [`LaneTable::associate`] call (`repr(C)`: the C API hands it to C as is).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(C)]
 pub struct IdentityReport {
     /// Observations considered (at most `LANES`).
     pub observations: u32,

@@ -1,0 +1,363 @@
+//! The C API's rejection paths, and one frame against the Rust tracker.
+
+use super::*;
+use core::ptr::{null, null_mut};
+use std::boxed::Box;
+use std::vec;
+use std::vec::Vec;
+
+/// An 8-aligned buffer of `STJPDACF_TRACKER_SIZE` bytes (plus one word for misaligned views).
+fn buffer() -> Vec<u64> {
+    vec![0u64; STJPDACF_TRACKER_SIZE / 8 + 1]
+}
+
+fn init(buf: &mut [u64]) -> *mut stjpdacf_tracker {
+    let mut t = null_mut();
+    // SAFETY: `buf` holds `STJPDACF_TRACKER_SIZE` writable, aligned bytes; `t` is writable.
+    let st = unsafe { stjpdacf_init(buf.as_mut_ptr().cast(), STJPDACF_TRACKER_SIZE, &mut t) };
+    assert_eq!(st, STJPDACF_OK);
+    assert_eq!(t.cast::<u64>(), buf.as_mut_ptr());
+    t
+}
+
+/// A report of zeros (what no step wrote).
+fn zero_report() -> stjpdacf_report {
+    stjpdacf_report {
+        filtered_lanes: 0,
+        smoothed_lanes: 0,
+        step: StepReport {
+            spatial: Default::default(),
+            identity: Default::default(),
+            over_budget_points: 0,
+            temporal_failures: 0,
+            dt: 0.0,
+            pseudo_cov_repairs: 0,
+            temporal_cov_repairs: 0,
+            known: Default::default(),
+        },
+    }
+}
+
+/// Two straight lanes 3.6 m apart, one point per BEV row (the core's doc example).
+fn two_lanes() -> Vec<f32> {
+    (0..60)
+        .flat_map(|r| {
+            let u = 3.0 + r as f32 * 77.0 / 60.0;
+            [u, -1.8, u, 1.8]
+        })
+        .collect()
+}
+
+#[test]
+fn the_size_constants_cover_the_tracker() {
+    let size = core::mem::size_of::<stjpdacf_tracker>();
+    std::println!("size_of::<stjpdacf_tracker>() = {size}");
+    assert!(size <= STJPDACF_TRACKER_SIZE);
+    // Not wastefully large either (a few hundred bytes of slack for 32-bit targets).
+    assert!(STJPDACF_TRACKER_SIZE - size < 1024);
+}
+
+#[test]
+fn init_rejects_bad_buffers() {
+    let mut buf = buffer();
+    let mut t = null_mut();
+    let p = buf.as_mut_ptr().cast::<u8>();
+    // SAFETY: all calls: the pointers are null, or into `buf`, or to `t`.
+    unsafe {
+        assert_eq!(
+            stjpdacf_init(null_mut(), STJPDACF_TRACKER_SIZE, &mut t),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            stjpdacf_init(p.cast(), STJPDACF_TRACKER_SIZE, null_mut()),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            stjpdacf_init(p.add(4).cast(), STJPDACF_TRACKER_SIZE, &mut t),
+            STJPDACF_MISALIGNED
+        );
+        assert_eq!(
+            stjpdacf_init(p.cast(), STJPDACF_TRACKER_SIZE - 1, &mut t),
+            STJPDACF_BUFFER_TOO_SMALL
+        );
+    }
+    assert!(t.is_null(), "nothing written on refusal");
+    assert!(buf.iter().all(|&w| w == 0), "buffer untouched on refusal");
+}
+
+#[test]
+fn step_rejects_bad_arguments_and_leaves_the_tracker_untouched() {
+    let pts = two_lanes();
+    let n = pts.len() / 2;
+    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
+    let mut rep = zero_report();
+    // An aligned, zeroed buffer never initialised.
+    let mut raw = buffer();
+    let mut buf = buffer();
+    let t = init(&mut buf);
+    let unaligned_pts = pts.as_ptr().cast::<u8>().wrapping_add(1).cast::<f32>();
+    // SAFETY: all calls: every pointer is null, valid for its claimed size, or deliberately
+    // misaligned / uninitialised (refused before any read).
+    unsafe {
+        let step = |t, time, p, n, l, c, r| stjpdacf_step(t, time, p, n, l, c, r);
+        let lp = lanes.as_mut_ptr();
+        assert_eq!(
+            step(null_mut(), 0, pts.as_ptr(), n, lp, 6, &mut rep),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            step(raw.as_mut_ptr().cast(), 0, pts.as_ptr(), n, lp, 6, &mut rep),
+            STJPDACF_NOT_INITIALISED
+        );
+        assert_eq!(
+            step(
+                buf.as_mut_ptr().cast::<u8>().add(4).cast(),
+                0,
+                pts.as_ptr(),
+                n,
+                lp,
+                6,
+                &mut rep
+            ),
+            STJPDACF_MISALIGNED
+        );
+        assert_eq!(
+            step(t, 0, null(), n, lp, 6, &mut rep),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            step(t, 0, unaligned_pts, n, lp, 6, &mut rep),
+            STJPDACF_MISALIGNED
+        );
+        assert_eq!(
+            step(
+                t,
+                0,
+                pts.as_ptr(),
+                STJPDACF_MAX_POINTS_IN + 1,
+                lp,
+                6,
+                &mut rep
+            ),
+            STJPDACF_TOO_MANY_POINTS
+        );
+        assert_eq!(
+            step(t, 0, pts.as_ptr(), n, lp, 5, &mut rep),
+            STJPDACF_CAPACITY_TOO_SMALL
+        );
+        assert_eq!(
+            step(t, 0, pts.as_ptr(), n, null_mut(), 6, &mut rep),
+            STJPDACF_NULL_POINTER
+        );
+        let bad_report = (&mut rep as *mut stjpdacf_report)
+            .cast::<u8>()
+            .add(1)
+            .cast();
+        assert_eq!(
+            step(t, 0, pts.as_ptr(), n, lp, 6, bad_report),
+            STJPDACF_MISALIGNED
+        );
+        assert_eq!(lanes, [NO_LANE; STJPDACF_MAX_LANES], "no lane written");
+        assert_eq!(rep, zero_report(), "no report written");
+        assert_eq!((*t).tracker.frames(), 0, "tracker untouched");
+        // The first valid frame, then the same time again.
+        assert_eq!(
+            step(t, 1_000, pts.as_ptr(), n, lp, 6, &mut rep),
+            STJPDACF_OK
+        );
+        assert_eq!(rep.filtered_lanes, 2);
+        let before = rep;
+        assert_eq!(
+            step(t, 1_000, pts.as_ptr(), n, null_mut(), 0, &mut rep),
+            STJPDACF_NON_INCREASING_TIME
+        );
+        assert_eq!(rep, before, "no report written on refusal");
+        assert_eq!((*t).tracker.frames(), 1);
+    }
+    raw.clear();
+}
+
+#[test]
+fn readouts_reject_bad_arguments() {
+    let mut buf = buffer();
+    let t = init(&mut buf);
+    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
+    let mut n = 99usize;
+    let (mut x, mut var) = (0.0f32, 0.0f32);
+    let mut model = stjpdacf_model::default();
+    // SAFETY: all calls: pointers valid for their claims, or null.
+    unsafe {
+        let lp = lanes.as_mut_ptr();
+        assert_eq!(
+            stjpdacf_filtered(null(), lp, 6, &mut n),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            stjpdacf_filtered(t, null_mut(), 0, &mut n),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            stjpdacf_smoothed(t, lp, 2, &mut n),
+            STJPDACF_CAPACITY_TOO_SMALL
+        );
+        assert_eq!(
+            stjpdacf_smoothed(t, lp, 6, null_mut()),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(n, 99);
+        assert_eq!(stjpdacf_filtered(t, lp, 6, &mut n), STJPDACF_OK);
+        assert_eq!(n, 0);
+        assert_eq!(
+            stjpdacf_lane_at(t, 0, 10.0, &mut x, &mut var),
+            STJPDACF_NO_LANE
+        );
+        assert_eq!(
+            stjpdacf_lane_at(t, 0, 10.0, null_mut(), &mut var),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            stjpdacf_lane_at(null(), 0, 10.0, &mut x, null_mut()),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(stjpdacf_model_info(null_mut()), STJPDACF_NULL_POINTER);
+        assert_eq!(stjpdacf_model_info(&mut model), STJPDACF_OK);
+    }
+    assert!(model.u_min < model.u_max && model.index_u[0] >= model.u_min);
+}
+
+#[test]
+fn decode_maps_every_wire_error() {
+    let pts = [[10.0f32, 1.5], [20.0, -1.5]];
+    let mut frame = [0u8; 64];
+    let len = wire::encode(7, Instant::from_micros(42), &pts, &mut frame).unwrap();
+    let mut out = [0.0f32; 4];
+    let mut info = stjpdacf_frame_info::default();
+    // SAFETY: all calls: pointers valid for their claims, or null.
+    unsafe {
+        let op = out.as_mut_ptr();
+        assert_eq!(
+            stjpdacf_decode_frame(frame.as_ptr(), len, op, 2, &mut info),
+            STJPDACF_OK
+        );
+        assert_eq!(
+            (info.seq, info.count, info.time_us, info.len),
+            (7, 2, 42, len)
+        );
+        assert_eq!(out, [10.0, 1.5, 20.0, -1.5]);
+        assert_eq!(
+            stjpdacf_decode_frame(frame.as_ptr(), len - 1, op, 2, &mut info),
+            STJPDACF_WIRE_TRUNCATED
+        );
+        assert_eq!(
+            stjpdacf_decode_frame(frame.as_ptr(), len, op, 1, &mut info),
+            STJPDACF_WIRE_OVERSIZED
+        );
+        assert_eq!(
+            stjpdacf_decode_frame(frame.as_ptr(), len, null_mut(), 2, &mut info),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            stjpdacf_decode_frame(null(), len, op, 2, &mut info),
+            STJPDACF_NULL_POINTER
+        );
+        assert_eq!(
+            stjpdacf_decode_frame(frame.as_ptr(), len, op, 2, null_mut()),
+            STJPDACF_NULL_POINTER
+        );
+        let mut bad = frame;
+        bad[0] ^= 1;
+        assert_eq!(
+            stjpdacf_decode_frame(bad.as_ptr(), len, op, 2, &mut info),
+            STJPDACF_WIRE_BAD_MAGIC
+        );
+        let mut bad = frame;
+        bad[len - 1] ^= 1;
+        assert_eq!(
+            stjpdacf_decode_frame(bad.as_ptr(), len, op, 2, &mut info),
+            STJPDACF_WIRE_BAD_CRC
+        );
+    }
+    let all = [
+        (WireError::BadVersion, STJPDACF_WIRE_BAD_VERSION),
+        (
+            WireError::NonIncreasingSequence,
+            STJPDACF_WIRE_NON_INCREASING_SEQUENCE,
+        ),
+        (
+            WireError::NonIncreasingTime,
+            STJPDACF_WIRE_NON_INCREASING_TIME,
+        ),
+    ];
+    for (e, s) in all {
+        assert_eq!(stjpdacf_status::from(e), s);
+    }
+}
+
+#[test]
+fn lanes_match_the_rust_tracker() {
+    let pts = two_lanes();
+    let pairs: Vec<[f32; 2]> = pts.chunks(2).map(|c| [c[0], c[1]]).collect();
+    let mut rust = Box::new(ReferenceTracker::new(&DEFAULT));
+    let mut buf = buffer();
+    let t = init(&mut buf);
+    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
+    let mut rep = zero_report();
+    for k in 0..8i64 {
+        let time = k * 50_000;
+        let want = rust.step(Instant::from_micros(time), &pairs).unwrap();
+        // SAFETY: `t` from `init`; the arrays are valid for their sizes.
+        let st = unsafe {
+            stjpdacf_step(
+                t,
+                time,
+                pts.as_ptr(),
+                pairs.len(),
+                lanes.as_mut_ptr(),
+                lanes.len(),
+                &mut rep,
+            )
+        };
+        assert_eq!(st, STJPDACF_OK);
+        assert_eq!(
+            rep,
+            stjpdacf_report {
+                filtered_lanes: want.filtered.len() as u32,
+                smoothed_lanes: want.smoothed.len() as u32,
+                step: want.report,
+            }
+        );
+        for (c, r) in lanes.iter().zip(&want.filtered) {
+            assert_eq!(*c, stjpdacf_lane::from(r));
+            let (mut x, mut var) = (0.0, 0.0);
+            // SAFETY: as above.
+            let st = unsafe { stjpdacf_lane_at(t, c.slot, 30.0, &mut x, &mut var) };
+            assert_eq!(st, STJPDACF_OK);
+            assert_eq!(Some((x, var)), rust.lane_at(usize::from(r.slot), 30.0));
+        }
+        let mut sm = [NO_LANE; STJPDACF_MAX_LANES];
+        let mut n = 0;
+        // SAFETY: as above.
+        let st = unsafe { stjpdacf_smoothed(t, sm.as_mut_ptr(), sm.len(), &mut n) };
+        assert_eq!(st, STJPDACF_OK);
+        assert_eq!(n, want.smoothed.len());
+        for (c, r) in sm.iter().zip(&want.smoothed) {
+            assert_eq!(*c, stjpdacf_lane::from(r));
+        }
+    }
+    assert_eq!(
+        rep.smoothed_lanes, 2,
+        "the smoother window is full after 5 frames"
+    );
+}
+
+#[test]
+fn over_budget_points_are_degraded_not_refused() {
+    let mut buf = buffer();
+    let t = init(&mut buf);
+    let pts = vec![0.0f32; 2 * (STJPDACF_MAX_POINTS + 10)];
+    let mut rep = zero_report();
+    // SAFETY: `t` from `init`; `pts` holds the floats claimed.
+    let st = unsafe { stjpdacf_step(t, 0, pts.as_ptr(), pts.len() / 2, null_mut(), 0, &mut rep) };
+    assert_eq!(st, STJPDACF_DEGRADED);
+    assert_eq!(rep.step.over_budget_points, 10);
+}
