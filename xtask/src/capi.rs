@@ -59,7 +59,7 @@ fn show(c: &Command) -> String {
 }
 
 /// Runs `c` in the repository root; fails unless it succeeds.
-fn run(c: &mut Command) -> Result<()> {
+pub fn run(c: &mut Command) -> Result<()> {
     println!("$ {}", show(c));
     let st = c
         .current_dir(repo_root())
@@ -128,35 +128,46 @@ fn staticlibs() -> Result<()> {
         "-D",
         "warnings",
     ])?;
-    let sysroot = Command::new("rustup")
+    if nightly_with_src() {
+        run(&mut build_std(&[
+            "-p",
+            "stjpdacf-capi",
+            "--release",
+            "--target",
+            R5F,
+        ]))?;
+        let lib = repo_root().join(format!("target/{R5F}/release/libstjpdacf_capi.a"));
+        println!("{R5F} staticlib: {} B", std::fs::metadata(lib)?.len());
+    } else {
+        println!("SKIP {R5F} staticlib: {NO_NIGHTLY}");
+    }
+    Ok(())
+}
+
+/// Why an `armv7r-none-eabihf` build is skipped.
+pub const NO_NIGHTLY: &str = "no nightly toolchain with rust-src here (the target's rust-std does \
+     not download on stable; `rustup toolchain install nightly --component rust-src` enables \
+     this check)";
+
+/// A nightly toolchain with rust-src is installed: targets without a downloadable rust-std
+/// (`armv7r-none-eabihf` here) build with `-Zbuild-std=core`.
+pub fn nightly_with_src() -> bool {
+    Command::new("rustup")
         .args(["run", "nightly", "rustc", "--print", "sysroot"])
         .output()
         .ok()
         .filter(|o| o.status.success())
-        .map(|o| PathBuf::from(String::from_utf8_lossy(&o.stdout).trim()));
-    match sysroot {
-        Some(s) if s.join("lib/rustlib/src/rust/library/core").exists() => {
-            let mut c = Command::new("cargo");
-            c.args([
-                "+nightly",
-                "build",
-                "-Zbuild-std=core",
-                "-p",
-                "stjpdacf-capi",
-            ])
-            .args(["--release", "--target", R5F])
-            .env_remove("RUSTUP_TOOLCHAIN");
-            run(&mut c)?;
-            let lib = repo_root().join(format!("target/{R5F}/release/libstjpdacf_capi.a"));
-            println!("{R5F} staticlib: {} B", std::fs::metadata(lib)?.len());
-        }
-        _ => println!(
-            "SKIP {R5F} staticlib: no nightly toolchain with rust-src here (its rust-std does not \
-             download on stable; `rustup toolchain install nightly --component rust-src` enables \
-             this check)"
-        ),
-    }
-    Ok(())
+        .map(|o| PathBuf::from(String::from_utf8_lossy(&o.stdout).trim()))
+        .is_some_and(|s| s.join("lib/rustlib/src/rust/library/core").exists())
+}
+
+/// `cargo +nightly build -Zbuild-std=core <args>` (outside the stable toolchain xtask runs on).
+pub fn build_std(args: &[&str]) -> Command {
+    let mut c = Command::new("cargo");
+    c.args(["+nightly", "build", "-Zbuild-std=core"])
+        .args(args)
+        .env_remove("RUSTUP_TOOLCHAIN");
+    c
 }
 
 /// One prediction, numbers as f64 (`-2` and `-2.0` alike).

@@ -116,6 +116,34 @@ pub fn run() -> Result<()> {
             cargo(&[&build[..], &["--features", feature]].concat())?;
         }
     }
+    // Cortex-R5F (a common ADAS safety core): its rust-std does not download on stable here.
+    if crate::capi::nightly_with_src() {
+        for features in [
+            &[][..],
+            &["--features", "defmt"],
+            &["--features", "fast-math"],
+        ] {
+            let mut c = crate::capi::build_std(
+                &[
+                    &[
+                        "-p",
+                        "stjpdacf",
+                        "--release",
+                        "--target",
+                        "armv7r-none-eabihf",
+                    ][..],
+                    features,
+                ]
+                .concat(),
+            );
+            crate::capi::run(&mut c)?;
+        }
+    } else {
+        println!(
+            "SKIP armv7r-none-eabihf core build: {}",
+            crate::capi::NO_NIGHTLY
+        );
+    }
     cargo(&[
         "clippy",
         "-p",
