@@ -244,6 +244,11 @@ pub struct RealFrameResult {
     pub lanes: usize,
     /// Official frame score (at 1280×720 pixels).
     pub score: metric::FrameScore,
+    /// The feature points' precision ([`frontend::score`]: points on the labelled rows within
+    /// 6 px of a labelled lane).
+    pub precision: f64,
+    /// The feature points' mean lane recall ([`frontend::score`]).
+    pub recall: f64,
     /// Front end's detection time, ms.
     pub frontend_ms: f64,
     /// `run_time` written in the prediction: front end + tracker, ms.
@@ -668,6 +673,130 @@ pub fn scale_record(r: &TuSimpleRecord, s: f64) -> TuSimpleRecord {
     out
 }
 
+/// The real frames through the image front end and the tracker (the demo's real section).
+#[derive(Debug, Clone)]
+pub struct RealRun {
+    /// The front end's frames (512×288 pixels).
+    pub frames: Vec<Frame>,
+    /// The tracker's predictions (512×288 pixels; `run_time` includes the front end's time).
+    pub preds: Vec<TuSimpleRecord>,
+    /// Per frame.
+    pub results: Vec<RealFrameResult>,
+    /// Official metric over the frames (at 1280×720).
+    pub score: Score,
+    /// The tracker's counters.
+    pub stats: track::TrackStats,
+    /// The camera the points were mapped with.
+    pub camera: Camera,
+    snaps: Vec<Snapshot>,
+}
+
+/// Runs the labelled images under `dir` (labels `labels`, 512×288) through the front end with
+/// parameters `p`, then the tracker (default tables, one tracker per clip), and scores them
+/// with the official metric at 1280×720 ([`REAL_TO_TUSIMPLE`]) and the feature points with
+/// [`frontend::score`].
+pub fn run_real(
+    dir: &Path,
+    labels: &[TuSimpleRecord],
+    p: &FrontendParams,
+    score_run_time: bool,
+) -> Result<RealRun> {
+    let coupled: &'static ReferenceTables = &stjpdacf::tables::DEFAULT;
+    let timed = frontend::run_dir_timed(dir, None, labels, p, |_, _| {})?;
+    let (real_frames, fe_ms): (Vec<Frame>, Vec<f64>) = timed.into_iter().unzip();
+    let first = real_frames
+        .first()
+        .and_then(|f| f.raw_file.as_deref())
+        .context("no real frames")?;
+    let img0 = frontend::load_rgb(&dir.join(first))?;
+    let real_cam = frontend::camera_for(&img0, None)?;
+    // Bands at every image row from the bottom up to the first labelled row.
+    let top_row = labels
+        .iter()
+        .flat_map(|l| l.h_samples.first().copied())
+        .fold(real_cam.vp_row + 1.0, f64::min)
+        .max(real_cam.vp_row + 1.0);
+    let real_us: Vec<f64> = (top_row.ceil() as i64..real_cam.height as i64)
+        .rev()
+        .filter_map(|r| real_cam.to_bev(real_cam.vp_col, r as f64).map(|b| b.0))
+        .collect();
+    let mut real_snaps: Vec<Snapshot> = Vec::new();
+    let (mut preds, stats) = track::track_with(
+        &real_frames,
+        coupled,
+        &real_cam,
+        Space::Image,
+        TrackerConfig::DEFAULT,
+        |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &real_us)),
+    )?;
+    let fe_by_file: HashMap<&str, f64> = real_frames
+        .iter()
+        .zip(&fe_ms)
+        .filter_map(|(f, &ms)| f.raw_file.as_deref().map(|r| (r, ms)))
+        .collect();
+    for p in &mut preds {
+        let fe = fe_by_file.get(p.raw_file.as_str()).copied().unwrap_or(0.0);
+        p.run_time = p.run_time.map(|t| t + fe);
+    }
+    let scaled_preds: Vec<TuSimpleRecord> = preds
+        .iter()
+        .map(|p| scale_record(p, REAL_TO_TUSIMPLE))
+        .collect();
+    let scaled_gt: Vec<TuSimpleRecord> = labels
+        .iter()
+        .map(|g| scale_record(g, REAL_TO_TUSIMPLE))
+        .collect();
+    let real_score = score_on(&scaled_preds, &scaled_gt, score_run_time)?;
+    let mut real_results = Vec::new();
+    for p in &scaled_preds {
+        let g = scaled_gt
+            .iter()
+            .find(|g| g.raw_file == p.raw_file)
+            .context("prediction without label")?;
+        let fe = fe_by_file.get(p.raw_file.as_str()).copied().unwrap_or(0.0);
+        let run_time = p.run_time.unwrap_or(0.0);
+        let frame = real_frames
+            .iter()
+            .find(|f| f.raw_file.as_deref() == Some(p.raw_file.as_str()));
+        let label = labels.iter().find(|l| l.raw_file == p.raw_file);
+        let (precision, recall) = match (frame, label) {
+            (Some(f), Some(l)) => {
+                let (tp, n, rec) = frontend::score(&f.points, l, 1.0, 6.0);
+                (
+                    tp as f64 / n.max(1) as f64,
+                    rec.iter().sum::<f64>() / rec.len().max(1) as f64,
+                )
+            }
+            _ => (0.0, 0.0),
+        };
+        real_results.push(RealFrameResult {
+            raw_file: p.raw_file.clone(),
+            points: frame.map_or(0, |f| f.points.len()),
+            gt_lanes: g.lanes.len(),
+            lanes: p.lanes.len(),
+            score: metric::bench(
+                &p.lanes,
+                &g.lanes,
+                &g.h_samples,
+                if score_run_time { run_time } else { 0.0 },
+            )?,
+            precision,
+            recall,
+            frontend_ms: fe,
+            run_time_ms: run_time,
+        });
+    }
+    Ok(RealRun {
+        frames: real_frames,
+        preds,
+        results: real_results,
+        score: real_score,
+        stats,
+        camera: real_cam,
+        snaps: real_snaps,
+    })
+}
+
 /// Runs the demo (see the module doc). `progress(done, total, what)` is called before each
 /// stage.
 ///
@@ -852,83 +981,25 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     done += 1;
     let real_dir = opts.data.join(REAL_FRAMES);
     let real_labels = tusimple::read_labels(&real_dir.join("label_data.json"))?;
-    let timed = frontend::run_dir_timed(
+    let real = run_real(
         &real_dir,
-        None,
         &real_labels,
         &FrontendParams::default(),
-        |_, _| {},
+        opts.score_run_time,
     )?;
-    let (real_frames, fe_ms): (Vec<Frame>, Vec<f64>) = timed.into_iter().unzip();
-    let first = real_frames
-        .first()
-        .and_then(|f| f.raw_file.as_deref())
-        .context("no real frames")?;
-    let img0 = frontend::load_rgb(&real_dir.join(first))?;
-    let real_cam = frontend::camera_for(&img0, None)?;
-    // Bands at every image row from the bottom up to the first labelled row.
-    let top_row = real_labels
-        .iter()
-        .flat_map(|l| l.h_samples.first().copied())
-        .fold(real_cam.vp_row + 1.0, f64::min)
-        .max(real_cam.vp_row + 1.0);
-    let real_us: Vec<f64> = (top_row.ceil() as i64..real_cam.height as i64)
-        .rev()
-        .filter_map(|r| real_cam.to_bev(real_cam.vp_col, r as f64).map(|b| b.0))
-        .collect();
-    let mut real_snaps: Vec<Snapshot> = Vec::new();
-    let (mut preds, stats) = track::track_with(
-        &real_frames,
-        coupled,
-        &real_cam,
-        Space::Image,
-        TrackerConfig::DEFAULT,
-        |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &real_us)),
-    )?;
-    let fe_by_file: HashMap<&str, f64> = real_frames
-        .iter()
-        .zip(&fe_ms)
-        .filter_map(|(f, &ms)| f.raw_file.as_deref().map(|r| (r, ms)))
-        .collect();
-    for p in &mut preds {
-        let fe = fe_by_file.get(p.raw_file.as_str()).copied().unwrap_or(0.0);
-        p.run_time = p.run_time.map(|t| t + fe);
-    }
-    let scaled_preds: Vec<TuSimpleRecord> = preds
-        .iter()
-        .map(|p| scale_record(p, REAL_TO_TUSIMPLE))
-        .collect();
+    let RealRun {
+        frames: real_frames,
+        preds,
+        results: real_results,
+        score: real_score,
+        stats,
+        camera: real_cam,
+        snaps: real_snaps,
+    } = real;
     let scaled_gt: Vec<TuSimpleRecord> = real_labels
         .iter()
         .map(|g| scale_record(g, REAL_TO_TUSIMPLE))
         .collect();
-    let real_score = score_on(&scaled_preds, &scaled_gt, opts.score_run_time)?;
-    let mut real_results = Vec::new();
-    for p in &scaled_preds {
-        let g = scaled_gt
-            .iter()
-            .find(|g| g.raw_file == p.raw_file)
-            .context("prediction without label")?;
-        let fe = fe_by_file.get(p.raw_file.as_str()).copied().unwrap_or(0.0);
-        let run_time = p.run_time.unwrap_or(0.0);
-        real_results.push(RealFrameResult {
-            raw_file: p.raw_file.clone(),
-            points: real_frames
-                .iter()
-                .find(|f| f.raw_file.as_deref() == Some(p.raw_file.as_str()))
-                .map_or(0, |f| f.points.len()),
-            gt_lanes: g.lanes.len(),
-            lanes: p.lanes.len(),
-            score: metric::bench(
-                &p.lanes,
-                &g.lanes,
-                &g.h_samples,
-                if opts.score_run_time { run_time } else { 0.0 },
-            )?,
-            frontend_ms: fe,
-            run_time_ms: run_time,
-        });
-    }
     let run_times: Vec<f64> = real_results.iter().map(|r| r.run_time_ms).collect();
     rows.push(DemoRow {
         input: Input::Real,
@@ -1155,14 +1226,16 @@ pub fn render_markdown(r: &DemoReport) -> String {
         }
     }
     s.push_str(
-        "\n| real frame | points | lanes (gt / predicted) | accuracy | FP | FN | run_time (ms, of which front end) |\n\
-         |---|---|---|---|---|---|---|\n",
+        "\n| real frame | points | point precision / recall | lanes (gt / predicted) | accuracy | FP | FN | run_time (ms, of which front end) |\n\
+         |---|---|---|---|---|---|---|---|\n",
     );
     for f in &r.real_frames {
         s.push_str(&format!(
-            "| {} | {} | {} / {} | {:.3} | {:.3} | {:.3} | {:.2} ({:.2}) |\n",
+            "| {} | {} | {:.2} / {:.2} | {} / {} | {:.3} | {:.3} | {:.3} | {:.2} ({:.2}) |\n",
             f.raw_file,
             f.points,
+            f.precision,
+            f.recall,
             f.gt_lanes,
             f.lanes,
             f.score.accuracy,

@@ -107,6 +107,17 @@ pub struct FrontendParams {
     /// A dark ridge within this lateral distance (m) of a bright ridge of the same row is
     /// dropped (the seam or shadow beside a painted line, not a second marking).
     pub dark_exclusion: f64,
+    /// Parallel-lane filter: evidence (metres of road length along which a line has peaks, each
+    /// BEV row counting its length, at most 1 m) a line needs to be kept; 0 = no filter.
+    pub lane_support: f64,
+    /// Parallel-lane filter: lateral tolerance (m) of a peak around its line (or 1.5 image
+    /// pixels at that distance, whichever is wider).
+    pub lane_tol: f64,
+    /// Parallel-lane filter: largest heading of the lanes relative to the camera axis (slope
+    /// dx/du) searched.
+    pub max_slope: f64,
+    /// Parallel-lane filter: largest curvature (1/m) searched.
+    pub max_curvature: f64,
 }
 
 impl Default for FrontendParams {
@@ -124,11 +135,15 @@ impl Default for FrontendParams {
             min_px: 1.5,
             ridge_threshold: 10.0,
             support_rows: 3,
-            support: 2,
+            support: 0,
             road_tolerance: 60.0,
             noise_k: 1.25,
             dark_threshold: 15.0,
             dark_exclusion: 1.2,
+            lane_support: 3.0,
+            lane_tol: 0.15,
+            max_slope: 0.3,
+            max_curvature: 0.004,
         }
     }
 }
@@ -152,6 +167,10 @@ impl FrontendParams {
             "noise_k" => &mut self.noise_k,
             "dark_threshold" => &mut self.dark_threshold,
             "dark_exclusion" => &mut self.dark_exclusion,
+            "lane_support" => &mut self.lane_support,
+            "lane_tol" => &mut self.lane_tol,
+            "max_slope" => &mut self.max_slope,
+            "max_curvature" => &mut self.max_curvature,
             "support_rows" => {
                 self.support_rows = v.round().max(0.0) as usize;
                 return Ok(());
@@ -368,6 +387,7 @@ pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f
         let hi = peaks.partition_point(|q| q.0 <= r);
         &peaks[lo..hi]
     };
+    let mut kept: Vec<(f64, f64)> = Vec::with_capacity(peaks.len());
     for &(r, u, x) in &peaks {
         let tol = p.marking_width.max(2.0 * u / cam.focal_px);
         let n = (r.saturating_sub(p.support_rows)..=r + p.support_rows)
@@ -375,12 +395,145 @@ pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f
             .map(|q| by_row(q).iter().filter(|o| (o.2 - x).abs() <= tol).count())
             .sum::<usize>();
         if n >= p.support {
-            if let Some((col, row)) = cam.to_image(u, x) {
-                out.push([col, row.round()]);
-            }
+            kept.push((u, x));
+        }
+    }
+    if p.lane_support > 0.0 {
+        kept = lane_filter(&kept, cam, p);
+    }
+    for (u, x) in kept {
+        if let Some((col, row)) = cam.to_image(u, x) {
+            out.push([col, row.round()]);
         }
     }
     Ok(out)
+}
+
+/// Length of road (m) one BEV row at `u` covers (one image row), at most 1 m.
+fn row_length(cam: &Camera, u: f64) -> f64 {
+    (u * u / (cam.focal_px * cam.height_m)).min(1.0)
+}
+
+/// Lateral tolerance (m) of a peak at `u` around a lane line.
+fn lane_tolerance(cam: &Camera, p: &FrontendParams, u: f64) -> f64 {
+    p.lane_tol.max(1.5 * u / cam.focal_px)
+}
+
+/// Weighted histogram of the residuals `x − s·u − κ·u²/2` of `pts` (u, x, weight) in bins of
+/// `bin` m over `±span`; returns it and its concentration Σ h².
+fn residual_histogram(pts: &[(f64, f64, f64)], s: f64, k: f64, bin: f64, span: f64) -> (Vec<f64>, f64) {
+    let n = (2.0 * span / bin).ceil() as usize + 1;
+    let mut h = vec![0.0; n];
+    for &(u, x, w) in pts {
+        let r = x - s * u - 0.5 * k * u * u;
+        let b = ((r + span) / bin).round();
+        if b >= 0.0 && (b as usize) < n {
+            h[b as usize] += w;
+        }
+    }
+    let c = h.iter().map(|v| v * v).sum();
+    (h, c)
+}
+
+/// The parallel-lane filter: lane markings in the BEV are near-parallel curves
+/// `x = c_k + s·u + κ·u²/2` (one heading `s` and curvature `κ` for all lanes); clutter (car
+/// edges, which map to radial streaks, texture, stains) is not. Finds (s, κ) that concentrates
+/// the peaks' residuals most, then the lanes (histogram maxima with at least `lane_support`
+/// metres of evidence), refits each lane's own quadratic (a wrong pitch or a fork bends lanes
+/// apart) and keeps the peaks within [`lane_tolerance`] of a lane.
+fn lane_filter(peaks: &[(f64, f64)], cam: &Camera, p: &FrontendParams) -> Vec<(f64, f64)> {
+    let pts: Vec<(f64, f64, f64)> = peaks
+        .iter()
+        .map(|&(u, x)| (u, x, row_length(cam, u)))
+        .collect();
+    let bin = 0.1;
+    let span = p.x_max + p.max_slope * p.u_max;
+    // Heading on the near peaks (curvature matters little there), then curvature, then both
+    // refined on a fine grid.
+    let near: Vec<(f64, f64, f64)> = pts.iter().copied().filter(|q| q.0 < 25.0).collect();
+    let grid = |lo: f64, hi: f64, n: usize| (0..=n).map(move |i| lo + (hi - lo) * i as f64 / n as f64);
+    let best = |cands: &mut dyn Iterator<Item = (f64, f64)>, set: &[(f64, f64, f64)]| {
+        cands
+            .map(|(s, k)| (s, k, residual_histogram(set, s, k, bin, span).1))
+            .fold((0.0, 0.0, f64::NEG_INFINITY), |a, b| if b.2 > a.2 { b } else { a })
+    };
+    let ns = (2.0 * p.max_slope / 0.01).round() as usize;
+    let (s0, _, _) = best(&mut grid(-p.max_slope, p.max_slope, ns).map(|s| (s, 0.0)), &near);
+    let nk = (2.0 * p.max_curvature / 0.0002).round() as usize;
+    let (_, k0, _) = best(
+        &mut grid(-p.max_curvature, p.max_curvature, nk).map(|k| (s0, k)),
+        &pts,
+    );
+    let (s, k, _) = best(
+        &mut grid(s0 - 0.01, s0 + 0.01, 4)
+            .flat_map(|s| grid(k0 - 0.0002, k0 + 0.0002, 4).map(move |k| (s, k))),
+        &pts,
+    );
+    let (h, _) = residual_histogram(&pts, s, k, bin, span);
+    // Lanes: maxima of the histogram summed over ±tolerance.
+    let nb = h.len();
+    let w = (p.lane_tol / bin).round().max(1.0) as usize;
+    let summed: Vec<f64> = (0..nb)
+        .map(|i| h[i.saturating_sub(w)..=(i + w).min(nb - 1)].iter().sum())
+        .collect();
+    let mut lanes: Vec<f64> = Vec::new();
+    for i in 0..nb {
+        let v = summed[i];
+        if v < p.lane_support {
+            continue;
+        }
+        let lo = i.saturating_sub(2 * w);
+        let hi = (i + 2 * w).min(nb - 1);
+        if (lo..=hi).all(|j| summed[j] < v || (summed[j] == v && j >= i)) {
+            lanes.push(-span + i as f64 * bin);
+        }
+    }
+    // Each lane's own curve: x = c + s·u + κu²/2 + a + b·u, (a, b) by weighted least squares on
+    // the peaks within a band, twice with the band narrowed to the tolerance.
+    let mut keep = vec![false; pts.len()];
+    for &c in &lanes {
+        let base = |u: f64| c + s * u + 0.5 * k * u * u;
+        let (mut a, mut b) = (0.0, 0.0);
+        for band in [3.0, 1.5, 1.0] {
+            let (mut sw, mut su, mut suu, mut sr, mut sur) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for &(u, x, wt) in &pts {
+                let r = x - base(u);
+                if (r - a - b * u).abs() <= band * lane_tolerance(cam, p, u) {
+                    sw += wt;
+                    su += wt * u;
+                    suu += wt * u * u;
+                    sr += wt * r;
+                    sur += wt * u * r;
+                }
+            }
+            let det = sw * suu - su * su;
+            if sw <= 0.0 || det.abs() < 1e-9 {
+                break;
+            }
+            b = ((sw * sur - su * sr) / det).clamp(-0.05, 0.05);
+            a = (sr - b * su) / sw;
+        }
+        let mut support = 0.0;
+        let idx: Vec<usize> = (0..pts.len())
+            .filter(|&i| {
+                let (u, x, _) = pts[i];
+                (x - base(u) - a - b * u).abs() <= lane_tolerance(cam, p, u)
+            })
+            .collect();
+        for &i in &idx {
+            support += pts[i].2;
+        }
+        if support >= p.lane_support {
+            for i in idx {
+                keep[i] = true;
+            }
+        }
+    }
+    peaks
+        .iter()
+        .zip(keep)
+        .filter_map(|(&q, k)| k.then_some(q))
+        .collect()
 }
 
 /// Image files (`*.jpg`, `*.jpeg`, `*.png`, any case) under `dir`, recursively, in the order
