@@ -7,7 +7,8 @@
 
 use std::time::Instant;
 
-use stjpdacf_tools::frontend::{self, FrontendParams, HELD_OUT_SET, TUNING_SET};
+use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams, HELD_OUT_SET, TUNING_SET};
 use stjpdacf_tools::tusimple::read_labels;
 
 fn main() -> anyhow::Result<()> {
@@ -84,17 +85,27 @@ fn main() -> anyhow::Result<()> {
             ms / set.len() as f64
         );
     }
-    // End to end: front end → tracker → official metric, all 10 frames.
-    let real = stjpdacf_tools::demo::run_real(&dir, &labels, &p, false)?;
-    for r in &real.results {
+    // End to end: front end → tracker → official metric, all 10 frames, with the calibrated
+    // camera and with the horizon estimated from each image (no calibration: Camera::guess).
+    let guess = Camera::guess(1280.0, 720.0);
+    for (name, mode) in [
+        ("calibrated", CameraMode::TuSimple),
+        ("horizon estimated", CameraMode::Estimate(guess)),
+    ] {
+        let real = stjpdacf_tools::demo::run_real(&dir, &labels, &mode, &p, false)?;
+        for (r, f) in real.results.iter().zip(&real.frames) {
+            let img = frontend::load_rgb(&dir.join(f.raw_file.as_deref().unwrap_or("")))?;
+            let cam = frontend::camera_with(&img, &mode)?;
+            println!(
+                "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes), points P {:.2} R {:.2}, vanishing point ({:.1}, {:.1})",
+                r.raw_file, r.score.accuracy, r.score.fp, r.score.fn_, r.lanes, r.gt_lanes,
+                r.precision, r.recall, cam.vp_col, cam.vp_row
+            );
+        }
         println!(
-            "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes)",
-            r.raw_file, r.score.accuracy, r.score.fp, r.score.fn_, r.lanes, r.gt_lanes
+            "tracker on the front end's points ({name}): accuracy {:.3}, FP {:.3}, FN {:.3}",
+            real.score.accuracy, real.score.fp, real.score.fn_
         );
     }
-    println!(
-        "tracker on the front end's points: accuracy {:.3}, FP {:.3}, FN {:.3}",
-        real.score.accuracy, real.score.fp, real.score.fn_
-    );
     Ok(())
 }

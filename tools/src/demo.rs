@@ -698,18 +698,21 @@ pub struct RealRun {
 pub fn run_real(
     dir: &Path,
     labels: &[TuSimpleRecord],
+    mode: &frontend::CameraMode,
     p: &FrontendParams,
     score_run_time: bool,
 ) -> Result<RealRun> {
     let coupled: &'static ReferenceTables = &stjpdacf::tables::DEFAULT;
-    let timed = frontend::run_dir_timed(dir, None, labels, p, |_, _| {})?;
-    let (real_frames, fe_ms): (Vec<Frame>, Vec<f64>) = timed.into_iter().unzip();
-    let first = real_frames
-        .first()
-        .and_then(|f| f.raw_file.as_deref())
-        .context("no real frames")?;
-    let img0 = frontend::load_rgb(&dir.join(first))?;
-    let real_cam = frontend::camera_for(&img0, None)?;
+    let timed = frontend::run_dir_cameras(dir, mode, labels, p, |_, _| {})?;
+    let mut real_frames = Vec::with_capacity(timed.len());
+    let mut fe_ms = Vec::with_capacity(timed.len());
+    let mut cams = Vec::with_capacity(timed.len());
+    for (f, ms, c) in timed {
+        real_frames.push(f);
+        fe_ms.push(ms);
+        cams.push(c);
+    }
+    let real_cam = *cams.first().context("no real frames")?;
     // Bands at every image row from the bottom up to the first labelled row.
     let top_row = labels
         .iter()
@@ -721,14 +724,52 @@ pub fn run_real(
         .filter_map(|r| real_cam.to_bev(real_cam.vp_col, r as f64).map(|b| b.0))
         .collect();
     let mut real_snaps: Vec<Snapshot> = Vec::new();
-    let (mut preds, stats) = track::track_with(
-        &real_frames,
-        coupled,
-        &real_cam,
-        Space::Image,
-        TrackerConfig::DEFAULT,
-        |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &real_us)),
-    )?;
+    let (mut preds, stats) = if cams.iter().all(|c| *c == real_cam) {
+        track::track_with(
+            &real_frames,
+            coupled,
+            &real_cam,
+            Space::Image,
+            TrackerConfig::DEFAULT,
+            |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &real_us)),
+        )?
+    } else {
+        // A camera per image (estimated): each clip is tracked with its first frame's camera.
+        let (mut preds, mut stats) = (Vec::new(), track::TrackStats::default());
+        let mut start = 0;
+        while start < real_frames.len() {
+            let clip = &real_frames[start].clip;
+            let end = start + real_frames[start..].partition_point(|f| &f.clip == clip);
+            let cam = cams[start];
+            let us: Vec<f64> = real_us
+                .iter()
+                .filter_map(|&u| real_cam.row_at(u))
+                .filter_map(|r| cam.to_bev(cam.vp_col, r).map(|b| b.0))
+                .collect();
+            let (p, st) = track::track_with(
+                &real_frames[start..end],
+                coupled,
+                &cam,
+                Space::Image,
+                TrackerConfig::DEFAULT,
+                |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &us)),
+            )?;
+            let n = (stats.frames + st.frames).max(1) as f64;
+            let mean = |a: f64, b: f64| (a * stats.frames as f64 + b * st.frames as f64) / n;
+            stats.step_mean_ms = mean(stats.step_mean_ms, st.step_mean_ms);
+            stats.run_mean_ms = mean(stats.run_mean_ms, st.run_mean_ms);
+            stats.step_max_ms = stats.step_max_ms.max(st.step_max_ms);
+            stats.run_max_ms = stats.run_max_ms.max(st.run_max_ms);
+            stats.frames += st.frames;
+            stats.clips += st.clips;
+            stats.predictions += st.predictions;
+            stats.unmapped_points += st.unmapped_points;
+            stats.rejected_steps += st.rejected_steps;
+            preds.extend(p);
+            start = end;
+        }
+        (preds, stats)
+    };
     let fe_by_file: HashMap<&str, f64> = real_frames
         .iter()
         .zip(&fe_ms)
@@ -984,6 +1025,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     let real = run_real(
         &real_dir,
         &real_labels,
+        &frontend::CameraMode::TuSimple,
         &FrontendParams::default(),
         opts.score_run_time,
     )?;

@@ -118,6 +118,10 @@ pub struct FrontendParams {
     pub max_slope: f64,
     /// Parallel-lane filter: largest curvature (1/m) searched.
     pub max_curvature: f64,
+    /// Output samples of each kept line's fitted curve, one per image row, between its nearest
+    /// and farthest peaks, across gaps between peaks of at most this length (m); 0 = output the
+    /// peaks themselves.
+    pub fill_gap: f64,
 }
 
 impl Default for FrontendParams {
@@ -144,6 +148,7 @@ impl Default for FrontendParams {
             lane_tol: 0.15,
             max_slope: 0.3,
             max_curvature: 0.004,
+            fill_gap: 12.0,
         }
     }
 }
@@ -171,6 +176,7 @@ impl FrontendParams {
             "lane_tol" => &mut self.lane_tol,
             "max_slope" => &mut self.max_slope,
             "max_curvature" => &mut self.max_curvature,
+            "fill_gap" => &mut self.fill_gap,
             "support_rows" => {
                 self.support_rows = v.round().max(0.0) as usize;
                 return Ok(());
@@ -491,6 +497,7 @@ fn lane_filter(peaks: &[(f64, f64)], cam: &Camera, p: &FrontendParams) -> Vec<(f
     // Each lane's own curve: x = c + s·u + κu²/2 + a + b·u, (a, b) by weighted least squares on
     // the peaks within a band, twice with the band narrowed to the tolerance.
     let mut keep = vec![false; pts.len()];
+    let mut filled: Vec<(f64, f64)> = Vec::new();
     for &c in &lanes {
         let base = |u: f64| c + s * u + 0.5 * k * u * u;
         let (mut a, mut b) = (0.0, 0.0);
@@ -524,10 +531,34 @@ fn lane_filter(peaks: &[(f64, f64)], cam: &Camera, p: &FrontendParams) -> Vec<(f
             support += pts[i].2;
         }
         if support >= p.lane_support {
+            if p.fill_gap > 0.0 {
+                let mut us: Vec<f64> = idx.iter().map(|&i| pts[i].0).collect();
+                us.sort_by(f64::total_cmp);
+                for w in us.windows(2) {
+                    if w[1] - w[0] > p.fill_gap {
+                        continue;
+                    }
+                    let (r0, r1) = (cam.row_at(w[1]), cam.row_at(w[0]));
+                    let (Some(r0), Some(r1)) = (r0, r1) else { continue };
+                    let mut r = r0.ceil();
+                    while r <= r1.floor() {
+                        if let Some((u, _)) = cam.to_bev(cam.vp_col, r) {
+                            if !filled.iter().any(|q: &(f64, f64)| q.0 == u && (q.1 - base(u) - a - b * u).abs() < 0.3) {
+                                filled.push((u, base(u) + a + b * u));
+                            }
+                        }
+                        r += 1.0;
+                    }
+                }
+            }
             for i in idx {
                 keep[i] = true;
             }
         }
+    }
+    if p.fill_gap > 0.0 {
+        filled.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.total_cmp(&b.1)));
+        return filled;
     }
     peaks
         .iter()
@@ -604,6 +635,124 @@ pub fn camera_for(img: &RgbImage, camera: Option<&Camera>) -> Result<Camera> {
     Ok(cam)
 }
 
+/// How the front end gets each image's camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CameraMode {
+    /// The TuSimple camera scaled to each image ([`camera_for`] with no camera).
+    TuSimple,
+    /// This camera for every image (its size must match).
+    Given(Camera),
+    /// The horizon and the vanishing column estimated from each image
+    /// ([`estimate_vanishing_point`]); the camera height and focal length from this guess
+    /// (scaled to the image's width), which is also used when the estimate fails.
+    Estimate(Camera),
+}
+
+/// The vanishing point of the road's markings in `img`, `(column, row)`: every strong
+/// grey-level edge (the strongest 10 %) below 0.55 × the height that is neither
+/// near-horizontal nor near-vertical votes, weighted by its gradient magnitude × its distance
+/// to the candidate row, for the points of its line on the candidate horizon rows
+/// (`0.15–0.5 × height`); the most-voted point (votes smoothed over ±2 px) wins. Lane markings, kerbs and barriers all run towards the vanishing point; car
+/// edges (vertical or horizontal) do not vote or spread their votes. `None` if fewer than 200
+/// edge pixels vote (no road markings to go by).
+pub fn estimate_vanishing_point(img: &RgbImage) -> Option<(f64, f64)> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    if w < 16 || h < 16 {
+        return None;
+    }
+    let grey: Vec<f32> = img
+        .pixels()
+        .map(|p| 0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2]))
+        .collect();
+    let g = |c: usize, r: usize| grey[r * w + c];
+    let (r0, r1) = (h * 11 / 20, h - 2);
+    // Sobel gradients of the lower half; the threshold is the 90th percentile of the magnitude.
+    let mut edges: Vec<(f32, f32, f32, f32)> = Vec::new();
+    for r in r0..=r1 {
+        for c in 1..w - 1 {
+            let gx = g(c + 1, r - 1) + 2.0 * g(c + 1, r) + g(c + 1, r + 1)
+                - g(c - 1, r - 1)
+                - 2.0 * g(c - 1, r)
+                - g(c - 1, r + 1);
+            let gy = g(c - 1, r + 1) + 2.0 * g(c, r + 1) + g(c + 1, r + 1)
+                - g(c - 1, r - 1)
+                - 2.0 * g(c, r - 1)
+                - g(c + 1, r - 1);
+            let m = (gx * gx + gy * gy).sqrt();
+            if m > 40.0 {
+                edges.push((c as f32, r as f32, gx, gy));
+            }
+        }
+    }
+    let mut mags: Vec<f32> = edges.iter().map(|e| e.2.hypot(e.3)).collect();
+    if mags.len() < 200 {
+        return None;
+    }
+    let k = mags.len() * 9 / 10;
+    let thr = *mags.select_nth_unstable_by(k, f32::total_cmp).1;
+    let (y_lo, y_hi) = ((0.15 * h as f64) as usize, (0.5 * h as f64) as usize);
+    let ny = y_hi - y_lo + 1;
+    let mut acc = vec![0.0f32; ny * w];
+    let mut voters = 0usize;
+    for &(c, r, gx, gy) in &edges {
+        let m = gx.hypot(gy);
+        if m < thr {
+            continue;
+        }
+        // Line direction (dc, dr) ⟂ gradient; skip near-horizontal and near-vertical lines.
+        let (dc, dr) = (-gy / m, gx / m);
+        if dr.abs() < 0.3 || dc.abs() < 0.1 {
+            continue;
+        }
+        voters += 1;
+        let slope = dc / dr;
+        for (yi, y) in (y_lo..=y_hi).enumerate() {
+            let x = c + (y as f32 - r) * slope;
+            if x >= 0.0 && x < w as f32 {
+                // A line's crossing spreads with the distance from its pixel (its angle is
+                // uncertain): weighting by that distance makes near and far rows comparable.
+                acc[yi * w + x as usize] += m * (r - y as f32) / h as f32;
+            }
+        }
+    }
+    if voters < 200 {
+        return None;
+    }
+    // Smooth ±2 px and take the maximum.
+    let mut best = (0usize, 0usize, f32::NEG_INFINITY);
+    for yi in 2..ny.saturating_sub(2) {
+        for x in 2..w - 2 {
+            let mut v = 0.0;
+            for dy in 0..5 {
+                v += acc[(yi + dy - 2) * w + x - 2..=(yi + dy - 2) * w + x + 2]
+                    .iter()
+                    .sum::<f32>();
+            }
+            if v > best.2 {
+                best = (x, yi, v);
+            }
+        }
+    }
+    Some((best.0 as f64, (y_lo + best.1) as f64))
+}
+
+/// The camera of `img` under `mode` (see [`CameraMode`]).
+pub fn camera_with(img: &RgbImage, mode: &CameraMode) -> Result<Camera> {
+    match mode {
+        CameraMode::TuSimple => camera_for(img, None),
+        CameraMode::Given(c) => camera_for(img, Some(c)),
+        CameraMode::Estimate(guess) => {
+            let mut cam = guess.scaled(f64::from(img.width()) / guess.width);
+            cam.height = f64::from(img.height());
+            if let Some((c, r)) = estimate_vanishing_point(img) {
+                cam.vp_col = c;
+                cam.vp_row = r;
+            }
+            Ok(cam)
+        }
+    }
+}
+
 /// Run the front end on every image under `dir` (see [`find_images`]): one [`Frame`] per image,
 /// `raw_file` = its path relative to `dir`, `clip` = that path's folder, `t` = (n − 1)·0.05 s for
 /// a file named `n.jpg` (TuSimple's 20 fps clips) or the image's index in its folder × 0.05 s,
@@ -629,18 +778,36 @@ pub fn run_dir_timed(
     camera: Option<&Camera>,
     labels: &[TuSimpleRecord],
     p: &FrontendParams,
-    mut progress: impl FnMut(usize, usize),
+    progress: impl FnMut(usize, usize),
 ) -> Result<Vec<(Frame, f64)>> {
+    let mode = camera.map_or(CameraMode::TuSimple, |c| CameraMode::Given(*c));
+    Ok(run_dir_cameras(dir, &mode, labels, p, progress)?
+        .into_iter()
+        .map(|(f, ms, _)| (f, ms))
+        .collect())
+}
+
+/// [`run_dir_timed`] with the camera of each image from `mode`, also returning that camera
+/// (the time includes estimating it).
+pub fn run_dir_cameras(
+    dir: &Path,
+    mode: &CameraMode,
+    labels: &[TuSimpleRecord],
+    p: &FrontendParams,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<(Frame, f64, Camera)>> {
     let files = find_images(dir)?;
     if files.is_empty() {
         bail!("no *.jpg or *.png images under {}", dir.display());
     }
     let mut frames: Vec<Frame> = Vec::with_capacity(files.len());
     let mut times = Vec::with_capacity(files.len());
+    let mut cams = Vec::with_capacity(files.len());
     for (n, path) in files.iter().enumerate() {
         let img = load_rgb(path)?;
-        let cam = camera_for(&img, camera).with_context(|| format!("{}", path.display()))?;
         let start = std::time::Instant::now();
+        let cam = camera_with(&img, mode).with_context(|| format!("{}", path.display()))?;
+        cams.push(cam);
         let points = detect(&img, &cam, p).with_context(|| format!("{}", path.display()))?;
         times.push(start.elapsed().as_secs_f64() * 1e3);
         let raw_file = raw_file_of(dir, path);
@@ -670,7 +837,12 @@ pub fn run_dir_timed(
         });
         progress(n + 1, files.len());
     }
-    Ok(frames.into_iter().zip(times).collect())
+    Ok(frames
+        .into_iter()
+        .zip(times)
+        .zip(cams)
+        .map(|((f, t), c)| (f, t, c))
+        .collect())
 }
 
 /// Draw `points` (red dots, 3×3 px) and, if given, labelled `lanes` (green dots at the label
