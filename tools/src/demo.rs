@@ -354,6 +354,9 @@ pub struct DemoReport {
     pub robustness: Option<RobustnessReport>,
     /// Per real frame.
     pub real_frames: Vec<RealFrameResult>,
+    /// The real frames through the front end with the horizon estimated from each image
+    /// instead of the calibration ([`frontend::CameraMode::Estimate`] of [`Camera::guess`]).
+    pub real_uncalibrated: Score,
     /// Replay clips per run.
     pub replay_clips: usize,
     /// Frames per replay clip.
@@ -1042,6 +1045,16 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         .iter()
         .map(|g| scale_record(g, REAL_TO_TUSIMPLE))
         .collect();
+    // The same frames without the calibration: horizon and vanishing column from each image,
+    // height and focal length guessed (Camera::guess).
+    let real_uncalibrated = run_real(
+        &real_dir,
+        &real_labels,
+        &frontend::CameraMode::Estimate(Camera::guess(real_cam.width, real_cam.height)),
+        &FrontendParams::default(),
+        opts.score_run_time,
+    )?
+    .score;
     let run_times: Vec<f64> = real_results.iter().map(|r| r.run_time_ms).collect();
     rows.push(DemoRow {
         input: Input::Real,
@@ -1171,6 +1184,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         merge_split,
         robustness,
         real_frames: real_results,
+        real_uncalibrated,
         replay_clips: labels.len(),
         frames_per_clip: opts
             .frames_per_clip
@@ -1287,6 +1301,11 @@ pub fn render_markdown(r: &DemoReport) -> String {
             f.frontend_ms
         ));
     }
+    s.push_str(&format!(
+        "\nReal frames without the calibration (horizon and vanishing column estimated from each \
+         image, camera height and focal length guessed): accuracy {:.3}, FP {:.3}, FN {:.3}.\n",
+        r.real_uncalibrated.accuracy, r.real_uncalibrated.fp, r.real_uncalibrated.fn_
+    ));
     s.push_str(&render_identity(r));
     if let Some(rob) = &r.robustness {
         s.push_str(&render_robustness(rob));
