@@ -48,8 +48,12 @@ fn main() -> anyhow::Result<()> {
                     let u = 43.0 - f64::from(r) * 0.1;
                     let x = -8.0 + f64::from(c) * 0.04;
                     cam.to_image(u, x)
-                        .filter(|&(c, r)| c >= 0.0 && r >= 0.0 && c < cam.width - 1.0 && r < cam.height - 1.0)
-                        .map_or(image::Rgb([0, 0, 0]), |(c, r)| *img.get_pixel(c as u32, r as u32))
+                        .filter(|&(c, r)| {
+                            c >= 0.0 && r >= 0.0 && c < cam.width - 1.0 && r < cam.height - 1.0
+                        })
+                        .map_or(image::Rgb([0, 0, 0]), |(c, r)| {
+                            *img.get_pixel(c as u32, r as u32)
+                        })
                 });
                 let mut out = out;
                 for &q in &pts {
