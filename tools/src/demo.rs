@@ -16,7 +16,10 @@
 //!    predictions and labels are scaled back by 2.5 before scoring, so that the metric's 20 px
 //!    threshold means what it means on TuSimple's 1280×720 frames (scoring at 512×288 would
 //!    accept 50 px errors at full size). The same frames are also run with the labelled lanes
-//!    as feature points (every image row): the tracker without the front end's errors.
+//!    as feature points (every image row): the tracker without the front end's errors, and
+//!    once more without the calibration (horizon and vanishing column estimated from each
+//!    image, [`frontend::CameraMode::Estimate`]). Per frame: the feature points' precision and
+//!    recall against the labels ([`frontend::score`]) and the front end's time.
 //! 3. **Smoother**: on the replay frames that have a fixed-lag estimate (all but the last L of a
 //!    clip), the smoothed lanes against the filtered ones, both on the per-frame ground truth
 //!    ([`SmootherScore`]).
