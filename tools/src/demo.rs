@@ -50,7 +50,8 @@
 //! * `replay_bev.png`: one replay clip in the bird's-eye view at three frames: feature points,
 //!   ground truth, the tracked lanes with their ±2σ bands (`Tracker::lane_at`);
 //! * `real/<clip>.png`: each real frame with its feature points, the labelled lanes and the
-//!   tracked lanes with their ±2σ bands through the inverse IPM;
+//!   tracked lanes with their ±2σ bands through the inverse IPM (a line over a lane's observed
+//!   extent, dots where it is extrapolated);
 //! * `real_frames.jsonl`, `real_predictions.jsonl`: the real frames' feature points and the
 //!   tracker's predictions (512×288 pixels; `stjpdacf eval --pixel-scale 2.5` reproduces the
 //!   real-frame scores from them).
@@ -377,24 +378,30 @@ pub struct DemoReport {
 struct Snapshot {
     frame: Frame,
     bands: Vec<LaneBand>,
+    /// Each band's observed extent `(u_first, u_last)` (`LaneEstimate`), in `bands`' order.
+    observed: Vec<(f64, f64)>,
 }
 
 /// A frame and its published lanes (seen within `MAX_REPORT_MISSES` frames) sampled at `us`.
 fn snapshot(v: &FrameView<'_>, tables: &ReferenceTables, us: &[f64]) -> Snapshot {
-    let bands = v
+    let (bands, observed) = v
         .output
         .map(|o| {
             o.filtered
                 .iter()
                 .filter(|l| l.misses <= MAX_REPORT_MISSES)
-                .map(|l| lane_band(v.tracker, tables, l, us.iter().copied()))
-                .filter(|b| !b.points.is_empty())
-                .collect()
+                .map(|l| {
+                    let b = lane_band(v.tracker, tables, l, us.iter().copied());
+                    (b, (f64::from(l.u_first), f64::from(l.u_last)))
+                })
+                .filter(|(b, _)| !b.points.is_empty())
+                .unzip()
         })
         .unwrap_or_default();
     Snapshot {
         frame: v.frame.clone(),
         bands,
+        observed,
     }
 }
 
@@ -1035,15 +1042,6 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         &FrontendParams::default(),
         opts.score_run_time,
     )?;
-    let RealRun {
-        frames: real_frames,
-        preds,
-        results: real_results,
-        score: real_score,
-        stats,
-        camera: real_cam,
-        snaps: real_snaps,
-    } = real;
     let scaled_gt: Vec<TuSimpleRecord> = real_labels
         .iter()
         .map(|g| scale_record(g, REAL_TO_TUSIMPLE))
@@ -1053,20 +1051,20 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     let real_uncalibrated = run_real(
         &real_dir,
         &real_labels,
-        &frontend::CameraMode::Estimate(Camera::guess(real_cam.width, real_cam.height)),
+        &frontend::CameraMode::Estimate(Camera::guess(real.camera.width, real.camera.height)),
         &FrontendParams::default(),
         opts.score_run_time,
     )?
     .score;
-    let run_times: Vec<f64> = real_results.iter().map(|r| r.run_time_ms).collect();
+    let run_times: Vec<f64> = real.results.iter().map(|r| r.run_time_ms).collect();
     rows.push(DemoRow {
         input: Input::Real,
         noise: None,
         coupling: Coupling::Coupled,
-        score: real_score,
+        score: real.score,
         score_all: None,
-        frames: stats.frames,
-        clips: stats.clips,
+        frames: real.stats.frames,
+        clips: real.stats.clips,
         ids_per_clip: None,
         gt_lanes_per_clip: None,
         true_lanes_per_clip: None,
@@ -1081,7 +1079,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     let (lp, lstats) = track::track_with(
         &label_frames,
         coupled,
-        &real_cam,
+        &real.camera,
         Space::Image,
         TrackerConfig::DEFAULT,
         |_: FrameView<'_>| {},
@@ -1108,10 +1106,10 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         run_time_max_ms: lstats.run_max_ms,
     });
     let p = opts.out.join("real_frames.jsonl");
-    tusimple::write_frames(&p, &real_frames)?;
+    tusimple::write_frames(&p, &real.frames)?;
     files.push(p);
     let p = opts.out.join("real_predictions.jsonl");
-    tusimple::write_records(&p, &preds)?;
+    tusimple::write_records(&p, &real.preds)?;
     files.push(p);
 
     // Robustness: clutter × 1, 2, 4, 8 and distractors, tracker vs the RANSAC baseline.
@@ -1159,13 +1157,13 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         }
         let dir = opts.out.join("real");
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        for snap in &real_snaps {
+        for snap in &real.snaps {
             let Some(raw) = snap.frame.raw_file.as_deref() else {
                 continue;
             };
             let img = frontend::load_rgb(&real_dir.join(raw))?;
             let gt = real_labels.iter().find(|l| l.raw_file == raw);
-            let caption = match real_results.iter().find(|r| r.raw_file == raw) {
+            let caption = match real.results.iter().find(|r| r.raw_file == raw) {
                 Some(r) => format!(
                     "{raw}: accuracy {:.2}, FP {:.2}, FN {:.2} (one frame)",
                     r.score.accuracy, r.score.fp, r.score.fn_
@@ -1178,7 +1176,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                     .trim_end_matches(".jpg")
                     .replace('/', "_")
             ));
-            draw_frame_overlay(&img, &real_cam, snap, gt, &caption, &p)?;
+            draw_frame_overlay(&img, &real.camera, snap, gt, &caption, &p)?;
             files.push(p);
         }
     }
@@ -1186,7 +1184,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         rows,
         merge_split,
         robustness,
-        real_frames: real_results,
+        real_frames: real.results,
         real_uncalibrated,
         replay_clips: labels.len(),
         frames_per_clip: opts
@@ -1483,7 +1481,8 @@ fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
 const CAPTION_PX: u32 = 20;
 
 /// One real frame: the image in grey, feature points (red), labelled lanes (green), the tracked
-/// lanes (colour by id) with their ±2σ bands, through the inverse IPM; a caption strip on top.
+/// lanes (colour by id: a line over their observed extent, dots where extrapolated) with their
+/// ±2σ bands, through the inverse IPM; a caption strip on top.
 fn draw_frame_overlay(
     img: &RgbImage,
     cam: &Camera,
@@ -1551,10 +1550,31 @@ fn draw_frame_overlay(
             ))
             .map_err(plot_err)?;
         }
-        for b in &snap.bands {
-            let pts: Vec<(i32, i32)> = b.points.iter().filter_map(|p| px(p.u, p.x)).collect();
+        // Each lane: solid over its observed extent, dots where it is extrapolated.
+        for (k, b) in snap.bands.iter().enumerate() {
+            let (u0, u1) = snap
+                .observed
+                .get(k)
+                .copied()
+                .unwrap_or((f64::MIN, f64::MAX));
+            let seen = |u: f64| u >= u0 && u <= u1;
+            let pts: Vec<(i32, i32)> = b
+                .points
+                .iter()
+                .filter(|p| seen(p.u))
+                .filter_map(|p| px(p.u, p.x))
+                .collect();
             root.draw(&PathElement::new(pts, lane_colour(b.id).stroke_width(2)))
                 .map_err(plot_err)?;
+            for (i, p) in b.points.iter().enumerate() {
+                if seen(p.u) || i % 3 != 0 {
+                    continue;
+                }
+                if let Some(q) = px(p.u, p.x) {
+                    root.draw(&Circle::new(q, 1, lane_colour(b.id).filled()))
+                        .map_err(plot_err)?;
+                }
+            }
         }
         root.draw(&Rectangle::new(
             [(0, 0), (w as i32, CAPTION_PX as i32)],
