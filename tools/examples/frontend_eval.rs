@@ -2,18 +2,30 @@
 //! 512×288 TuSimple frames (`frontend::TUNING_SET`, `frontend::HELD_OUT_SET`), with the default
 //! parameters, or with `name=value` overrides given as arguments (for tuning on the tuning set).
 //!
-//! `cargo run --release -p stjpdacf-tools --example frontend_eval [name=value …]`
+//! `cargo run --release -p stjpdacf-tools --example frontend_eval [--png=DIR] [name=value …]`
+//! (`--png=DIR`: also write each frame's overlay, feature points red and labels green, to DIR)
 
 use std::time::Instant;
 
-use stjpdacf_tools::frontend::{self, FrontendParams, HELD_OUT_SET, TUNING_SET};
+use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams, HELD_OUT_SET, TUNING_SET};
 use stjpdacf_tools::tusimple::read_labels;
 
 fn main() -> anyhow::Result<()> {
     let dir = stjpdacf_tools::repo_root().join("data/tusimple/sample_512x288");
     let labels = read_labels(&dir.join("label_data.json"))?;
     let mut p = FrontendParams::default();
+    let mut png: Option<std::path::PathBuf> = None;
+    let mut bev: Option<std::path::PathBuf> = None;
     for a in std::env::args().skip(1) {
+        if let Some(d) = a.strip_prefix("--bev=") {
+            bev = Some(d.into());
+            continue;
+        }
+        if let Some(d) = a.strip_prefix("--png=") {
+            png = Some(d.into());
+            continue;
+        }
         let (k, v) = a
             .split_once('=')
             .ok_or_else(|| anyhow::anyhow!("expected name=value: {a}"))?;
@@ -28,6 +40,37 @@ fn main() -> anyhow::Result<()> {
             let pts = frontend::detect(&img, &cam, &p)?;
             ms += t0.elapsed().as_secs_f64() * 1e3;
             let l = labels.iter().find(|l| l.raw_file == raw).expect("label");
+            if let Some(d) = &bev {
+                std::fs::create_dir_all(d)?;
+                let name = raw.replace('/', "_").replace(".jpg", ".png");
+                // u 3..43 m at 0.1 m (far at the top), x ±8 m at 0.04 m.
+                let out = image::RgbImage::from_fn(400, 400, |c, r| {
+                    let u = 43.0 - f64::from(r) * 0.1;
+                    let x = -8.0 + f64::from(c) * 0.04;
+                    cam.to_image(u, x)
+                        .filter(|&(c, r)| {
+                            c >= 0.0 && r >= 0.0 && c < cam.width - 1.0 && r < cam.height - 1.0
+                        })
+                        .map_or(image::Rgb([0, 0, 0]), |(c, r)| {
+                            *img.get_pixel(c as u32, r as u32)
+                        })
+                });
+                let mut out = out;
+                for &q in &pts {
+                    if let Some((u, x)) = cam.to_bev(q[0], q[1]) {
+                        let (c, r) = ((x + 8.0) / 0.04, (43.0 - u) / 0.1);
+                        if c >= 0.0 && r >= 0.0 && c < 400.0 && r < 400.0 {
+                            out.put_pixel(c as u32, r as u32, image::Rgb([255, 0, 0]));
+                        }
+                    }
+                }
+                out.save(d.join(name))?;
+            }
+            if let Some(d) = &png {
+                std::fs::create_dir_all(d)?;
+                let name = raw.replace('/', "_").replace(".jpg", ".png");
+                frontend::overlay_png(&dir.join(raw), &pts, Some(l), &d.join(name))?;
+            }
             let (a, b, r) = frontend::score(&pts, l, 1.0, 6.0);
             println!(
                 "  {raw}: {b} points, precision {:.3}, lane recall {r:.2?}",
@@ -44,6 +87,28 @@ fn main() -> anyhow::Result<()> {
             tp as f64 / n as f64,
             rec.len(),
             ms / set.len() as f64
+        );
+    }
+    // End to end: front end → tracker → official metric, all 10 frames, with the calibrated
+    // camera and with the horizon estimated from each image (no calibration: Camera::guess).
+    let guess = Camera::guess(1280.0, 720.0);
+    for (name, mode) in [
+        ("calibrated", CameraMode::TuSimple),
+        ("horizon estimated", CameraMode::Estimate(guess)),
+    ] {
+        let real = stjpdacf_tools::demo::run_real(&dir, &labels, &mode, &p, false)?;
+        for (r, f) in real.results.iter().zip(&real.frames) {
+            let img = frontend::load_rgb(&dir.join(f.raw_file.as_deref().unwrap_or("")))?;
+            let cam = frontend::camera_with(&img, &mode)?;
+            println!(
+                "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes), points P {:.2} R {:.2}, vanishing point ({:.1}, {:.1})",
+                r.raw_file, r.score.accuracy, r.score.fp, r.score.fn_, r.lanes, r.gt_lanes,
+                r.precision, r.recall, cam.vp_col, cam.vp_row
+            );
+        }
+        println!(
+            "tracker on the front end's points ({name}): accuracy {:.3}, FP {:.3}, FN {:.3}",
+            real.score.accuracy, real.score.fp, real.score.fn_
         );
     }
     Ok(())

@@ -47,6 +47,29 @@ impl Camera {
         }
     }
 
+    /// A guess for an uncalibrated `width`×`height` camera: the vanishing point at the image's
+    /// centre column and 0.4 of its height, camera height 1.5 m (a car), focal length 0.8 ×
+    /// width (a 64° horizontal field of view). Meant to be refined from the image
+    /// ([`crate::frontend::estimate_vanishing_point`]); the height only scales lateral metres
+    /// (a 20 % error makes a 3.7 m lane 3.0 or 4.4 m) and the focal length only longitudinal
+    /// ones.
+    pub fn guess(width: f64, height: f64) -> Self {
+        Self {
+            width,
+            height,
+            vp_col: 0.5 * width,
+            vp_row: 0.4 * height,
+            height_m: 1.5,
+            focal_px: 0.8 * width,
+        }
+    }
+
+    /// A CULane-style 1640×590 camera: [`Camera::guess`] at that size (CULane publishes no
+    /// calibration; estimate the horizon from the images).
+    pub fn culane() -> Self {
+        Self::guess(1640.0, 590.0)
+    }
+
     /// The same camera for an image resized by `s` (e.g. 0.4 for the 512×288 TuSimple sample):
     /// every pixel quantity is scaled, so BEV coordinates are unchanged.
     pub fn scaled(&self, s: f64) -> Self {
@@ -89,13 +112,17 @@ impl Camera {
 }
 
 impl Camera {
-    /// A camera from a command-line value: `tusimple` ([`Camera::tusimple`]) or the path of a
+    /// A camera from a command-line value: `tusimple` ([`Camera::tusimple`]), `culane`
+    /// ([`Camera::culane`]) or the path of a
     /// JSON file with the fields of [`Camera`] (`width`, `height`, `vp_col`, `vp_row`,
     /// `height_m`, `focal_px`).
     pub fn from_spec(spec: &str) -> anyhow::Result<Self> {
         use anyhow::Context;
         if spec == "tusimple" {
             return Ok(Self::tusimple());
+        }
+        if spec == "culane" {
+            return Ok(Self::culane());
         }
         let text = std::fs::read_to_string(spec)
             .with_context(|| format!("reading camera file {spec} (or use `tusimple`)"))?;

@@ -16,7 +16,10 @@
 //!    predictions and labels are scaled back by 2.5 before scoring, so that the metric's 20 px
 //!    threshold means what it means on TuSimple's 1280×720 frames (scoring at 512×288 would
 //!    accept 50 px errors at full size). The same frames are also run with the labelled lanes
-//!    as feature points (every image row): the tracker without the front end's errors.
+//!    as feature points (every image row): the tracker without the front end's errors, and
+//!    once more without the calibration (horizon and vanishing column estimated from each
+//!    image, [`frontend::CameraMode::Estimate`]). Per frame: the feature points' precision and
+//!    recall against the labels ([`frontend::score`]) and the front end's time.
 //! 3. **Smoother**: on the replay frames that have a fixed-lag estimate (all but the last L of a
 //!    clip), the smoothed lanes against the filtered ones, both on the per-frame ground truth
 //!    ([`SmootherScore`]).
@@ -47,7 +50,8 @@
 //! * `replay_bev.png`: one replay clip in the bird's-eye view at three frames: feature points,
 //!   ground truth, the tracked lanes with their ±2σ bands (`Tracker::lane_at`);
 //! * `real/<clip>.png`: each real frame with its feature points, the labelled lanes and the
-//!   tracked lanes with their ±2σ bands through the inverse IPM;
+//!   tracked lanes with their ±2σ bands through the inverse IPM (a line over a lane's observed
+//!   extent, dots where it is extrapolated);
 //! * `real_frames.jsonl`, `real_predictions.jsonl`: the real frames' feature points and the
 //!   tracker's predictions (512×288 pixels; `stjpdacf eval --pixel-scale 2.5` reproduces the
 //!   real-frame scores from them).
@@ -253,6 +257,11 @@ pub struct RealFrameResult {
     pub lanes: usize,
     /// Official frame score (at 1280×720 pixels).
     pub score: metric::FrameScore,
+    /// The feature points' precision ([`frontend::score`]: points on the labelled rows within
+    /// 6 px of a labelled lane).
+    pub precision: f64,
+    /// The feature points' mean lane recall ([`frontend::score`]).
+    pub recall: f64,
     /// Front end's detection time, ms.
     pub frontend_ms: f64,
     /// `run_time` written in the prediction: front end + tracker, ms.
@@ -358,6 +367,9 @@ pub struct DemoReport {
     pub robustness: Option<RobustnessReport>,
     /// Per real frame.
     pub real_frames: Vec<RealFrameResult>,
+    /// The real frames through the front end with the horizon estimated from each image
+    /// instead of the calibration ([`frontend::CameraMode::Estimate`] of [`Camera::guess`]).
+    pub real_uncalibrated: Score,
     /// Replay clips per run.
     pub replay_clips: usize,
     /// Frames per replay clip.
@@ -375,24 +387,30 @@ pub struct DemoReport {
 struct Snapshot {
     frame: Frame,
     bands: Vec<LaneBand>,
+    /// Each band's observed extent `(u_first, u_last)` (`LaneEstimate`), in `bands`' order.
+    observed: Vec<(f64, f64)>,
 }
 
 /// A frame and its published lanes (seen within `MAX_REPORT_MISSES` frames) sampled at `us`.
 fn snapshot(v: &FrameView<'_>, tables: &ReferenceTables, us: &[f64]) -> Snapshot {
-    let bands = v
+    let (bands, observed) = v
         .output
         .map(|o| {
             o.filtered
                 .iter()
                 .filter(|l| l.misses <= MAX_REPORT_MISSES)
-                .map(|l| lane_band(v.tracker, tables, l, us.iter().copied()))
-                .filter(|b| !b.points.is_empty())
-                .collect()
+                .map(|l| {
+                    let b = lane_band(v.tracker, tables, l, us.iter().copied());
+                    (b, (f64::from(l.u_first), f64::from(l.u_last)))
+                })
+                .filter(|(b, _)| !b.points.is_empty())
+                .unzip()
         })
         .unwrap_or_default();
     Snapshot {
         frame: v.frame.clone(),
         bands,
+        observed,
     }
 }
 
@@ -671,6 +689,171 @@ pub fn scale_record(r: &TuSimpleRecord, s: f64) -> TuSimpleRecord {
     out
 }
 
+/// The real frames through the image front end and the tracker (the demo's real section).
+#[derive(Debug, Clone)]
+pub struct RealRun {
+    /// The front end's frames (512×288 pixels).
+    pub frames: Vec<Frame>,
+    /// The tracker's predictions (512×288 pixels; `run_time` includes the front end's time).
+    pub preds: Vec<TuSimpleRecord>,
+    /// Per frame.
+    pub results: Vec<RealFrameResult>,
+    /// Official metric over the frames (at 1280×720).
+    pub score: Score,
+    /// The tracker's counters.
+    pub stats: track::TrackStats,
+    /// The camera the points were mapped with.
+    pub camera: Camera,
+    snaps: Vec<Snapshot>,
+}
+
+/// Runs the labelled images under `dir` (labels `labels`, 512×288) through the front end with
+/// parameters `p`, then the tracker (default tables, one tracker per clip), and scores them
+/// with the official metric at 1280×720 ([`REAL_TO_TUSIMPLE`]) and the feature points with
+/// [`frontend::score`].
+pub fn run_real(
+    dir: &Path,
+    labels: &[TuSimpleRecord],
+    mode: &frontend::CameraMode,
+    p: &FrontendParams,
+    score_run_time: bool,
+) -> Result<RealRun> {
+    let coupled: &'static ReferenceTables = &stjpdacf::tables::DEFAULT;
+    let timed = frontend::run_dir_cameras(dir, mode, labels, p, |_, _| {})?;
+    let mut real_frames = Vec::with_capacity(timed.len());
+    let mut fe_ms = Vec::with_capacity(timed.len());
+    let mut cams = Vec::with_capacity(timed.len());
+    for (f, ms, c) in timed {
+        real_frames.push(f);
+        fe_ms.push(ms);
+        cams.push(c);
+    }
+    let real_cam = *cams.first().context("no real frames")?;
+    // Bands at every image row from the bottom up to the first labelled row.
+    let top_row = labels
+        .iter()
+        .flat_map(|l| l.h_samples.first().copied())
+        .fold(real_cam.vp_row + 1.0, f64::min)
+        .max(real_cam.vp_row + 1.0);
+    let real_us: Vec<f64> = (top_row.ceil() as i64..real_cam.height as i64)
+        .rev()
+        .filter_map(|r| real_cam.to_bev(real_cam.vp_col, r as f64).map(|b| b.0))
+        .collect();
+    let mut real_snaps: Vec<Snapshot> = Vec::new();
+    let (mut preds, stats) = if cams.iter().all(|c| *c == real_cam) {
+        track::track_with(
+            &real_frames,
+            coupled,
+            &real_cam,
+            Space::Image,
+            TrackerConfig::DEFAULT,
+            |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &real_us)),
+        )?
+    } else {
+        // A camera per image (estimated): each clip is tracked with its first frame's camera.
+        let (mut preds, mut stats) = (Vec::new(), track::TrackStats::default());
+        let mut start = 0;
+        while start < real_frames.len() {
+            let clip = &real_frames[start].clip;
+            let end = start + real_frames[start..].partition_point(|f| &f.clip == clip);
+            let cam = cams[start];
+            let us: Vec<f64> = real_us
+                .iter()
+                .filter_map(|&u| real_cam.row_at(u))
+                .filter_map(|r| cam.to_bev(cam.vp_col, r).map(|b| b.0))
+                .collect();
+            let (p, st) = track::track_with(
+                &real_frames[start..end],
+                coupled,
+                &cam,
+                Space::Image,
+                TrackerConfig::DEFAULT,
+                |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &us)),
+            )?;
+            let n = (stats.frames + st.frames).max(1) as f64;
+            let mean = |a: f64, b: f64| (a * stats.frames as f64 + b * st.frames as f64) / n;
+            stats.step_mean_ms = mean(stats.step_mean_ms, st.step_mean_ms);
+            stats.run_mean_ms = mean(stats.run_mean_ms, st.run_mean_ms);
+            stats.step_max_ms = stats.step_max_ms.max(st.step_max_ms);
+            stats.run_max_ms = stats.run_max_ms.max(st.run_max_ms);
+            stats.frames += st.frames;
+            stats.clips += st.clips;
+            stats.predictions += st.predictions;
+            stats.unmapped_points += st.unmapped_points;
+            stats.rejected_steps += st.rejected_steps;
+            preds.extend(p);
+            start = end;
+        }
+        (preds, stats)
+    };
+    let fe_by_file: HashMap<&str, f64> = real_frames
+        .iter()
+        .zip(&fe_ms)
+        .filter_map(|(f, &ms)| f.raw_file.as_deref().map(|r| (r, ms)))
+        .collect();
+    for p in &mut preds {
+        let fe = fe_by_file.get(p.raw_file.as_str()).copied().unwrap_or(0.0);
+        p.run_time = p.run_time.map(|t| t + fe);
+    }
+    let scaled_preds: Vec<TuSimpleRecord> = preds
+        .iter()
+        .map(|p| scale_record(p, REAL_TO_TUSIMPLE))
+        .collect();
+    let scaled_gt: Vec<TuSimpleRecord> = labels
+        .iter()
+        .map(|g| scale_record(g, REAL_TO_TUSIMPLE))
+        .collect();
+    let real_score = score_on(&scaled_preds, &scaled_gt, score_run_time)?;
+    let mut real_results = Vec::new();
+    for p in &scaled_preds {
+        let g = scaled_gt
+            .iter()
+            .find(|g| g.raw_file == p.raw_file)
+            .context("prediction without label")?;
+        let fe = fe_by_file.get(p.raw_file.as_str()).copied().unwrap_or(0.0);
+        let run_time = p.run_time.unwrap_or(0.0);
+        let frame = real_frames
+            .iter()
+            .find(|f| f.raw_file.as_deref() == Some(p.raw_file.as_str()));
+        let label = labels.iter().find(|l| l.raw_file == p.raw_file);
+        let (precision, recall) = match (frame, label) {
+            (Some(f), Some(l)) => {
+                let (tp, n, rec) = frontend::score(&f.points, l, 1.0, 6.0);
+                (
+                    tp as f64 / n.max(1) as f64,
+                    rec.iter().sum::<f64>() / rec.len().max(1) as f64,
+                )
+            }
+            _ => (0.0, 0.0),
+        };
+        real_results.push(RealFrameResult {
+            raw_file: p.raw_file.clone(),
+            points: frame.map_or(0, |f| f.points.len()),
+            gt_lanes: g.lanes.len(),
+            lanes: p.lanes.len(),
+            score: metric::bench(
+                &p.lanes,
+                &g.lanes,
+                &g.h_samples,
+                if score_run_time { run_time } else { 0.0 },
+            )?,
+            precision,
+            recall,
+            frontend_ms: fe,
+            run_time_ms: run_time,
+        });
+    }
+    Ok(RealRun {
+        frames: real_frames,
+        preds,
+        results: real_results,
+        score: real_score,
+        stats,
+        camera: real_cam,
+        snaps: real_snaps,
+    })
+}
+
 /// Runs the demo (see the module doc). `progress(done, total, what)` is called before each
 /// stage.
 ///
@@ -855,92 +1038,36 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     done += 1;
     let real_dir = opts.data.join(REAL_FRAMES);
     let real_labels = tusimple::read_labels(&real_dir.join("label_data.json"))?;
-    let timed = frontend::run_dir_timed(
+    let real = run_real(
         &real_dir,
-        None,
         &real_labels,
+        &frontend::CameraMode::TuSimple,
         &FrontendParams::default(),
-        |_, _| {},
+        opts.score_run_time,
     )?;
-    let (real_frames, fe_ms): (Vec<Frame>, Vec<f64>) = timed.into_iter().unzip();
-    let first = real_frames
-        .first()
-        .and_then(|f| f.raw_file.as_deref())
-        .context("no real frames")?;
-    let img0 = frontend::load_rgb(&real_dir.join(first))?;
-    let real_cam = frontend::camera_for(&img0, None)?;
-    // Bands at every image row from the bottom up to the first labelled row.
-    let top_row = real_labels
-        .iter()
-        .flat_map(|l| l.h_samples.first().copied())
-        .fold(real_cam.vp_row + 1.0, f64::min)
-        .max(real_cam.vp_row + 1.0);
-    let real_us: Vec<f64> = (top_row.ceil() as i64..real_cam.height as i64)
-        .rev()
-        .filter_map(|r| real_cam.to_bev(real_cam.vp_col, r as f64).map(|b| b.0))
-        .collect();
-    let mut real_snaps: Vec<Snapshot> = Vec::new();
-    let (mut preds, stats) = track::track_with(
-        &real_frames,
-        coupled,
-        &real_cam,
-        Space::Image,
-        TrackerConfig::DEFAULT,
-        |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &real_us)),
-    )?;
-    let fe_by_file: HashMap<&str, f64> = real_frames
-        .iter()
-        .zip(&fe_ms)
-        .filter_map(|(f, &ms)| f.raw_file.as_deref().map(|r| (r, ms)))
-        .collect();
-    for p in &mut preds {
-        let fe = fe_by_file.get(p.raw_file.as_str()).copied().unwrap_or(0.0);
-        p.run_time = p.run_time.map(|t| t + fe);
-    }
-    let scaled_preds: Vec<TuSimpleRecord> = preds
-        .iter()
-        .map(|p| scale_record(p, REAL_TO_TUSIMPLE))
-        .collect();
     let scaled_gt: Vec<TuSimpleRecord> = real_labels
         .iter()
         .map(|g| scale_record(g, REAL_TO_TUSIMPLE))
         .collect();
-    let real_score = score_on(&scaled_preds, &scaled_gt, opts.score_run_time)?;
-    let mut real_results = Vec::new();
-    for p in &scaled_preds {
-        let g = scaled_gt
-            .iter()
-            .find(|g| g.raw_file == p.raw_file)
-            .context("prediction without label")?;
-        let fe = fe_by_file.get(p.raw_file.as_str()).copied().unwrap_or(0.0);
-        let run_time = p.run_time.unwrap_or(0.0);
-        real_results.push(RealFrameResult {
-            raw_file: p.raw_file.clone(),
-            points: real_frames
-                .iter()
-                .find(|f| f.raw_file.as_deref() == Some(p.raw_file.as_str()))
-                .map_or(0, |f| f.points.len()),
-            gt_lanes: g.lanes.len(),
-            lanes: p.lanes.len(),
-            score: metric::bench(
-                &p.lanes,
-                &g.lanes,
-                &g.h_samples,
-                if opts.score_run_time { run_time } else { 0.0 },
-            )?,
-            frontend_ms: fe,
-            run_time_ms: run_time,
-        });
-    }
-    let run_times: Vec<f64> = real_results.iter().map(|r| r.run_time_ms).collect();
+    // The same frames without the calibration: horizon and vanishing column from each image,
+    // height and focal length guessed (Camera::guess).
+    let real_uncalibrated = run_real(
+        &real_dir,
+        &real_labels,
+        &frontend::CameraMode::Estimate(Camera::guess(real.camera.width, real.camera.height)),
+        &FrontendParams::default(),
+        opts.score_run_time,
+    )?
+    .score;
+    let run_times: Vec<f64> = real.results.iter().map(|r| r.run_time_ms).collect();
     rows.push(DemoRow {
         input: Input::Real,
         noise: None,
         coupling: Coupling::Coupled,
-        score: real_score,
+        score: real.score,
         score_all: None,
-        frames: stats.frames,
-        clips: stats.clips,
+        frames: real.stats.frames,
+        clips: real.stats.clips,
         ids_per_clip: None,
         gt_lanes_per_clip: None,
         true_lanes_per_clip: None,
@@ -955,7 +1082,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     let (lp, lstats) = track::track_with(
         &label_frames,
         coupled,
-        &real_cam,
+        &real.camera,
         Space::Image,
         TrackerConfig::DEFAULT,
         |_: FrameView<'_>| {},
@@ -982,10 +1109,10 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         run_time_max_ms: lstats.run_max_ms,
     });
     let p = opts.out.join("real_frames.jsonl");
-    tusimple::write_frames(&p, &real_frames)?;
+    tusimple::write_frames(&p, &real.frames)?;
     files.push(p);
     let p = opts.out.join("real_predictions.jsonl");
-    tusimple::write_records(&p, &preds)?;
+    tusimple::write_records(&p, &real.preds)?;
     files.push(p);
 
     // Robustness: clutter × 1, 2, 4, 8 and distractors, tracker vs the RANSAC baseline.
@@ -1033,13 +1160,13 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         }
         let dir = opts.out.join("real");
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        for snap in &real_snaps {
+        for snap in &real.snaps {
             let Some(raw) = snap.frame.raw_file.as_deref() else {
                 continue;
             };
             let img = frontend::load_rgb(&real_dir.join(raw))?;
             let gt = real_labels.iter().find(|l| l.raw_file == raw);
-            let caption = match real_results.iter().find(|r| r.raw_file == raw) {
+            let caption = match real.results.iter().find(|r| r.raw_file == raw) {
                 Some(r) => format!(
                     "{raw}: accuracy {:.2}, FP {:.2}, FN {:.2} (one frame)",
                     r.score.accuracy, r.score.fp, r.score.fn_
@@ -1052,7 +1179,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                     .trim_end_matches(".jpg")
                     .replace('/', "_")
             ));
-            draw_frame_overlay(&img, &real_cam, snap, gt, &caption, &p)?;
+            draw_frame_overlay(&img, &real.camera, snap, gt, &caption, &p)?;
             files.push(p);
         }
     }
@@ -1060,7 +1187,8 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         rows,
         merge_split,
         robustness,
-        real_frames: real_results,
+        real_frames: real.results,
+        real_uncalibrated,
         replay_clips: labels.len(),
         frames_per_clip: opts
             .frames_per_clip
@@ -1158,14 +1286,16 @@ pub fn render_markdown(r: &DemoReport) -> String {
         }
     }
     s.push_str(
-        "\n| real frame | points | lanes (gt / predicted) | accuracy | FP | FN | run_time (ms, of which front end) |\n\
-         |---|---|---|---|---|---|---|\n",
+        "\n| real frame | points | point precision / recall | lanes (gt / predicted) | accuracy | FP | FN | run_time (ms, of which front end) |\n\
+         |---|---|---|---|---|---|---|---|\n",
     );
     for f in &r.real_frames {
         s.push_str(&format!(
-            "| {} | {} | {} / {} | {:.3} | {:.3} | {:.3} | {:.2} ({:.2}) |\n",
+            "| {} | {} | {:.2} / {:.2} | {} / {} | {:.3} | {:.3} | {:.3} | {:.2} ({:.2}) |\n",
             f.raw_file,
             f.points,
+            f.precision,
+            f.recall,
             f.gt_lanes,
             f.lanes,
             f.score.accuracy,
@@ -1175,6 +1305,11 @@ pub fn render_markdown(r: &DemoReport) -> String {
             f.frontend_ms
         ));
     }
+    s.push_str(&format!(
+        "\nReal frames without the calibration (horizon and vanishing column estimated from each \
+         image, camera height and focal length guessed): accuracy {:.3}, FP {:.3}, FN {:.3}.\n",
+        r.real_uncalibrated.accuracy, r.real_uncalibrated.fp, r.real_uncalibrated.fn_
+    ));
     s.push_str(&render_identity(r));
     if let Some(rob) = &r.robustness {
         s.push_str(&render_robustness(rob));
@@ -1349,7 +1484,8 @@ fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
 const CAPTION_PX: u32 = 20;
 
 /// One real frame: the image in grey, feature points (red), labelled lanes (green), the tracked
-/// lanes (colour by id) with their ±2σ bands, through the inverse IPM; a caption strip on top.
+/// lanes (colour by id: a line over their observed extent, dots where extrapolated) with their
+/// ±2σ bands, through the inverse IPM; a caption strip on top.
 fn draw_frame_overlay(
     img: &RgbImage,
     cam: &Camera,
@@ -1415,10 +1551,31 @@ fn draw_frame_overlay(
             ))
             .map_err(plot_err)?;
         }
-        for b in &snap.bands {
-            let pts: Vec<(i32, i32)> = b.points.iter().filter_map(|p| px(p.u, p.x)).collect();
+        // Each lane: solid over its observed extent, dots where it is extrapolated.
+        for (k, b) in snap.bands.iter().enumerate() {
+            let (u0, u1) = snap
+                .observed
+                .get(k)
+                .copied()
+                .unwrap_or((f64::MIN, f64::MAX));
+            let seen = |u: f64| u >= u0 && u <= u1;
+            let pts: Vec<(i32, i32)> = b
+                .points
+                .iter()
+                .filter(|p| seen(p.u))
+                .filter_map(|p| px(p.u, p.x))
+                .collect();
             root.draw(&PathElement::new(pts, lane_colour(b.id).stroke_width(2)))
                 .map_err(plot_err)?;
+            for (i, p) in b.points.iter().enumerate() {
+                if seen(p.u) || i % 3 != 0 {
+                    continue;
+                }
+                if let Some(q) = px(p.u, p.x) {
+                    root.draw(&Circle::new(q, 1, lane_colour(b.id).filled()))
+                        .map_err(plot_err)?;
+                }
+            }
         }
         root.draw(&Rectangle::new(
             [(0, 0), (w as i32, CAPTION_PX as i32)],

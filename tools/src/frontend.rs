@@ -1,7 +1,7 @@
 //! The image front end (`stjpdacf frontend`, docs/design.md §1 step 1): camera image → inverse
 //! perspective mapping (IPM) to a bird's-eye-view grid → colour and ridge filtering → region of
-//! interest → non-maximum suppression per BEV row → feature points, written back as image pixels
-//! in the [`Frame`] format.
+//! interest → non-maximum suppression per BEV row → parallel-lane filter → feature points,
+//! written back as image pixels in the [`Frame`] format.
 //!
 //! # Steps and parameters ([`FrontendParams`], defaults in brackets)
 //! 1. **IPM**: one BEV row per image row whose distance is inside the window
@@ -22,7 +22,7 @@
 //!    The same filter with the polarity reversed, `D(x) = I(x−τ) + I(x+τ) − 2I(x) − |I(x−τ) −
 //!    I(x+τ)|`, finds **dark ridges**: on the 0313 clips many lane boundaries are Botts' dots on
 //!    a concrete-slab joint, a thin dark seam that is continuous where the dots are not.
-//! 4. **Threshold, road check and NMS per BEV row**: cells with `R ≥ max(ridge_threshold [10],
+//! 4. **Threshold, road check and NMS per BEV row**: cells with `R ≥ max(ridge_threshold [20],
 //!    noise_k [1.25] · σ_row)` — σ_row = 1.4826 × the row's median |R|, a robust level of that
 //!    row's texture, so the threshold adapts to contrast along the range — that are the maximum
 //!    of R within ±τ, whose two flanks I(x±τ) are within `road_tolerance` \[60\] grey levels of the
@@ -30,9 +30,38 @@
 //!    through the peak and its neighbours. Dark ridges likewise with `D ≥ max(dark_threshold
 //!    [15], noise_k · σ_row)` and no colour check; a dark ridge within `dark_exclusion` [1.2 m]
 //!    of a bright ridge of the same row is dropped (the shadow or seam beside a painted line).
-//! 5. **Continuity**: a peak is kept if at least `support` \[2\] peaks lie within ±`support_rows`
-//!    \[3\] BEV rows and max(`marking_width`, 2 px) laterally (markings persist, texture does not).
-//! 6. **Output**: each peak (u, x) mapped back with [`Camera::to_image`] to (column, row).
+//! 5. **Continuity** (off by default, `support` \[0\]): a peak is kept if at least `support`
+//!    peaks lie within ±`support_rows` \[3\] BEV rows and max(`marking_width`, 2 px)
+//!    laterally. Off because it drops Botts' dots (a dot spans one or two image rows); the
+//!    next step judges continuity over the whole lane instead.
+//! 6. **Parallel-lane filter** (`lane_support` \[3 m\]): markings are near-parallel curves in
+//!    the BEV, `x = c_k + s·u + κu²/2` with one heading `s` (|s| ≤ `max_slope` \[0.3\]) and
+//!    curvature κ (|κ| ≤ `max_curvature` \[0.004 /m\]) for all lanes; car edges map to radial
+//!    streaks, texture and stains to short blobs. (s, κ) is the grid point that concentrates
+//!    the peaks' residual histogram most (Σ h², bins 0.1 m, each peak weighted by the road
+//!    length its image row covers, ≤ 1 m); lines are the histogram's maxima with at least
+//!    `lane_support` metres of evidence; each line gets its own linear correction by weighted
+//!    least squares (a wrong pitch or a fork bends lanes apart) and keeps the peaks within
+//!    max(`lane_tol` \[0.15 m\], 1.5 px) of it, if they still add up to `lane_support` of
+//!    which `bright_support` \[2 m\] from bright peaks (lines of dark seams alone are dropped).
+//! 7. **Output**: each kept line as samples of its fitted curve, one per image row, between its
+//!    nearest and farthest peaks, across gaps between peaks of at most `fill_gap` \[12 m: one
+//!    US dash period, 3 m on + 9 m off\] (0 = the peaks themselves), mapped back with
+//!    [`Camera::to_image`] to (column, row). Nothing is extrapolated beyond a line's peaks.
+//!
+//! # Camera ([`CameraMode`])
+//! The TuSimple calibration scaled to the image, a given camera, or **estimated**: the
+//! vanishing point from the image ([`estimate_vanishing_point`]: strong edges below 0.55 × the
+//! height vote along their lines), camera height and focal length from a guess
+//! ([`Camera::guess`], [`Camera::culane`] for 1640×590). The height only scales lateral
+//! metres and the focal length longitudinal ones; the horizon row is what matters: an error of
+//! δ rows bends parallel lanes apart in the BEV (`x` off by a factor `1 + δ·u/(f·h)`).
+//! **The estimate is not good enough yet**: it finds the vanishing column, but its row is
+//! biased upwards (near-horizon rows collect the most votes): on the 10 TuSimple frames it is
+//! within 7 rows of the calibration on 5 frames and 18–50 rows too high on the others, on a
+//! synthetic 1640×590 road 90 rows too high, and the tracker's accuracy on the 10 frames
+//! drops from 0.742 (calibrated) to 0.584. A guess's height and focal length may be 20 % off
+//! at little cost; its horizon should be within ~5 rows at 288 rows (~1° of pitch).
 //!
 //! # Measured accuracy (512×288, 10 labelled TuSimple frames)
 //! The parameters were chosen on a fixed half of `data/tusimple/sample_512x288` ([`TUNING_SET`],
@@ -42,18 +71,27 @@
 //!
 //! | set | precision | mean lane recall | lanes with recall ≥ 0.25 |
 //! |---|---|---|---|
-//! | tuning (in-sample) | 0.530 | 0.484 | 16 of 19 |
-//! | held-out | 0.417 | 0.462 | 15 of 19 |
+//! | tuning (in-sample) | 0.608 | 0.668 | 17 of 19 |
+//! | held-out | 0.389 | 0.560 | 14 of 19 |
 //!
-//! (The previous front end — absolute threshold 20, no dark ridges, tuned on all 10 frames —
-//! scored 0.432 / 0.348 / 12 of 19 on the tuning half and 0.404 / 0.318 / 13 of 19 on the other.)
-//! About 3.3 ms per image in release (detection only). Remaining false points are mostly real
-//! ridges that are not labelled lanes (the road-edge and barrier lines, the second line of double
-//! markings, tyre tracks); remaining misses are mostly the gaps of dashed markings (labels run
-//! through them) and lanes far off to the side. Reproduce with
-//! `cargo run --release -p stjpdacf-tools --example frontend_eval` (per-frame figures; takes
-//! `name=value` parameter overrides) or
-//! `cargo test --release -p stjpdacf-tools --test frontend -- --nocapture`.
+//! The tracker on these points (one frame per clip, official metric at 1280×720): accuracy /
+//! FP / FN 0.848 / 0.287 / 0.250 on the tuning frames, 0.635 / 0.530 / 0.600 held-out, 0.742 /
+//! 0.408 / 0.425 on all 10. Chosen on the tuning frames only (the held-out ones were only
+//! measured): `support` 0 and `lane_support` 3 m, `fill_gap` 12 m, `ridge_threshold` 20 (by
+//! the tracker's mean accuracy there: 0.814 / 0.818 / 0.848 / 0.710 / 0.655 for 10 / 15 / 20
+//! / 25 / 30), `bright_support` 2 m (a tie on accuracy, by precision + recall). Before (the
+//! previous front end: continuity with `support` 2, threshold 10, peaks as output): 0.530 /
+//! 0.484 / 16 of 19 tuning and 0.417 / 0.462 / 15 of 19 held-out, tracker 0.335 on all 10.
+//! Tried and dropped: a lane-width comb (lines 3.0–4.2 m apart; tuning precision 0.78 but
+//! held-out recall 0.27, it locks onto barriers); a threshold relative to the road's grey
+//! level (Weber contrast 0.1–0.3; tuning accuracy ≤ 0.814); correcting the horizon from the
+//! fan of the kept lines (δ = ε·f·h; accuracy 0.54–0.58, no better than the vote). Remaining false points are mostly real lines that are
+//! not labelled lanes (barriers, kerbs, the road edge, the second line of double markings,
+//! slab seams). About 5 ms per image in release on a loaded 2-core machine (detection only).
+//! Reproduce with `cargo run --release -p stjpdacf-tools --example frontend_eval` (per-frame
+//! figures, the tracker on them, calibrated and estimated camera; takes `name=value`
+//! parameter overrides) or `cargo test --release -p stjpdacf-tools --test frontend --
+//! --nocapture`.
 //!
 //! Images are read with the `image` crate (JPEG, PNG). [`overlay_png`] draws feature points (and
 //! optionally labelled lanes) over an image for inspection.
@@ -107,6 +145,24 @@ pub struct FrontendParams {
     /// A dark ridge within this lateral distance (m) of a bright ridge of the same row is
     /// dropped (the seam or shadow beside a painted line, not a second marking).
     pub dark_exclusion: f64,
+    /// Parallel-lane filter: evidence (metres of road length along which a line has peaks, each
+    /// BEV row counting its length, at most 1 m) a line needs to be kept; 0 = no filter.
+    pub lane_support: f64,
+    /// Parallel-lane filter: lateral tolerance (m) of a peak around its line (or 1.5 image
+    /// pixels at that distance, whichever is wider).
+    pub lane_tol: f64,
+    /// Parallel-lane filter: largest heading of the lanes relative to the camera axis (slope
+    /// dx/du) searched.
+    pub max_slope: f64,
+    /// Parallel-lane filter: largest curvature (1/m) searched.
+    pub max_curvature: f64,
+    /// Parallel-lane filter: evidence (m, as `lane_support`) a line needs from bright peaks
+    /// (paint); lines of dark ridges alone (seams, oil strips, tyre tracks) are dropped.
+    pub bright_support: f64,
+    /// Output samples of each kept line's fitted curve, one per image row, between its nearest
+    /// and farthest peaks, across gaps between peaks of at most this length (m); 0 = output the
+    /// peaks themselves.
+    pub fill_gap: f64,
 }
 
 impl Default for FrontendParams {
@@ -122,13 +178,19 @@ impl Default for FrontendParams {
             yellow_min_sat: 0.2,
             marking_width: 0.2,
             min_px: 1.5,
-            ridge_threshold: 10.0,
+            ridge_threshold: 20.0,
             support_rows: 3,
-            support: 2,
+            support: 0,
             road_tolerance: 60.0,
             noise_k: 1.25,
             dark_threshold: 15.0,
             dark_exclusion: 1.2,
+            lane_support: 3.0,
+            lane_tol: 0.15,
+            max_slope: 0.3,
+            max_curvature: 0.004,
+            fill_gap: 12.0,
+            bright_support: 2.0,
         }
     }
 }
@@ -152,6 +214,12 @@ impl FrontendParams {
             "noise_k" => &mut self.noise_k,
             "dark_threshold" => &mut self.dark_threshold,
             "dark_exclusion" => &mut self.dark_exclusion,
+            "lane_support" => &mut self.lane_support,
+            "lane_tol" => &mut self.lane_tol,
+            "max_slope" => &mut self.max_slope,
+            "max_curvature" => &mut self.max_curvature,
+            "fill_gap" => &mut self.fill_gap,
+            "bright_support" => &mut self.bright_support,
             "support_rows" => {
                 self.support_rows = v.round().max(0.0) as usize;
                 return Ok(());
@@ -231,7 +299,7 @@ pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f
     let mut dark = vec![f64::NEG_INFINITY; nx];
     let mut vals: Vec<f64> = Vec::with_capacity(nx);
     // (BEV row index, u, x) of every ridge peak, bottom row first.
-    let mut peaks: Vec<(usize, f64, f64)> = Vec::new();
+    let mut peaks: Vec<(usize, f64, f64, bool)> = Vec::new();
     let mut row_idx = 0usize;
     for row in (row_far.max(0)..=row_near).rev() {
         let rowf = row as f64;
@@ -353,7 +421,7 @@ pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f
                 {
                     continue;
                 }
-                peaks.push((row_idx, u, x));
+                peaks.push((row_idx, u, x, bright));
             }
         }
         row_idx += 1;
@@ -368,19 +436,201 @@ pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f
         let hi = peaks.partition_point(|q| q.0 <= r);
         &peaks[lo..hi]
     };
-    for &(r, u, x) in &peaks {
+    let mut kept: Vec<(f64, f64, bool)> = Vec::with_capacity(peaks.len());
+    for &(r, u, x, bright) in &peaks {
         let tol = p.marking_width.max(2.0 * u / cam.focal_px);
         let n = (r.saturating_sub(p.support_rows)..=r + p.support_rows)
             .filter(|&q| q != r)
             .map(|q| by_row(q).iter().filter(|o| (o.2 - x).abs() <= tol).count())
             .sum::<usize>();
         if n >= p.support {
-            if let Some((col, row)) = cam.to_image(u, x) {
-                out.push([col, row.round()]);
-            }
+            kept.push((u, x, bright));
+        }
+    }
+    let kept: Vec<(f64, f64)> = if p.lane_support > 0.0 {
+        lane_filter(&kept, cam, p)
+    } else {
+        kept.iter().map(|q| (q.0, q.1)).collect()
+    };
+    for (u, x) in kept {
+        if let Some((col, row)) = cam.to_image(u, x) {
+            out.push([col, row.round()]);
         }
     }
     Ok(out)
+}
+
+/// Length of road (m) one BEV row at `u` covers (one image row), at most 1 m.
+fn row_length(cam: &Camera, u: f64) -> f64 {
+    (u * u / (cam.focal_px * cam.height_m)).min(1.0)
+}
+
+/// Lateral tolerance (m) of a peak at `u` around a lane line.
+fn lane_tolerance(cam: &Camera, p: &FrontendParams, u: f64) -> f64 {
+    p.lane_tol.max(1.5 * u / cam.focal_px)
+}
+
+/// Weighted histogram of the residuals `x − s·u − κ·u²/2` of `pts` (u, x, weight) in bins of
+/// `bin` m over `±span`; returns it and its concentration Σ h².
+fn residual_histogram(
+    pts: &[(f64, f64, f64)],
+    s: f64,
+    k: f64,
+    bin: f64,
+    span: f64,
+) -> (Vec<f64>, f64) {
+    let n = (2.0 * span / bin).ceil() as usize + 1;
+    let mut h = vec![0.0; n];
+    for &(u, x, w) in pts {
+        let r = x - s * u - 0.5 * k * u * u;
+        let b = ((r + span) / bin).round();
+        if b >= 0.0 && (b as usize) < n {
+            h[b as usize] += w;
+        }
+    }
+    let c = h.iter().map(|v| v * v).sum();
+    (h, c)
+}
+
+/// The parallel-lane filter: lane markings in the BEV are near-parallel curves
+/// `x = c_k + s·u + κ·u²/2` (one heading `s` and curvature `κ` for all lanes); clutter (car
+/// edges, which map to radial streaks, texture, stains) is not. Finds (s, κ) that concentrates
+/// the peaks' residuals most, then the lanes (histogram maxima with at least `lane_support`
+/// metres of evidence), refits each lane's own quadratic (a wrong pitch or a fork bends lanes
+/// apart) and keeps the peaks within [`lane_tolerance`] of a lane.
+fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> Vec<(f64, f64)> {
+    let pts: Vec<(f64, f64, f64)> = peaks
+        .iter()
+        .map(|&(u, x, _)| (u, x, row_length(cam, u)))
+        .collect();
+    let bin = 0.1;
+    let span = p.x_max + p.max_slope * p.u_max;
+    // Heading on the near peaks (curvature matters little there), then curvature, then both
+    // refined on a fine grid.
+    let near: Vec<(f64, f64, f64)> = pts.iter().copied().filter(|q| q.0 < 25.0).collect();
+    let grid =
+        |lo: f64, hi: f64, n: usize| (0..=n).map(move |i| lo + (hi - lo) * i as f64 / n as f64);
+    let best = |cands: &mut dyn Iterator<Item = (f64, f64)>, set: &[(f64, f64, f64)]| {
+        cands
+            .map(|(s, k)| (s, k, residual_histogram(set, s, k, bin, span).1))
+            .fold(
+                (0.0, 0.0, f64::NEG_INFINITY),
+                |a, b| if b.2 > a.2 { b } else { a },
+            )
+    };
+    let ns = (2.0 * p.max_slope / 0.01).round() as usize;
+    let (s0, _, _) = best(
+        &mut grid(-p.max_slope, p.max_slope, ns).map(|s| (s, 0.0)),
+        &near,
+    );
+    let nk = (2.0 * p.max_curvature / 0.0002).round() as usize;
+    let (_, k0, _) = best(
+        &mut grid(-p.max_curvature, p.max_curvature, nk).map(|k| (s0, k)),
+        &pts,
+    );
+    let (s, k, _) = best(
+        &mut grid(s0 - 0.01, s0 + 0.01, 4)
+            .flat_map(|s| grid(k0 - 0.0002, k0 + 0.0002, 4).map(move |k| (s, k))),
+        &pts,
+    );
+    let (h, _) = residual_histogram(&pts, s, k, bin, span);
+    // Lanes: maxima of the histogram summed over ±tolerance.
+    let nb = h.len();
+    let w = (p.lane_tol / bin).round().max(1.0) as usize;
+    let summed: Vec<f64> = (0..nb)
+        .map(|i| h[i.saturating_sub(w)..=(i + w).min(nb - 1)].iter().sum())
+        .collect();
+    let mut lanes: Vec<f64> = Vec::new();
+    for i in 0..nb {
+        let v = summed[i];
+        if v < p.lane_support {
+            continue;
+        }
+        let lo = i.saturating_sub(2 * w);
+        let hi = (i + 2 * w).min(nb - 1);
+        if (lo..=hi).all(|j| summed[j] < v || (summed[j] == v && j >= i)) {
+            lanes.push(-span + i as f64 * bin);
+        }
+    }
+    // Each lane's own curve: x = c + s·u + κu²/2 + a + b·u, (a, b) by weighted least squares on
+    // the peaks within a band, twice with the band narrowed to the tolerance.
+    let mut keep = vec![false; pts.len()];
+    let mut filled: Vec<(f64, f64)> = Vec::new();
+    for &c in &lanes {
+        let base = |u: f64| c + s * u + 0.5 * k * u * u;
+        let (mut a, mut b) = (0.0, 0.0);
+        for band in [3.0, 1.5, 1.0] {
+            let (mut sw, mut su, mut suu, mut sr, mut sur) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for &(u, x, wt) in &pts {
+                let r = x - base(u);
+                if (r - a - b * u).abs() <= band * lane_tolerance(cam, p, u) {
+                    sw += wt;
+                    su += wt * u;
+                    suu += wt * u * u;
+                    sr += wt * r;
+                    sur += wt * u * r;
+                }
+            }
+            let det = sw * suu - su * su;
+            if sw <= 0.0 || det.abs() < 1e-9 {
+                break;
+            }
+            b = ((sw * sur - su * sr) / det).clamp(-0.05, 0.05);
+            a = (sr - b * su) / sw;
+        }
+        let mut support = 0.0;
+        let idx: Vec<usize> = (0..pts.len())
+            .filter(|&i| {
+                let (u, x, _) = pts[i];
+                (x - base(u) - a - b * u).abs() <= lane_tolerance(cam, p, u)
+            })
+            .collect();
+        let mut bright = 0.0;
+        for &i in &idx {
+            support += pts[i].2;
+            if peaks[i].2 {
+                bright += pts[i].2;
+            }
+        }
+        if support >= p.lane_support && bright >= p.bright_support {
+            if p.fill_gap > 0.0 {
+                let mut us: Vec<f64> = idx.iter().map(|&i| pts[i].0).collect();
+                us.sort_by(f64::total_cmp);
+                for w in us.windows(2) {
+                    if w[1] - w[0] > p.fill_gap {
+                        continue;
+                    }
+                    let (r0, r1) = (cam.row_at(w[1]), cam.row_at(w[0]));
+                    let (Some(r0), Some(r1)) = (r0, r1) else {
+                        continue;
+                    };
+                    let mut r = r0.ceil();
+                    while r <= r1.floor() {
+                        if let Some((u, _)) = cam.to_bev(cam.vp_col, r) {
+                            if !filled.iter().any(|q: &(f64, f64)| {
+                                q.0 == u && (q.1 - base(u) - a - b * u).abs() < 0.3
+                            }) {
+                                filled.push((u, base(u) + a + b * u));
+                            }
+                        }
+                        r += 1.0;
+                    }
+                }
+            }
+            for i in idx {
+                keep[i] = true;
+            }
+        }
+    }
+    if p.fill_gap > 0.0 {
+        filled.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.total_cmp(&b.1)));
+        return filled;
+    }
+    peaks
+        .iter()
+        .zip(keep)
+        .filter_map(|(&q, k)| k.then_some((q.0, q.1)))
+        .collect()
 }
 
 /// Image files (`*.jpg`, `*.jpeg`, `*.png`, any case) under `dir`, recursively, in the order
@@ -451,6 +701,124 @@ pub fn camera_for(img: &RgbImage, camera: Option<&Camera>) -> Result<Camera> {
     Ok(cam)
 }
 
+/// How the front end gets each image's camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CameraMode {
+    /// The TuSimple camera scaled to each image ([`camera_for`] with no camera).
+    TuSimple,
+    /// This camera for every image (its size must match).
+    Given(Camera),
+    /// The horizon and the vanishing column estimated from each image
+    /// ([`estimate_vanishing_point`]); the camera height and focal length from this guess
+    /// (scaled to the image's width), which is also used when the estimate fails.
+    Estimate(Camera),
+}
+
+/// The vanishing point of the road's markings in `img`, `(column, row)`: every strong
+/// grey-level edge (the strongest 10 %) below 0.55 × the height that is neither
+/// near-horizontal nor near-vertical votes, weighted by its gradient magnitude × its distance
+/// to the candidate row, for the points of its line on the candidate horizon rows
+/// (`0.15–0.5 × height`); the most-voted point (votes smoothed over ±2 px) wins. Lane markings, kerbs and barriers all run towards the vanishing point; car
+/// edges (vertical or horizontal) do not vote or spread their votes. `None` if fewer than 200
+/// edge pixels vote (no road markings to go by).
+pub fn estimate_vanishing_point(img: &RgbImage) -> Option<(f64, f64)> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    if w < 16 || h < 16 {
+        return None;
+    }
+    let grey: Vec<f32> = img
+        .pixels()
+        .map(|p| 0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2]))
+        .collect();
+    let g = |c: usize, r: usize| grey[r * w + c];
+    let (r0, r1) = (h * 11 / 20, h - 2);
+    // Sobel gradients of the lower half; the threshold is the 90th percentile of the magnitude.
+    let mut edges: Vec<(f32, f32, f32, f32)> = Vec::new();
+    for r in r0..=r1 {
+        for c in 1..w - 1 {
+            let gx = g(c + 1, r - 1) + 2.0 * g(c + 1, r) + g(c + 1, r + 1)
+                - g(c - 1, r - 1)
+                - 2.0 * g(c - 1, r)
+                - g(c - 1, r + 1);
+            let gy = g(c - 1, r + 1) + 2.0 * g(c, r + 1) + g(c + 1, r + 1)
+                - g(c - 1, r - 1)
+                - 2.0 * g(c, r - 1)
+                - g(c + 1, r - 1);
+            let m = (gx * gx + gy * gy).sqrt();
+            if m > 40.0 {
+                edges.push((c as f32, r as f32, gx, gy));
+            }
+        }
+    }
+    let mut mags: Vec<f32> = edges.iter().map(|e| e.2.hypot(e.3)).collect();
+    if mags.len() < 200 {
+        return None;
+    }
+    let k = mags.len() * 9 / 10;
+    let thr = *mags.select_nth_unstable_by(k, f32::total_cmp).1;
+    let (y_lo, y_hi) = ((0.15 * h as f64) as usize, (0.5 * h as f64) as usize);
+    let ny = y_hi - y_lo + 1;
+    let mut acc = vec![0.0f32; ny * w];
+    let mut voters = 0usize;
+    for &(c, r, gx, gy) in &edges {
+        let m = gx.hypot(gy);
+        if m < thr {
+            continue;
+        }
+        // Line direction (dc, dr) ⟂ gradient; skip near-horizontal and near-vertical lines.
+        let (dc, dr) = (-gy / m, gx / m);
+        if dr.abs() < 0.3 || dc.abs() < 0.1 {
+            continue;
+        }
+        voters += 1;
+        let slope = dc / dr;
+        for (yi, y) in (y_lo..=y_hi).enumerate() {
+            let x = c + (y as f32 - r) * slope;
+            if x >= 0.0 && x < w as f32 {
+                // A line's crossing spreads with the distance from its pixel (its angle is
+                // uncertain): weighting by that distance makes near and far rows comparable.
+                acc[yi * w + x as usize] += m * (r - y as f32) / h as f32;
+            }
+        }
+    }
+    if voters < 200 {
+        return None;
+    }
+    // Smooth ±2 px and take the maximum.
+    let mut best = (0usize, 0usize, f32::NEG_INFINITY);
+    for yi in 2..ny.saturating_sub(2) {
+        for x in 2..w - 2 {
+            let mut v = 0.0;
+            for dy in 0..5 {
+                v += acc[(yi + dy - 2) * w + x - 2..=(yi + dy - 2) * w + x + 2]
+                    .iter()
+                    .sum::<f32>();
+            }
+            if v > best.2 {
+                best = (x, yi, v);
+            }
+        }
+    }
+    Some((best.0 as f64, (y_lo + best.1) as f64))
+}
+
+/// The camera of `img` under `mode` (see [`CameraMode`]).
+pub fn camera_with(img: &RgbImage, mode: &CameraMode) -> Result<Camera> {
+    match mode {
+        CameraMode::TuSimple => camera_for(img, None),
+        CameraMode::Given(c) => camera_for(img, Some(c)),
+        CameraMode::Estimate(guess) => {
+            let mut cam = guess.scaled(f64::from(img.width()) / guess.width);
+            cam.height = f64::from(img.height());
+            if let Some((c, r)) = estimate_vanishing_point(img) {
+                cam.vp_col = c;
+                cam.vp_row = r;
+            }
+            Ok(cam)
+        }
+    }
+}
+
 /// Run the front end on every image under `dir` (see [`find_images`]): one [`Frame`] per image,
 /// `raw_file` = its path relative to `dir`, `clip` = that path's folder, `t` = (n − 1)·0.05 s for
 /// a file named `n.jpg` (TuSimple's 20 fps clips) or the image's index in its folder × 0.05 s,
@@ -476,18 +844,36 @@ pub fn run_dir_timed(
     camera: Option<&Camera>,
     labels: &[TuSimpleRecord],
     p: &FrontendParams,
-    mut progress: impl FnMut(usize, usize),
+    progress: impl FnMut(usize, usize),
 ) -> Result<Vec<(Frame, f64)>> {
+    let mode = camera.map_or(CameraMode::TuSimple, |c| CameraMode::Given(*c));
+    Ok(run_dir_cameras(dir, &mode, labels, p, progress)?
+        .into_iter()
+        .map(|(f, ms, _)| (f, ms))
+        .collect())
+}
+
+/// [`run_dir_timed`] with the camera of each image from `mode`, also returning that camera
+/// (the time includes estimating it).
+pub fn run_dir_cameras(
+    dir: &Path,
+    mode: &CameraMode,
+    labels: &[TuSimpleRecord],
+    p: &FrontendParams,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Vec<(Frame, f64, Camera)>> {
     let files = find_images(dir)?;
     if files.is_empty() {
         bail!("no *.jpg or *.png images under {}", dir.display());
     }
     let mut frames: Vec<Frame> = Vec::with_capacity(files.len());
     let mut times = Vec::with_capacity(files.len());
+    let mut cams = Vec::with_capacity(files.len());
     for (n, path) in files.iter().enumerate() {
         let img = load_rgb(path)?;
-        let cam = camera_for(&img, camera).with_context(|| format!("{}", path.display()))?;
         let start = std::time::Instant::now();
+        let cam = camera_with(&img, mode).with_context(|| format!("{}", path.display()))?;
+        cams.push(cam);
         let points = detect(&img, &cam, p).with_context(|| format!("{}", path.display()))?;
         times.push(start.elapsed().as_secs_f64() * 1e3);
         let raw_file = raw_file_of(dir, path);
@@ -517,7 +903,12 @@ pub fn run_dir_timed(
         });
         progress(n + 1, files.len());
     }
-    Ok(frames.into_iter().zip(times).collect())
+    Ok(frames
+        .into_iter()
+        .zip(times)
+        .zip(cams)
+        .map(|((f, t), c)| (f, t, c))
+        .collect())
 }
 
 /// Draw `points` (red dots, 3×3 px) and, if given, labelled `lanes` (green dots at the label
