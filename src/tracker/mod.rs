@@ -111,19 +111,10 @@ pub type ReferenceTracker = Tracker<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>;
 /// once, here, for the files of this module (`impl_tracker! { fn … }`).
 macro_rules! impl_tracker {
     ($($item:item)*) => {
-        impl<
-            const NT: usize,
-            const NS: usize,
-            const LANES: usize,
-            const POINTS: usize,
-            const ROWS: usize,
-            const PER_ROW: usize,
-            const MEAS: usize,
-            const RANK: usize,
-            const NX: usize,
-            const NA: usize,
-            const LAG: usize,
-        > Tracker<NT, NS, LANES, POINTS, ROWS, PER_ROW, MEAS, RANK, NX, NA, LAG>
+        impl<const NT: usize, const NS: usize, const LANES: usize, const POINTS: usize,
+             const ROWS: usize, const PER_ROW: usize, const MEAS: usize, const RANK: usize,
+             const NX: usize, const NA: usize, const LAG: usize>
+            Tracker<NT, NS, LANES, POINTS, ROWS, PER_ROW, MEAS, RANK, NX, NA, LAG>
         {
             $($item)*
         }

@@ -32,7 +32,7 @@ fn main() -> anyhow::Result<()> {
         p.set(k, v.parse()?)?;
     }
     for (name, set) in [("tuning", TUNING_SET), ("held-out", HELD_OUT_SET)] {
-        let (mut tp, mut n, mut rec, mut ms) = (0, 0, Vec::new(), 0.0);
+        let (mut t, mut ms) = (frontend::PointTally::default(), 0.0);
         for raw in set {
             let img = frontend::load_rgb(&dir.join(raw))?;
             let cam = frontend::camera_for(&img, None)?;
@@ -71,21 +71,16 @@ fn main() -> anyhow::Result<()> {
                 let name = raw.replace('/', "_").replace(".jpg", ".png");
                 frontend::overlay_png(&dir.join(raw), &pts, Some(l), &d.join(name))?;
             }
-            let (a, b, r) = frontend::score(&pts, l, 1.0, 6.0);
-            println!(
-                "  {raw}: {b} points, precision {:.3}, lane recall {r:.2?}",
-                a as f64 / b as f64
-            );
-            tp += a;
-            n += b;
-            rec.extend(r);
+            println!("{}", t.add(raw, frontend::score(&pts, l, 1.0, 6.0)));
         }
-        let mr = rec.iter().sum::<f64>() / rec.len() as f64;
-        let cov = rec.iter().filter(|&&r| r >= 0.25).count();
         println!(
-            "{name}: precision {:.3} ({tp}/{n}), mean lane recall {mr:.3}, {cov} of {} lanes ≥ 0.25, {:.1} ms per image",
-            tp as f64 / n as f64,
-            rec.len(),
+            "{name}: precision {:.3} ({}/{}), mean lane recall {:.3}, {} of {} lanes ≥ 0.25, {:.1} ms per image",
+            t.precision(),
+            t.tp,
+            t.n,
+            t.mean_recall(),
+            t.covered(),
+            t.recalls.len(),
             ms / set.len() as f64
         );
     }

@@ -770,17 +770,7 @@ pub fn run_real(
                 TrackerConfig::DEFAULT,
                 |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &us)),
             )?;
-            let n = (stats.frames + st.frames).max(1) as f64;
-            let mean = |a: f64, b: f64| (a * stats.frames as f64 + b * st.frames as f64) / n;
-            stats.step_mean_ms = mean(stats.step_mean_ms, st.step_mean_ms);
-            stats.run_mean_ms = mean(stats.run_mean_ms, st.run_mean_ms);
-            stats.step_max_ms = stats.step_max_ms.max(st.step_max_ms);
-            stats.run_max_ms = stats.run_max_ms.max(st.run_max_ms);
-            stats.frames += st.frames;
-            stats.clips += st.clips;
-            stats.predictions += st.predictions;
-            stats.unmapped_points += st.unmapped_points;
-            stats.rejected_steps += st.rejected_steps;
+            stats.merge(&st);
             preds.extend(p);
             start = end;
         }

@@ -994,6 +994,47 @@ fn lane_x(l: &TuSimpleRecord, lane: &[f64], y: f64, s: f64) -> Option<f64> {
     })
 }
 
+/// Feature-point scores summed over frames ([`score`] per frame): precision over all points,
+/// each lane's recall.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointTally {
+    /// Points within tolerance of a labelled lane.
+    pub tp: usize,
+    /// Points on the labelled rows.
+    pub n: usize,
+    /// Each labelled lane's recall.
+    pub recalls: Vec<f64>,
+}
+
+impl PointTally {
+    /// Adds frame `raw`'s score; returns its line for a per-frame listing.
+    pub fn add(&mut self, raw: &str, (tp, n, recalls): (usize, usize, Vec<f64>)) -> String {
+        let line = format!(
+            "  {raw}: {n} points, precision {:.3}, lane recall {recalls:.2?}",
+            tp as f64 / n as f64
+        );
+        self.tp += tp;
+        self.n += n;
+        self.recalls.extend(recalls);
+        line
+    }
+
+    /// Precision over all points.
+    pub fn precision(&self) -> f64 {
+        self.tp as f64 / self.n as f64
+    }
+
+    /// Mean lane recall.
+    pub fn mean_recall(&self) -> f64 {
+        self.recalls.iter().sum::<f64>() / self.recalls.len() as f64
+    }
+
+    /// Lanes with recall ≥ 0.25.
+    pub fn covered(&self) -> usize {
+        self.recalls.iter().filter(|&&r| r >= 0.25).count()
+    }
+}
+
 /// Score of one frame's feature points against its label: `(true, all)` points on the labelled
 /// rows (true = within `tol` px of a labelled lane, interpolated between label rows), and each
 /// lane's recall (the fraction of its label rows nearer than 80 m with a point within `tol` px

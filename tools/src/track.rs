@@ -94,6 +94,21 @@ impl TrackStats {
         self.run_max_ms = self.run_max_ms.max(ms);
     }
 
+    /// Adds another run's figures (means weighted by frames, maxima, counts).
+    pub fn merge(&mut self, o: &TrackStats) {
+        let n = (self.frames + o.frames).max(1) as f64;
+        let mean = |a: f64, b: f64| (a * self.frames as f64 + b * o.frames as f64) / n;
+        self.step_mean_ms = mean(self.step_mean_ms, o.step_mean_ms);
+        self.run_mean_ms = mean(self.run_mean_ms, o.run_mean_ms);
+        self.step_max_ms = self.step_max_ms.max(o.step_max_ms);
+        self.run_max_ms = self.run_max_ms.max(o.run_max_ms);
+        self.frames += o.frames;
+        self.clips += o.clips;
+        self.predictions += o.predictions;
+        self.unmapped_points += o.unmapped_points;
+        self.rejected_steps += o.rejected_steps;
+    }
+
     /// Sets the means from the run's sums.
     pub(crate) fn finish(&mut self, times: &RunTimes) {
         if self.frames > 0 {

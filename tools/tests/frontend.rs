@@ -14,7 +14,9 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use stjpdacf_tools::camera::Camera;
-use stjpdacf_tools::frontend::{self, score, CameraMode, FrontendParams, HELD_OUT_SET, TUNING_SET};
+use stjpdacf_tools::frontend::{
+    self, score, CameraMode, FrontendParams, PointTally, HELD_OUT_SET, TUNING_SET,
+};
 use stjpdacf_tools::tusimple::{read_frames, read_labels, write_jsonl_to, Frame, TuSimpleRecord};
 
 fn sample_dir() -> PathBuf {
@@ -39,30 +41,25 @@ fn run() -> Vec<Frame> {
 /// Precision, mean per-lane recall, lanes with recall ≥ 0.25 and lanes, over the frames of `set`
 /// (printing per-frame figures).
 fn measure(frames: &[Frame], labels: &[TuSimpleRecord], set: &[&str]) -> (f64, f64, usize, usize) {
-    let (mut tp, mut n, mut recalls) = (0, 0, Vec::new());
+    let mut t = PointTally::default();
     for raw in set {
         let f = frames
             .iter()
             .find(|f| f.raw_file.as_deref() == Some(*raw))
             .unwrap();
         let l = labels.iter().find(|l| l.raw_file == *raw).unwrap();
-        let (a, b, r) = score(&f.points, l, 1.0, 15.0 * 0.4);
-        eprintln!(
-            "  {raw}: {b} points, precision {:.3}, lane recall {r:.2?}",
-            a as f64 / b as f64
-        );
-        tp += a;
-        n += b;
-        recalls.extend(r);
+        eprintln!("{}", t.add(raw, score(&f.points, l, 1.0, 15.0 * 0.4)));
     }
-    let precision = tp as f64 / n as f64;
-    let mean_recall = recalls.iter().sum::<f64>() / recalls.len() as f64;
-    let covered = recalls.iter().filter(|&&r| r >= 0.25).count();
     eprintln!(
-        "precision {precision:.3} ({tp}/{n}), mean lane recall {mean_recall:.3}, {covered} of {} lanes ≥ 0.25",
-        recalls.len()
+        "precision {:.3} ({}/{}), mean lane recall {:.3}, {} of {} lanes ≥ 0.25",
+        t.precision(),
+        t.tp,
+        t.n,
+        t.mean_recall(),
+        t.covered(),
+        t.recalls.len()
     );
-    (precision, mean_recall, covered, recalls.len())
+    (t.precision(), t.mean_recall(), t.covered(), t.recalls.len())
 }
 
 #[test]
