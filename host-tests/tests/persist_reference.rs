@@ -19,7 +19,7 @@ use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use stjpdacf::persist::{self, Evidence, Explained, Lanes, Pass, Persist};
+use stjpdacf::persist::{self, Evidence, Explained, Lanes, Pass, Persist, RowBasis};
 use stjpdacf::probe::NoProbe;
 use stjpdacf::spatial::row::{MissModel, RowParams};
 use stjpdacf::tables::DEFAULT;
@@ -644,8 +644,11 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
     };
     let mut ev = [Evidence::<RANK>::NONE; LANES];
     let mut explained: Explained<ROWS> = [0; ROWS];
+    let mut basis = RowBasis::<RANK, ROWS>::NEW;
+    basis.ensure(&DEFAULT, &pass);
     let failed = ps.associate(
         &DEFAULT,
+        &basis,
         temporal.filter(),
         &lanes,
         &pass,

@@ -8,7 +8,7 @@ use crate::spatial::row::{self, RowOutcome, RowParams, MAX_ROW_POINTS};
 use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 
-use super::rows::{band, mean_at, quad, row_basis};
+use super::rows::{band, mean_at, quad, RowBasis};
 use super::{Evidence, Pass, Persist, PersistConfig};
 
 /// The rows' points a known lane explains, per row (bit `j` = point `j`).
@@ -93,6 +93,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     pub fn associate<'p, const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
+        basis: &RowBasis<RANK, ROWS>,
         filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
         lanes: &Lanes<'_, LANES>,
         pass: &Pass,
@@ -130,7 +131,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 *br += 1.0;
             }
             let u = h.u_min + r as f32 * pass.du;
-            let (c, rho) = row_basis::<NT, LANES, POINTS, RANK>(tables, u, r_used);
+            let (c, rho) = basis.at(r);
             // The lanes looked at in this row (their row range), predicted.
             let mut pred = Predicted {
                 idx: [0; LANES],

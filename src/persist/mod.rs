@@ -42,7 +42,7 @@ mod associate;
 mod rows;
 
 pub use associate::{Explained, Lanes};
-pub use rows::row_basis;
+pub use rows::{row_basis, RowBasis};
 
 /// Tuning of the known-lane stage. Values are model constants, not fitted to a data set
 /// (docs/design.md §11 says which data chose which).

@@ -47,6 +47,68 @@ pub fn row_basis<const NT: usize, const LANES: usize, const POINTS: usize, const
     (c, (h.spatial_variance - explained).max(0.0))
 }
 
+/// The row vectors `c_r` and residual variances `ρ_r` of [`row_basis`] at every BEV row
+/// `u_r = u_min + r·Δu`. They depend only on the tables and the row geometry, so the tracker
+/// computes them on its first known-lane pass (`rows·POINTS` exponentials and
+/// `rows·POINTS·r` multiply-adds) and again only when the geometry changes, instead of twice a
+/// frame. RAM: `4·ROWS·(RANK + 1)` bytes and the key.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowBasis<const RANK: usize, const ROWS: usize> {
+    c: [[f32; RANK]; ROWS],
+    rho: [f32; ROWS],
+    /// `(u_min, Δu, r, rows)` the rows were computed for (`rows = 0`: none yet).
+    key: (f32, f32, usize, usize),
+}
+
+impl<const RANK: usize, const ROWS: usize> Default for RowBasis<RANK, ROWS> {
+    fn default() -> Self {
+        Self::NEW
+    }
+}
+
+impl<const RANK: usize, const ROWS: usize> RowBasis<RANK, ROWS> {
+    /// Nothing computed yet.
+    pub const NEW: Self = Self {
+        c: [[0.0; RANK]; ROWS],
+        rho: [0.0; ROWS],
+        key: (0.0, 0.0, 0, 0),
+    };
+
+    /// Makes the rows those of `tables` and `pass` (`r = min(gram_rank, RANK, POINTS)`
+    /// components), computing them only if they are not already.
+    pub fn ensure<const NT: usize, const LANES: usize, const POINTS: usize>(
+        &mut self,
+        tables: &Tables<NT, LANES, POINTS>,
+        pass: &Pass,
+    ) {
+        let r_used = (tables.gram_rank as usize).min(RANK).min(POINTS);
+        let rows = pass.rows.min(ROWS);
+        let key = (tables.hyper.u_min, pass.du, r_used, rows);
+        if key == self.key {
+            return;
+        }
+        for (r, (c, rho)) in self
+            .c
+            .iter_mut()
+            .zip(self.rho.iter_mut())
+            .enumerate()
+            .take(rows)
+        {
+            let u = tables.hyper.u_min + r as f32 * pass.du;
+            (*c, *rho) = row_basis::<NT, LANES, POINTS, RANK>(tables, u, r_used);
+        }
+        self.key = key;
+    }
+
+    /// Row `r`'s `(c_r, ρ_r)` (zeros outside the rows computed).
+    pub fn at(&self, r: usize) -> ([f32; RANK], f32) {
+        (
+            self.c.get(r).copied().unwrap_or([0.0; RANK]),
+            get(&self.rho, r),
+        )
+    }
+}
+
 /// `cᵀ a_s` over the first `r` components: lane `s`'s predicted mean at the row.
 pub(super) fn mean_at<
     const LANES: usize,
@@ -70,7 +132,9 @@ pub(super) fn mean_at<
         .sum()
 }
 
-/// `cᵀ P[a_s, a_t] c` over the first `r` components.
+/// `cᵀ P[a_s, a_t] c` over the first `r` components. `P` is symmetric, so the inner sum
+/// `Σ_k P[a_sj, a_tk] c_k` is read down column `a_sj` (lane `t`'s position coefficients sit
+/// every second entry of it): contiguous, one bounds check per column. `r²` multiply-adds.
 pub(super) fn quad<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize>(
     f: &TemporalFilter<LANES, POINTS, RANK, NX>,
     s: usize,
@@ -78,15 +142,20 @@ pub(super) fn quad<const LANES: usize, const POINTS: usize, const RANK: usize, c
     c: &[f32; RANK],
     r: usize,
 ) -> f32 {
-    let p = f.covariance();
+    let p = f.covariance().as_slice();
+    let t0 = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, 0, 0);
     let mut acc = 0.0;
     for (j, cj) in c.iter().enumerate().take(r) {
-        let ij = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
-        let mut inner = 0.0;
-        for (k, ck) in c.iter().enumerate().take(r) {
-            let ik = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, 0);
-            inner += p.get((ij, ik)).copied().unwrap_or(0.0) * ck;
-        }
+        let col = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0) * NX + t0;
+        let Some(v) = p.get(col..col + 2 * r) else {
+            continue;
+        };
+        let inner: f32 = v
+            .iter()
+            .step_by(2)
+            .zip(c.iter())
+            .map(|(pv, ck)| pv * ck)
+            .sum();
         acc += cj * inner;
     }
     acc
@@ -102,12 +171,12 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     pub fn estimate_noise<const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
+        basis: &RowBasis<RANK, ROWS>,
         filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
         (slots, ranks): (u32, &[u8; LANES]),
         pass: &Pass,
         memory: f32,
     ) {
-        let h = &tables.hyper;
         let r_used = (tables.gram_rank as usize).min(RANK).min(POINTS);
         let decay = if memory > 1.0 {
             1.0 - 1.0 / memory
@@ -131,8 +200,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 continue;
             }
             let b = band::<POINTS>(r, pass.k_rows);
-            let u = h.u_min + r as f32 * pass.du;
-            let (c, rho) = row_basis::<NT, LANES, POINTS, RANK>(tables, u, r_used);
+            let (c, rho) = basis.at(r);
             for s in 0..LANES {
                 let [zt, w] = row_of(s, r);
                 if slots & (1 << s) == 0 || w < 0.5 || !filter.is_active(s) {

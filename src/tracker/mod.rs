@@ -32,7 +32,7 @@ use heapless::Vec;
 
 use crate::linalg::{get, set};
 use crate::observation::LaneObservation;
-use crate::persist::Persist;
+use crate::persist::{Persist, RowBasis};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::{SpatialFilter, SpatialReport};
 use crate::tables::Tables;
@@ -99,6 +99,8 @@ pub struct Tracker<
     ranks: [u8; LANES],
     /// Known lanes' existence and detection probabilities, the clutter estimate.
     persist: Persist<LANES, POINTS, ROWS>,
+    /// The known-lane stage's row vectors (computed once for the row geometry).
+    basis: RowBasis<RANK, ROWS>,
     last: Option<Instant>,
     frames: u32,
 }
@@ -148,6 +150,7 @@ impl_tracker! {
             id_hist: [[None; LANES]; MAX_LAG + 1],
             ranks: [0; LANES],
             persist: Persist::new(),
+            basis: RowBasis::NEW,
             last: None,
             frames: 0,
         }

@@ -30,6 +30,7 @@ impl_tracker! {
                 live |= 1 << s;
             }
         }
+        self.basis.ensure(self.tables, &pass);
         let mut explained: Explained<ROWS> = [0; ROWS];
         let mut ev = [Evidence::<RANK>::NONE; LANES];
         if live != 0 {
@@ -42,6 +43,7 @@ impl_tracker! {
             let spatial = &self.spatial;
             report.known.failed_rows = self.persist.associate(
                 self.tables,
+                &self.basis,
                 self.temporal.filter(),
                 &lanes,
                 &pass,
@@ -90,6 +92,7 @@ impl_tracker! {
         }
         self.persist.estimate_noise(
             self.tables,
+            &self.basis,
             self.temporal.filter(),
             (live, &self.ranks),
             &pass,
