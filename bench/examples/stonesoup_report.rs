@@ -18,6 +18,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use serde::Deserialize;
+use stjpdacf_bench::cputime::thread_cpu;
 use stjpdacf_bench::stonesoup::{
     agreement, beta_agreement, data_dir, replay, Agreement, BetaAgreement, Core, Scans,
     StoneSoupBeta,
@@ -45,6 +46,7 @@ struct Args {
 struct SsRun {
     versions: serde_json::Value,
     per_scan_s: Vec<Vec<f64>>,
+    replay_cpu_s: Vec<f64>,
     associate_only_s: Vec<Vec<f64>>,
     means: Vec<Vec<[f64; 2]>>,
     beta: Vec<Vec<Vec<(i64, f64)>>>,
@@ -89,25 +91,31 @@ fn stats(t: &[Vec<f64>]) -> (f64, f64, f64, Vec<f64>) {
     (med, mean, p90, per_scan)
 }
 
-/// Times every scan of `repeats` replays of the core, one `Instant` pair per scan.
-fn time_core(scans: &Scans, repeats: usize) -> Vec<Vec<f64>> {
+/// Times every scan of `repeats` replays of the core, one `Instant` pair per scan, and the
+/// thread CPU time of each whole replay: (per-scan wall times `t[r][k]`, CPU time per replay),
+/// seconds.
+fn time_core(scans: &Scans, repeats: usize) -> (Vec<Vec<f64>>, Vec<f64>) {
     let start = Core::new(scans);
     let mut out = Vec::with_capacity(repeats);
+    let mut cpu = Vec::with_capacity(repeats);
     // One untimed replay to warm the caches.
     for r in 0..=repeats {
         let mut core = start.clone();
         let mut row = Vec::with_capacity(scans.points.len());
+        let c0 = thread_cpu();
         for pts in &scans.points {
             let t0 = Instant::now();
             let o = core.step(std::hint::black_box(pts));
             std::hint::black_box(&o);
             row.push(t0.elapsed().as_secs_f64());
         }
+        let c = (thread_cpu() - c0).as_secs_f64();
         if r > 0 {
             out.push(row);
+            cpu.push(c);
         }
     }
-    out
+    (out, cpu)
 }
 
 fn python(args: &Args) -> String {
@@ -129,6 +137,9 @@ fn run_stonesoup(py: &str, repeats: usize) -> Result<Option<SsRun>> {
     let script = data_dir().join("stonesoup_time.py");
     let out = Command::new(py)
         .env("PYTHONDONTWRITEBYTECODE", "1")
+        // One thread, as in the generating run (the 1×1 and 2×2 products never need more).
+        .env("OPENBLAS_NUM_THREADS", "1")
+        .env("OMP_NUM_THREADS", "1")
         .arg(&script)
         .args(["--repeats", &repeats.to_string()])
         .output()
@@ -200,15 +211,25 @@ fn main() -> Result<()> {
         a.core_rmse_truth, a.stonesoup_rmse_truth
     );
 
-    let core_t = time_core(&scans, args.repeats);
+    let (core_t, core_cpu) = time_core(&scans, args.repeats);
+    let n_scans = n as f64;
+    let c_cpu = median(&mut core_cpu.clone()) / n_scans;
     let (c_med, c_mean, c_p90, c_scan) = stats(&core_t);
+    // The replay's typical time per scan (what criterion's `--bench stonesoup` measures / 200):
+    // the mean over the scans of each scan's median, robust to preemption spikes.
+    let c_replay = c_scan.iter().sum::<f64>() / c_scan.len().max(1) as f64;
     println!(
         "\nCore (predict + spatial::row::associate + PDA update), {} replays: per scan median \
-         {:.2} µs, mean {:.2} µs, p90 {:.2} µs",
+         {:.2} µs, mean {:.2} µs, p90 {:.2} µs; mean of the per-scan medians {:.2} µs",
         args.repeats,
         c_med * 1e6,
         c_mean * 1e6,
-        c_p90 * 1e6
+        c_p90 * 1e6,
+        c_replay * 1e6
+    );
+    println!(
+        "  thread CPU time per replay / {n}: median {:.2} µs per scan",
+        c_cpu * 1e6
     );
 
     let py = python(&args);
@@ -235,13 +256,15 @@ fn main() -> Result<()> {
         return Ok(());
     };
     let (s_med, s_mean, s_p90, s_scan) = stats(&ss.per_scan_s);
+    let s_replay = s_scan.iter().sum::<f64>() / s_scan.len().max(1) as f64;
+    let s_cpu = median(&mut ss.replay_cpu_s.clone()) / n_scans;
     let (a_med, _, _, _) = stats(&ss.associate_only_s);
     let mut ratios: Vec<f64> = s_scan.iter().zip(&c_scan).map(|(s, c)| s / c).collect();
     let r_med = median(&mut ratios);
     let (r_min, r_max) = (ratios[0], ratios[ratios.len() - 1]);
     println!(
         "Stone Soup {} ({}), same run, {} replays: per scan median {:.3} ms, mean {:.3} ms, \
-         p90 {:.3} ms (associate only: median {:.3} ms)",
+         p90 {:.3} ms; mean of the per-scan medians {:.3} ms (associate only: median {:.3} ms)",
         ss.versions
             .get("stonesoup")
             .and_then(|v| v.as_str())
@@ -251,15 +274,24 @@ fn main() -> Result<()> {
         s_med * 1e3,
         s_mean * 1e3,
         s_p90 * 1e3,
+        s_replay * 1e3,
         a_med * 1e3
     );
     println!(
-        "Ratio Stone Soup / core: {:.0}× (medians); per scan (median of each scan's times): \
-         median {:.0}×, min {:.0}×, max {:.0}×",
+        "Ratio Stone Soup / core: {:.0}× (medians), {:.0}× (means of the per-scan medians); per \
+         scan (ratio of each scan's medians): median {:.0}×, min {:.0}×, max {:.0}×",
         s_med / c_med,
+        s_replay / c_replay,
         r_med,
         r_min,
         r_max
+    );
+    println!(
+        "  thread CPU time per replay / {n} (includes building Stone Soup's Detection objects): \
+         Stone Soup {:.3} ms, core {:.2} µs per scan: {:.0}×",
+        s_cpu * 1e3,
+        c_cpu * 1e6,
+        s_cpu / c_cpu
     );
     let live = StoneSoupBeta {
         means: ss.means,
