@@ -397,24 +397,21 @@ pub fn agreement(scans: &Scans, rep: &Replay) -> Agreement {
                 })
             }),
     );
-    let rmse = |est: &mut dyn Iterator<Item = f64>| {
-        let v: Vec<f64> = est.collect();
-        (v.iter().map(|d| d * d).sum::<f64>() / v.len().max(1) as f64).sqrt()
-    };
-    let core_rmse_truth = rmse(&mut rep.x.iter().zip(&f.truth).flat_map(|(c, tr)| {
-        c.iter()
-            .zip(tr)
-            .map(|(c, tr)| f64::from(c[0]) - tr[0])
-            .collect::<Vec<_>>()
-    }));
-    let stonesoup_rmse_truth = rmse(&mut f.stonesoup_track_means.iter().zip(&f.truth).flat_map(
-        |(s, tr)| {
-            s.iter()
-                .zip(tr)
-                .map(|(s, tr)| s[0] - tr[0])
-                .collect::<Vec<_>>()
-        },
-    ));
+    // Position RMSE against the truth; `Diff::of` gives the RMS.
+    let truth_pos =
+        |k: usize, t: usize| f.truth.get(k).and_then(|s| s.get(t)).map_or(0.0, |x| x[0]);
+    let core_rmse_truth = Diff::of(
+        pairs()
+            .enumerate()
+            .map(|(i, (k, c, _))| (k, f64::from(c[0]) - truth_pos(k, i % TRACKS))),
+    )
+    .rms;
+    let stonesoup_rmse_truth = Diff::of(
+        pairs()
+            .enumerate()
+            .map(|(i, (k, _, s))| (k, s[0] - truth_pos(k, i % TRACKS))),
+    )
+    .rms;
     Agreement {
         pos,
         vel,
