@@ -8,7 +8,11 @@
 //! * `cargo bench -p stjpdacf-bench --bench scaling` — time per frame against M, D, N and E;
 //! * `cargo run -p stjpdacf-bench --example bench_report` — collects the three into
 //!   `docs/bench/results.json`, the tables of `docs/bench/README.md`, `scaling.csv` and
-//!   `scaling.png`.
+//!   `scaling.png`;
+//! * `cargo bench -p stjpdacf-bench --bench stonesoup` — the 200 Stone Soup JPDA scans through
+//!   the core's row JPDA ([`stonesoup`]); `cargo run --release -p stjpdacf-bench --example
+//!   stonesoup_report` times Stone Soup on the same scans in the same run (when it is installed)
+//!   and prints the per-scan ratio and the state agreement.
 
 pub mod config;
 pub mod cputime;
@@ -17,3 +21,4 @@ pub mod inputs;
 pub mod probes;
 pub mod report;
 pub mod spatial;
+pub mod stonesoup;
