@@ -81,6 +81,8 @@ pub struct Temporal<
     window: [Lagged<LANES, RANK, NA, NX>; LAG],
     head: usize,
     frames: u32,
+    /// `false`: the per-lane approximation (see [`Temporal::set_per_lane`]).
+    coupled: bool,
 }
 
 impl<
@@ -130,6 +132,32 @@ impl<
             window: [Self::EMPTY; LAG],
             head: 0,
             frames: 0,
+            coupled: true,
+        }
+    }
+
+    /// [`Temporal::new`] with the per-lane smoother when `per_lane` (`const`).
+    pub const fn with_per_lane(per_lane: bool) -> Self {
+        let mut t = Self::new();
+        t.coupled = !per_lane;
+        t
+    }
+
+    /// Chooses the smoother. Exact (the default, `per_lane = false`): every lane's lagged
+    /// coefficients move with every lane's innovation through the full cross-covariances
+    /// `C_j = Cov(a_{k−j}, x_k)`. Per lane (`true`): `C_j` is kept block-diagonal (lane `t`'s
+    /// lagged coefficients against lane `t`'s current state only), so a lane's lagged estimate
+    /// moves with its own innovations only: a lane update costs `LAG·2r³` multiply-adds instead
+    /// of `LAG·(p r)(2 n r) r`, and a prediction `LAG·n·4r²` instead of `LAG·4(p r)(2 n r)`.
+    /// The filtered lanes are the same either way; the smoothed ones lose what other lanes'
+    /// innovations say about a lane's past (docs/design.md §5, measured in
+    /// docs/measurements.md "Model cost"). Switching to per lane zeroes the off-diagonal blocks.
+    pub fn set_per_lane(&mut self, per_lane: bool) {
+        self.coupled = !per_lane;
+        if per_lane {
+            for lag in &mut self.window {
+                zero_cross_lanes(lag);
+            }
         }
     }
 
@@ -174,6 +202,19 @@ impl<
         let a = self.filter.start_lane(tables, s, rank, ranks)?;
         let r = TemporalFilter::<LANES, POINTS, RANK, NX>::r_used(tables);
         let base = |t: usize| TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, 0, 0);
+        if !self.coupled {
+            // Per lane: the new lane's state is not related to any lagged lane.
+            for lag in &mut self.window {
+                if let Some(cols) = lag
+                    .cross
+                    .as_mut_slice()
+                    .get_mut(base(s) * NA..(base(s) + 2 * RANK) * NA)
+                {
+                    cols.fill(0.0);
+                }
+            }
+            return Ok(());
+        }
         for lag in &mut self.window {
             for off in 0..2 * r {
                 let mut col = [0.0f32; NA];
@@ -305,11 +346,14 @@ impl<
                         };
                     }
                 }
+                let coupled = self.coupled;
                 for col in sp.indices() {
+                    // Per lane: only lane s's own columns.
+                    let keep = coupled || col / (2 * RANK) == s;
                     if let Some(c) = fresh.col_mut(col).and_then(|c| c.get_mut(rows.clone())) {
                         for (j, e) in c.iter_mut().enumerate() {
                             // P is symmetric: row ia(j) of column col = entry (col, ia(j)).
-                            *e = if j < r {
+                            *e = if j < r && keep {
                                 p.get(col + NX * ia(j)).copied().unwrap_or(0.0)
                             } else {
                                 0.0
@@ -329,7 +373,7 @@ impl<
             }
         }
         for lag in &mut self.window {
-            times_transition(lag, &sp, &f, r);
+            times_transition(lag, &sp, &f, r, self.coupled);
         }
         probe.enter(Stage::Temporal);
         self.filter.predict_with(tables, &f, &q);
@@ -423,8 +467,9 @@ impl<
             }
         }
         let sp = self.filter.spans(g.r);
+        let only = (!self.coupled).then_some(g.slot);
         for lag in &mut self.window {
-            lag_update(lag, g, &sp, a0);
+            lag_update(lag, g, &sp, a0, only);
         }
         probe.enter(Stage::Temporal);
         self.filter.apply_update(g);
@@ -516,22 +561,57 @@ fn rows_of<const LANES: usize, const RANK: usize>(
     sp
 }
 
-/// `C ← C F̄ᵀ` on the present rows and the active column pairs.
+/// Lane `s`'s rows `[s·RANK, s·RANK + r)` if it is present in the lag, else none.
+fn own_rows<const LANES: usize, const RANK: usize>(
+    present: [bool; LANES],
+    r: usize,
+    s: usize,
+) -> Spans<LANES> {
+    let mut sp = Spans::new();
+    if s < LANES && get(&present, s) {
+        sp.push(s * RANK, s * RANK + r);
+    }
+    sp
+}
+
+/// Zeroes every entry of `C` outside the diagonal blocks (row lane = column lane).
+fn zero_cross_lanes<const LANES: usize, const RANK: usize, const NA: usize, const NX: usize>(
+    lag: &mut Lagged<LANES, RANK, NA, NX>,
+) {
+    for (j, col) in lag.cross.as_mut_slice().chunks_exact_mut(NA).enumerate() {
+        let t = j / (2 * RANK);
+        for (i, e) in col.iter_mut().enumerate() {
+            if i / RANK != t {
+                *e = 0.0;
+            }
+        }
+    }
+}
+
+/// `C ← C F̄ᵀ` on the present rows and the active column pairs (`coupled = false`: on each
+/// column's own lane's rows only, the per-lane smoother's diagonal blocks).
 fn times_transition<const LANES: usize, const RANK: usize, const NA: usize, const NX: usize>(
     lag: &mut Lagged<LANES, RANK, NA, NX>,
     sp: &Spans<LANES>,
     f: &Matrix2<f32>,
     r: usize,
+    coupled: bool,
 ) {
     let (f00, f01, f10, f11) = (f.m11, f.m12, f.m21, f.m22);
     let present = lag.present;
+    let all = rows_of::<LANES, RANK>(present, r);
     let cs = lag.cross.as_mut_slice();
     for c0 in sp.indices().step_by(2) {
         let Some(pair) = cs.get_mut(c0 * NA..(c0 + 2) * NA) else {
             continue;
         };
         let (a, b) = pair.split_at_mut(NA);
-        for rows in rows_of::<LANES, RANK>(present, r).iter() {
+        let rows = if coupled {
+            all
+        } else {
+            own_rows::<LANES, RANK>(present, r, c0 / (2 * RANK))
+        };
+        for rows in rows.iter() {
             if let (Some(ca), Some(cb)) = (a.get_mut(rows.clone()), b.get_mut(rows)) {
                 for (va, vb) in ca.iter_mut().zip(cb.iter_mut()) {
                     let (x0, x1) = (*va, *vb);
@@ -552,9 +632,18 @@ fn lag_update<const LANES: usize, const RANK: usize, const NA: usize, const NX: 
     g: &UpdateParts<RANK, NX>,
     sp: &Spans<LANES>,
     a0: usize,
+    only: Option<usize>,
 ) {
     let r = g.r;
-    let runs = rows_of::<LANES, RANK>(lag.present, r);
+    let (runs, cols) = match only {
+        None => (rows_of::<LANES, RANK>(lag.present, r), *sp),
+        Some(s) => {
+            let mut c = Spans::new();
+            c.push(a0, a0 + 2 * r);
+            (own_rows::<LANES, RANK>(lag.present, r, s), c)
+        }
+    };
+    let sp = &cols;
     // K = C[:, a_s] and KM = K M, row-major, on the present rows.
     let mut k = [[0.0f32; RANK]; NA];
     for j in 0..r {

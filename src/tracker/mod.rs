@@ -144,7 +144,7 @@ impl_tracker! {
             spatial: SpatialFilter::new(),
             obs: [Self::EMPTY_OBS; LANES],
             ids: LaneTable::new(),
-            temporal: Temporal::new(),
+            temporal: Temporal::with_per_lane(cfg.smoother_per_lane),
             info: [NO_INFO; LANES],
             extent: [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; EXTENT_HISTORY],
             id_hist: [[None; LANES]; MAX_LAG + 1],

@@ -39,6 +39,10 @@ pub struct TrackerConfig {
     pub existence_decay: f32,
     /// Known lanes, existence probability, estimated clutter (docs/design.md §11).
     pub persist: PersistConfig,
+    /// `true`: the fixed-lag smoother's per-lane approximation (a lane's smoothed past moves
+    /// with its own innovations only; [`crate::temporal::smoother::Temporal::set_per_lane`]);
+    /// `false` (the default): the exact coupled smoother.
+    pub smoother_per_lane: bool,
 }
 
 impl TrackerConfig {
@@ -48,6 +52,7 @@ impl TrackerConfig {
         identity: IdentityConfig::DEFAULT,
         existence_decay: 0.8,
         persist: PersistConfig::DEFAULT,
+        smoother_per_lane: false,
     };
 
     /// The round-1 pipeline: no temporal prior in the association (the ablation).
