@@ -131,6 +131,9 @@ pub struct DemoOptions {
     /// The tracker configurations the robustness section runs, by name (default: one,
     /// `"tracker"`, [`TrackerConfig::DEFAULT`]).
     pub robustness_variants: Vec<(String, TrackerConfig)>,
+    /// The tracker configuration of the replay rows and the labels-as-points row (default
+    /// [`TrackerConfig::DEFAULT`]; e.g. the per-lane smoother in `examples/model_cost.rs`).
+    pub config: TrackerConfig,
 }
 
 impl Default for DemoOptions {
@@ -150,6 +153,7 @@ impl Default for DemoOptions {
                 ("tracker".to_string(), TrackerConfig::DEFAULT),
                 ("no temporal prior".to_string(), TrackerConfig::ROUND1),
             ],
+            config: TrackerConfig::DEFAULT,
         }
     }
 }
@@ -926,7 +930,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                 tables,
                 &cam,
                 Space::Image,
-                TrackerConfig::DEFAULT,
+                opts.config,
                 |v: FrameView<'_>| {
                     let new_clip = v.index == 0
                         || o.frames.get(v.index - 1).map(|f| &f.clip) != Some(&v.frame.clip);
@@ -1074,7 +1078,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         coupled,
         &real.camera,
         Space::Image,
-        TrackerConfig::DEFAULT,
+        opts.config,
         |_: FrameView<'_>| {},
     )?;
     let lp: Vec<TuSimpleRecord> = lp

@@ -43,8 +43,8 @@ use cortex_m_rt::{exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprint, hprintln};
 use stjpdacf::probe::{Probe, Stage};
 use stjpdacf::spatial::filter::{Config as SpatialConfig, LaneObservation, SpatialFilter};
-use stjpdacf::tables::DEFAULT;
-use stjpdacf::tracker::{LaneEstimate, ReferenceTracker, StepOutput};
+use stjpdacf::tables::{ReferenceTables, DEFAULT};
+use stjpdacf::tracker::{LaneEstimate, ReferenceTracker, StepOutput, TrackerConfig};
 use stjpdacf::wire::{self, frame_len, Receiver};
 
 /// Instructions per SysTick tick: `-icount shift=3` makes an instruction 8 ns of virtual time and
@@ -55,9 +55,43 @@ pub const MEAS: usize = 256;
 const SYST_MASK: u32 = 0x00FF_FFFF;
 const PAINT: u32 = 0xCCCC_CCCC;
 
+/// The tracker's tables: [`DEFAULT`], or with its Gram truncation lowered to the digit in the
+/// build-time variable `STJPDACF_FW_RANK` (a smaller model's cost, docs/measurements.md
+/// "Model cost"; the budget check builds without it).
+static TABLES: ReferenceTables = ReferenceTables {
+    gram_rank: rank_override(DEFAULT.gram_rank),
+    ..DEFAULT
+};
+
+/// Whether `STJPDACF_FW_PER_LANE` is `1`.
+const fn per_lane_override() -> bool {
+    match option_env!("STJPDACF_FW_PER_LANE") {
+        Some(s) => matches!(s.as_bytes(), [b'1']),
+        None => false,
+    }
+}
+
+/// `STJPDACF_FW_RANK` when it is one digit `1..=default`, else `default`.
+const fn rank_override(default: u32) -> u32 {
+    match option_env!("STJPDACF_FW_RANK") {
+        Some(s) => match s.as_bytes() {
+            [d @ b'1'..=b'9'] if ((*d - b'0') as u32) <= default => (*d - b'0') as u32,
+            _ => default,
+        },
+        None => default,
+    }
+}
+
+/// The tracker's configuration: [`TrackerConfig::DEFAULT`], with the per-lane smoother when the
+/// build-time variable `STJPDACF_FW_PER_LANE` is `1` (docs/measurements.md "Model cost").
+const CONFIG: TrackerConfig = TrackerConfig {
+    smoother_per_lane: per_lane_override(),
+    ..TrackerConfig::DEFAULT
+};
+
 /// The tracker (≈141 KB) lives in a static, never on the stack.
 static TRACKER: Mutex<RefCell<ReferenceTracker>> =
-    Mutex::new(RefCell::new(ReferenceTracker::new(&DEFAULT)));
+    Mutex::new(RefCell::new(ReferenceTracker::with_config(&TABLES, CONFIG)));
 
 /// Starts SysTick free-running on the CPU clock (no interrupt), reload `2²⁴ − 1`.
 pub fn start_systick(mut syst: SYST) {
