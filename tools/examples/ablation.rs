@@ -4,12 +4,11 @@
 //! `cargo run --release -p stjpdacf-tools --example ablation`
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
-use stjpdacf_tools::metric;
+use stjpdacf_tools::demo;
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
-use stjpdacf_tools::track::{self, Space};
 
 fn main() -> anyhow::Result<()> {
-    let labels = stjpdacf_tools::demo::replay_labels()?;
+    let labels = demo::replay_labels()?;
     let cam = Camera::tusimple();
     println!("| noise | configuration | accuracy | FP | FN |");
     println!("|---|---|---|---|---|");
@@ -19,19 +18,7 @@ fn main() -> anyhow::Result<()> {
             ("known lanes (default)", TrackerConfig::DEFAULT),
             ("no temporal prior (ROUND1)", TrackerConfig::ROUND1),
         ] {
-            let (preds, _) = track::track_with(
-                &o.frames,
-                &stjpdacf::tables::DEFAULT,
-                &cam,
-                Space::Image,
-                cfg,
-                |_| {},
-            )?;
-            let last: Vec<_> = preds
-                .into_iter()
-                .filter(|p| o.gt_last.iter().any(|g| g.raw_file == p.raw_file))
-                .collect();
-            let s = metric::bench_one_submit(&last, &o.gt_last)?;
+            let (s, _) = demo::score_replay_last(&o, &stjpdacf::tables::DEFAULT, cfg)?;
             println!(
                 "| {level:?} | {name} | {:.3} | {:.3} | {:.3} |",
                 s.accuracy, s.fp, s.fn_

@@ -17,9 +17,7 @@ use stjpdacf::tables::{ReferenceTables, DEFAULT};
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::demo::{self, Coupling, DemoOptions, Input};
-use stjpdacf_tools::metric;
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
-use stjpdacf_tools::track::{self, Space};
 
 /// The default tables truncated to `rank` Gram components, with the variance fraction they keep.
 fn truncated(rank: u32) -> ReferenceTables {
@@ -60,19 +58,7 @@ fn main() -> anyhow::Result<()> {
             .validate()
             .map_err(|e| anyhow::anyhow!("rank {rank}: {e:?}"))?;
         for (level, o) in &replays {
-            let (preds, stats) = track::track_with(
-                &o.frames,
-                tables,
-                &cam,
-                Space::Image,
-                TrackerConfig::DEFAULT,
-                |_| {},
-            )?;
-            let last: Vec<_> = preds
-                .into_iter()
-                .filter(|p| o.gt_last.iter().any(|g| g.raw_file == p.raw_file))
-                .collect();
-            let s = metric::bench_one_submit(&last, &o.gt_last)?;
+            let (s, stats) = demo::score_replay_last(o, tables, TrackerConfig::DEFAULT)?;
             println!(
                 "| {} | {:.6} | {level:?} | {:.3} | {:.3} | {:.3} | {:.3} |",
                 tables.gram_rank,

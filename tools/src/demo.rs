@@ -435,6 +435,23 @@ fn score_on(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord], timed: bool) -> Re
     metric::bench_one_submit(&kept, gts)
 }
 
+/// Tracks a replay (`o`, from [`synth::synthesize`]) with `tables` and `config` in image space
+/// and scores the labelled last frames with the official metric (the predictions carry their
+/// measured `run_time`s). Returns the score and the run's statistics. Used by the ablation and model-cost examples.
+pub fn score_replay_last(
+    o: &synth::SynthOutput,
+    tables: &'static ReferenceTables,
+    config: TrackerConfig,
+) -> Result<(Score, track::TrackStats)> {
+    let cam = Camera::tusimple();
+    let (preds, stats) = track::track_with(&o.frames, tables, &cam, Space::Image, config, |_| {})?;
+    let last: Vec<TuSimpleRecord> = preds
+        .into_iter()
+        .filter(|p| o.gt_last.iter().any(|g| g.raw_file == p.raw_file))
+        .collect();
+    Ok((metric::bench_one_submit(&last, &o.gt_last)?, stats))
+}
+
 /// The smoothed prediction that frame `v` carries: for frame `v.index − L` of the same clip
 /// (when the clip has that frame and it asks for a prediction), the smoothed lanes whose ids the
 /// filter published at that frame (`published[k]` for the clip's frame `k`), at its rows, over
