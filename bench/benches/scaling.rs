@@ -4,7 +4,7 @@
 //!
 //! ```sh
 //! cargo bench -p stjpdacf-bench --bench scaling
-//! cargo run -p stjpdacf-bench --example bench_report   # docs/bench/scaling.png and tables
+//! cargo xtask bench-report   # docs/bench/scaling.png and tables
 //! ```
 //!
 //! Const generics fix the points of each curve (`stjpdacf_bench::config`):

@@ -6,7 +6,7 @@
 //!
 //! ```sh
 //! cargo bench -p stjpdacf-bench --bench stages
-//! cargo run -p stjpdacf-bench --example bench_report
+//! cargo xtask bench-report
 //! ```
 //!
 //! Writes `target/stjpdacf-bench/stages.json`. Every figure is the mean over the sequence's

@@ -6,7 +6,7 @@
 //!
 //! ```sh
 //! cargo bench -p stjpdacf-bench --bench tracker
-//! cargo run -p stjpdacf-bench --example bench_report   # tables and plot in docs/bench/
+//! cargo xtask bench-report   # tables and plot in docs/bench/
 //! ```
 //!
 //! Every bench measures the bench thread's **CPU time** (`stjpdacf_bench::cputime`), not wall

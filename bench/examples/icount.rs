@@ -6,7 +6,7 @@
 //! ```sh
 //! cargo build --release -p stjpdacf-bench --example icount
 //! target/release/examples/icount            # runs itself under valgrind, ~5 min
-//! cargo run -p stjpdacf-bench --example bench_report
+//! cargo xtask bench-report
 //! ```
 //!
 //! For each sequence (`typical`, `worst`) and each side it runs

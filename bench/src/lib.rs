@@ -6,7 +6,7 @@
 //! * `cargo bench -p stjpdacf-bench --bench stages` — the per-stage split of the step from a
 //!   timing probe ([`harness::profile`]), with the probe's own overhead;
 //! * `cargo bench -p stjpdacf-bench --bench scaling` — time per frame against M, D, N and E;
-//! * `cargo run -p stjpdacf-bench --example bench_report` — collects the three into
+//! * `cargo xtask bench-report` — collects the three into
 //!   `docs/bench/results.json`, the tables of `docs/bench/README.md`, `scaling.csv` and
 //!   `scaling.png`;
 //! * `cargo bench -p stjpdacf-bench --bench stonesoup` — the 200 Stone Soup JPDA scans through
