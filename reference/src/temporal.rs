@@ -426,6 +426,112 @@ pub fn fixed_lag_smooth(steps: &[FilterStep], lag: usize) -> Result<Vec<LaggedEs
     Ok(out)
 }
 
+/// The per-lane fixed-lag smoother of docs/design.md §5.1, dense: the Kalman filter of the state
+/// augmented with the lagged lane positions, with every lag's cross-covariance
+/// `C_j = Cov(a_{k−j}, x_k)` projected onto its own-lane blocks (lagged positions of lane `t`
+/// against the current state of lane `t` only) after each prediction and each lane update. Lane
+/// updates are sequential, in the order they are applied (the projection makes the result
+/// depend on it). The filter itself (`x`, `P`) is the exact one; it is owned by the caller, who
+/// passes it to each call before changing it.
+///
+/// State layout as [`CoupledTemporalModel`]: lane-major, then index point, then `[f, ḟ]`; the
+/// lagged vector `a` holds the positions `f` of every lane (`D·N`).
+#[derive(Debug, Clone)]
+pub struct PerLaneLagWindow {
+    lag: usize,
+    lanes: usize,
+    points: usize,
+    /// Most recent first: `(a, Σ = Cov(a), C = Cov(a, x))`.
+    window: VecDeque<(DVector<f64>, DMatrix<f64>, DMatrix<f64>)>,
+}
+
+impl PerLaneLagWindow {
+    /// An empty window of `lag` frames for `lanes` lanes of `points` index points.
+    pub fn new(lag: usize, lanes: usize, points: usize) -> Self {
+        Self {
+            lag,
+            lanes,
+            points,
+            window: VecDeque::new(),
+        }
+    }
+
+    /// Zeroes `C` outside the own-lane blocks.
+    fn project(&self, c: &mut DMatrix<f64>) {
+        let n = self.points;
+        for row in 0..c.nrows() {
+            for col in 0..c.ncols() {
+                if row / n != col / (2 * n) {
+                    c[(row, col)] = 0.0;
+                }
+            }
+        }
+    }
+
+    /// A frame step: the filtered state of the frame that ends (`filtered`) enters as lag 1, the
+    /// oldest leaves, and every `C_j` becomes `C_j Fᵀ` (call before predicting the filter with `f`).
+    pub fn predict(&mut self, filtered: &Gaussian, f: &DMatrix<f64>) -> Result<()> {
+        let (m, dim) = (self.lanes * self.points, 2 * self.lanes * self.points);
+        ensure!(
+            filtered.dim() == dim && f.shape() == (dim, dim),
+            "state of dimension {} and F of {:?} for {dim}",
+            filtered.dim(),
+            f.shape()
+        );
+        let idx: Vec<usize> = (0..m).map(|r| 2 * r).collect();
+        let a = DVector::from_fn(m, |r, _| filtered.mean[idx[r]]);
+        let sigma = DMatrix::from_fn(m, m, |r, q| filtered.cov[(idx[r], idx[q])]);
+        let mut c = DMatrix::from_fn(m, dim, |r, col| filtered.cov[(idx[r], col)]);
+        self.project(&mut c);
+        self.window.push_front((a, sigma, c));
+        self.window.truncate(self.lag);
+        for (_, _, c) in self.window.iter_mut() {
+            *c = &*c * f.transpose();
+        }
+        Ok(())
+    }
+
+    /// One lane's update: `h` (rows: that lane's present points), `r` and the innovation `y`,
+    /// against the filter's prior `prior` of this update. Every lag moves by `K_j = C_j Hᵀ`:
+    /// `a += K S⁻¹ y`, `Σ −= K S⁻¹ Kᵀ`, `C −= K S⁻¹ H P`, then `C` is projected.
+    pub fn update(
+        &mut self,
+        prior: &Gaussian,
+        h: &DMatrix<f64>,
+        r: &DMatrix<f64>,
+        y: &DVector<f64>,
+    ) -> Result<()> {
+        let s = h * &prior.cov * h.transpose() + r;
+        let s_inv = s
+            .cholesky()
+            .context("innovation covariance not positive definite")?
+            .inverse();
+        let hp = h * &prior.cov;
+        let mut window = std::mem::take(&mut self.window);
+        for (a, sigma, c) in window.iter_mut() {
+            let k = &*c * h.transpose();
+            let ks = &k * &s_inv;
+            *a += &ks * y;
+            *sigma -= &ks * k.transpose();
+            *c -= &ks * &hp;
+            self.project(c);
+        }
+        self.window = window;
+        Ok(())
+    }
+
+    /// The lagged estimate `L` frames back once the window is full: mean and variance of lane
+    /// `d`'s positions at the index points.
+    pub fn lagged(&self, d: usize) -> Option<(Vec<f64>, Vec<f64>)> {
+        if self.window.len() < self.lag || d >= self.lanes {
+            return None;
+        }
+        let (a, sigma, _) = self.window.back()?;
+        let rows = (0..self.points).map(|i| d * self.points + i);
+        Some(rows.map(|r| (a[r], sigma[(r, r)])).unzip())
+    }
+}
+
 /// One lane's pseudo-measurement for a frame: its positions at the `N` index points (`None` where the
 /// lane gives no value, e.g. outside its extent) and their `N×N` covariance block from the spatial
 /// smoother (rows and columns of missing points are ignored).

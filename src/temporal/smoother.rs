@@ -150,8 +150,12 @@ impl<
     /// moves with its own innovations only: a lane update costs `LAG·2r³` multiply-adds instead
     /// of `LAG·(p r)(2 n r) r`, and a prediction `LAG·n·4r²` instead of `LAG·4(p r)(2 n r)`.
     /// The filtered lanes are the same either way; the smoothed ones lose what other lanes'
-    /// innovations say about a lane's past (docs/design.md §5, measured in
-    /// docs/measurements.md "Model cost"). Switching to per lane zeroes the off-diagonal blocks.
+    /// innovations say about a lane's past (docs/design.md §5.1, measured in
+    /// docs/measurements.md "Fitting the MCU"). Switching to per lane zeroes the off-diagonal blocks.
+    ///
+    /// Experimental: with coupled lanes the projection can make the lagged covariance
+    /// indefinite, so the smoothed variances are then only their floor; the smoothed means are
+    /// what the option is for.
     pub fn set_per_lane(&mut self, per_lane: bool) {
         self.coupled = !per_lane;
         if per_lane {

@@ -10,7 +10,7 @@
 //!
 //! The instructions per frame of the same models on the Cortex-M4F come from
 //! `STJPDACF_FW_RANK=r` / `STJPDACF_FW_PER_LANE=1 cargo xtask firmware` (docs/measurements.md,
-//! "Model cost").
+//! "Fitting the MCU").
 //!
 //! `cargo run --release -p stjpdacf-tools --example model_cost [rank ...]`
 use stjpdacf::tables::{ReferenceTables, DEFAULT};

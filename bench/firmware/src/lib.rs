@@ -57,7 +57,7 @@ const PAINT: u32 = 0xCCCC_CCCC;
 
 /// The tracker's tables: [`DEFAULT`], or with its Gram truncation lowered to the digit in the
 /// build-time variable `STJPDACF_FW_RANK` (a smaller model's cost, docs/measurements.md
-/// "Model cost"; the budget check builds without it).
+/// "Fitting the MCU"; the budget check builds without it).
 static TABLES: ReferenceTables = ReferenceTables {
     gram_rank: rank_override(DEFAULT.gram_rank),
     ..DEFAULT
@@ -83,7 +83,7 @@ const fn rank_override(default: u32) -> u32 {
 }
 
 /// The tracker's configuration: [`TrackerConfig::DEFAULT`], with the per-lane smoother when the
-/// build-time variable `STJPDACF_FW_PER_LANE` is `1` (docs/measurements.md "Model cost").
+/// build-time variable `STJPDACF_FW_PER_LANE` is `1` (docs/measurements.md "Fitting the MCU").
 const CONFIG: TrackerConfig = TrackerConfig {
     smoother_per_lane: per_lane_override(),
     ..TrackerConfig::DEFAULT
