@@ -335,8 +335,8 @@ fn fixed_lag_smoother_matches_dense_rts() {
 fn per_lane_smoother_matches_dense_projected_window() {
     use stjpdacf_reference::temporal::{PerLaneLagWindow, StackedMeasurement};
     const LAG: usize = 4;
-    let (_, reference) = model();
-    let index_u: Vec<f64> = model().0.index_u.iter().copied().collect();
+    let (t, reference) = model();
+    let index_u: Vec<f64> = t.index_u.iter().copied().collect();
     let lanes = 3;
     let offsets = [-5.4, -1.8, 1.8];
     let mut rng = ChaCha8Rng::seed_from_u64(12);

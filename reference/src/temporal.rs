@@ -456,9 +456,8 @@ impl PerLaneLagWindow {
         }
     }
 
-    /// Zeroes `C` outside the own-lane blocks.
-    fn project(&self, c: &mut DMatrix<f64>) {
-        let n = self.points;
+    /// Zeroes `C` outside the own-lane blocks (`n` index points a lane).
+    fn project(n: usize, c: &mut DMatrix<f64>) {
         for row in 0..c.nrows() {
             for col in 0..c.ncols() {
                 if row / n != col / (2 * n) {
@@ -482,7 +481,7 @@ impl PerLaneLagWindow {
         let a = DVector::from_fn(m, |r, _| filtered.mean[idx[r]]);
         let sigma = DMatrix::from_fn(m, m, |r, q| filtered.cov[(idx[r], idx[q])]);
         let mut c = DMatrix::from_fn(m, dim, |r, col| filtered.cov[(idx[r], col)]);
-        self.project(&mut c);
+        Self::project(self.points, &mut c);
         self.window.push_front((a, sigma, c));
         self.window.truncate(self.lag);
         for (_, _, c) in self.window.iter_mut() {
@@ -507,16 +506,14 @@ impl PerLaneLagWindow {
             .context("innovation covariance not positive definite")?
             .inverse();
         let hp = h * &prior.cov;
-        let mut window = std::mem::take(&mut self.window);
-        for (a, sigma, c) in window.iter_mut() {
+        for (a, sigma, c) in self.window.iter_mut() {
             let k = &*c * h.transpose();
             let ks = &k * &s_inv;
             *a += &ks * y;
             *sigma -= &ks * k.transpose();
             *c -= &ks * &hp;
-            self.project(c);
+            Self::project(self.points, c);
         }
-        self.window = window;
         Ok(())
     }
 

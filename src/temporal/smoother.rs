@@ -81,7 +81,7 @@ pub struct Temporal<
     window: [Lagged<LANES, RANK, NA, NX>; LAG],
     head: usize,
     frames: u32,
-    /// `false`: the per-lane approximation (see [`Temporal::set_per_lane`]).
+    /// `false`: the per-lane approximation (see [`Temporal::with_per_lane`]).
     coupled: bool,
 }
 
@@ -136,33 +136,23 @@ impl<
         }
     }
 
-    /// [`Temporal::new`] with the per-lane smoother when `per_lane` (`const`).
+    /// [`Temporal::new`] with the chosen smoother (`const`). Exact (the default,
+    /// `per_lane = false`): every lane's lagged coefficients move with every lane's innovation through the full
+    /// cross-covariances `C_j = Cov(a_{k−j}, x_k)`. Per lane (`true`): `C_j` is kept block-diagonal
+    /// (lane `t`'s lagged coefficients against lane `t`'s current state only), so a lane's lagged
+    /// estimate moves with its own innovations only: a lane update costs `LAG·2r³` multiply-adds
+    /// instead of `LAG·(p r)(2 n r) r`, and a prediction `LAG·n·4r²` instead of
+    /// `LAG·4(p r)(2 n r)`. The filtered lanes are the same either way; the smoothed ones lose what other lanes'
+    /// innovations say about a lane's past (docs/design.md §5.1, measured in docs/measurements.md
+    /// "Fitting the MCU").
+    ///
+    /// Experimental: with coupled lanes the projection can make the lagged covariance indefinite,
+    /// so the smoothed variances are then only their floor; the smoothed means are what the option
+    /// is for.
     pub const fn with_per_lane(per_lane: bool) -> Self {
         let mut t = Self::new();
         t.coupled = !per_lane;
         t
-    }
-
-    /// Chooses the smoother. Exact (the default, `per_lane = false`): every lane's lagged
-    /// coefficients move with every lane's innovation through the full cross-covariances
-    /// `C_j = Cov(a_{k−j}, x_k)`. Per lane (`true`): `C_j` is kept block-diagonal (lane `t`'s
-    /// lagged coefficients against lane `t`'s current state only), so a lane's lagged estimate
-    /// moves with its own innovations only: a lane update costs `LAG·2r³` multiply-adds instead
-    /// of `LAG·(p r)(2 n r) r`, and a prediction `LAG·n·4r²` instead of `LAG·4(p r)(2 n r)`.
-    /// The filtered lanes are the same either way; the smoothed ones lose what other lanes'
-    /// innovations say about a lane's past (docs/design.md §5.1, measured in
-    /// docs/measurements.md "Fitting the MCU"). Switching to per lane zeroes the off-diagonal blocks.
-    ///
-    /// Experimental: with coupled lanes the projection can make the lagged covariance
-    /// indefinite, so the smoothed variances are then only their floor; the smoothed means are
-    /// what the option is for.
-    pub fn set_per_lane(&mut self, per_lane: bool) {
-        self.coupled = !per_lane;
-        if per_lane {
-            for lag in &mut self.window {
-                zero_cross_lanes(lag);
-            }
-        }
     }
 
     /// The filter (filtered lanes at the current frame).
@@ -576,20 +566,6 @@ fn own_rows<const LANES: usize, const RANK: usize>(
         sp.push(s * RANK, s * RANK + r);
     }
     sp
-}
-
-/// Zeroes every entry of `C` outside the diagonal blocks (row lane = column lane).
-fn zero_cross_lanes<const LANES: usize, const RANK: usize, const NA: usize, const NX: usize>(
-    lag: &mut Lagged<LANES, RANK, NA, NX>,
-) {
-    for (j, col) in lag.cross.as_mut_slice().chunks_exact_mut(NA).enumerate() {
-        let t = j / (2 * RANK);
-        for (i, e) in col.iter_mut().enumerate() {
-            if i / RANK != t {
-                *e = 0.0;
-            }
-        }
-    }
 }
 
 /// `C ← C F̄ᵀ` on the present rows and the active column pairs (`coupled = false`: on each

@@ -40,7 +40,7 @@ pub struct TrackerConfig {
     /// Known lanes, existence probability, estimated clutter (docs/design.md §11).
     pub persist: PersistConfig,
     /// `true`: the fixed-lag smoother's per-lane approximation (a lane's smoothed past moves
-    /// with its own innovations only; [`crate::temporal::smoother::Temporal::set_per_lane`]);
+    /// with its own innovations only; [`crate::temporal::smoother::Temporal::with_per_lane`]);
     /// `false` (the default): the exact coupled smoother. Experimental: its smoothed variances
     /// are not meaningful with coupled lanes (docs/design.md §5.1).
     pub smoother_per_lane: bool,

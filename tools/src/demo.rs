@@ -437,7 +437,8 @@ fn score_on(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord], timed: bool) -> Re
 
 /// Tracks a replay (`o`, from [`synth::synthesize`]) with `tables` and `config` in image space
 /// and scores the labelled last frames with the official metric (the predictions carry their
-/// measured `run_time`s). Returns the score and the run's statistics. Used by the ablation and model-cost examples.
+/// measured `run_time`s). Returns the score and the run's statistics. Used by the ablation and
+/// model-cost examples.
 pub fn score_replay_last(
     o: &synth::SynthOutput,
     tables: &'static ReferenceTables,
