@@ -27,7 +27,7 @@ use std::path::PathBuf;
 use anyhow::{ensure, Context, Result};
 use nalgebra::{Matrix2, Vector2};
 use serde::Deserialize;
-use stjpdacf::spatial::row::{self, MissModel, RowOutcome, RowParams, MAX_ROW_POINTS};
+use stjpdacf::spatial::row::{self, Association, MissModel, RowOutcome, RowParams, MAX_ROW_POINTS};
 
 /// Tracks (lanes) in the scans.
 pub const TRACKS: usize = 4;
@@ -201,6 +201,9 @@ pub struct Core {
     f: Matrix2<f32>,
     q: Matrix2<f32>,
     params: RowParams,
+    /// How the rows are weighed: exact enumeration (Stone Soup's `JPDA`, the default) or LBP
+    /// marginals (Stone Soup's `JPDAwithLBP`).
+    pub association: Association,
 }
 
 fn m2(a: &[[f64; 2]; 2]) -> Matrix2<f32> {
@@ -226,6 +229,7 @@ impl Core {
             f: m2(&p.F),
             q: m2(&p.Q),
             params: scans.row,
+            association: Association::Exact,
         }
     }
 
@@ -233,6 +237,16 @@ impl Core {
     /// docs, steps 1–4). On a numerical failure of the association (`out.failed`) the tracks
     /// keep their prediction.
     pub fn step(&mut self, points: &[f32]) -> RowOutcome<TRACKS> {
+        let (zhat, sdiag) = self.predict();
+        let out = self.associate(&zhat, &sdiag, points, self.association);
+        if !out.failed {
+            self.update(&zhat, &sdiag, points, &out);
+        }
+        out
+    }
+
+    /// Step 1: `x⁻ = F x`, `P⁻ = F P Fᵀ + Q` per track; returns `ẑ_t` and `S_t`.
+    pub fn predict(&mut self) -> ([f32; TRACKS], [f32; TRACKS]) {
         let r = self.params.r;
         let mut zhat = [0.0f32; TRACKS];
         let mut sdiag = [0.0f32; TRACKS];
@@ -250,20 +264,38 @@ impl Core {
             *zh = x[0];
             *s = p[(0, 0)] + r;
         }
+        (zhat, sdiag)
+    }
+
+    /// Steps 2–3: the row's association of the predicted tracks, weighed by `association`.
+    pub fn associate(
+        &self,
+        zhat: &[f32; TRACKS],
+        sdiag: &[f32; TRACKS],
+        points: &[f32],
+        association: Association,
+    ) -> RowOutcome<TRACKS> {
         // Independent tracks: S_st = 0 for s ≠ t.
-        let out = row::associate(
-            &zhat,
-            &sdiag,
+        row::associate(
+            zhat,
+            sdiag,
             |_, _| 0.0,
             TRACKS,
             points,
             &self.params,
-            MAX_EVENTS,
+            (MAX_EVENTS, association),
             0,
-        );
-        if out.failed {
-            return out;
-        }
+        )
+    }
+
+    /// Step 4: the PDA update of every track with the weights `out`.
+    pub fn update(
+        &mut self,
+        zhat: &[f32; TRACKS],
+        sdiag: &[f32; TRACKS],
+        points: &[f32],
+        out: &RowOutcome<TRACKS>,
+    ) {
         for t in 0..TRACKS {
             let (zh, s) = (zhat[t], sdiag[t]);
             let beta = &out.beta[t];
@@ -283,7 +315,52 @@ impl Core {
             let pn = p + k * k.transpose() * (spread - (1.0 - out.beta_miss[t]) * s);
             self.p[t] = (pn + pn.transpose()) * 0.5;
         }
-        out
+    }
+}
+
+/// LBP marginals against exact enumeration on the same predictions: each scan of the exact
+/// replay is also weighed by [`Association::Lbp`].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct LbpAgreement {
+    /// `|β_LBP − β_exact|` over every (scan, track, miss or point) weight.
+    pub beta: Diff,
+    /// Scans with a point inside two or more gates (the graph has cycles; elsewhere LBP is exact).
+    pub shared_scans: usize,
+    /// Largest number of message iterations of a scan.
+    pub max_iterations: u32,
+}
+
+/// Runs the exact replay and weighs every scan's prediction by LBP as well.
+pub fn lbp_agreement(scans: &Scans) -> LbpAgreement {
+    let mut core = Core::new(scans);
+    let mut diffs = Vec::new();
+    let (mut shared_scans, mut max_iterations) = (0usize, 0u32);
+    for (k, pts) in scans.points.iter().enumerate() {
+        let (zhat, sdiag) = core.predict();
+        let exact = core.associate(&zhat, &sdiag, pts, Association::Exact);
+        let lbp = core.associate(&zhat, &sdiag, pts, Association::Lbp);
+        let mut seen = 0u32;
+        let mut shared = 0u32;
+        for v in exact.valid {
+            shared |= seen & v;
+            seen |= v;
+        }
+        shared_scans += usize::from(shared != 0);
+        max_iterations = max_iterations.max(lbp.lbp_iterations);
+        for t in 0..TRACKS {
+            diffs.push((k, f64::from(lbp.beta_miss[t] - exact.beta_miss[t])));
+            for j in 0..pts.len().min(MAX_ROW_POINTS) {
+                diffs.push((k, f64::from(lbp.beta[t][j] - exact.beta[t][j])));
+            }
+        }
+        if !exact.failed {
+            core.update(&zhat, &sdiag, pts, &exact);
+        }
+    }
+    LbpAgreement {
+        beta: Diff::of(diffs.into_iter()),
+        shared_scans,
+        max_iterations,
     }
 }
 
@@ -306,9 +383,15 @@ pub struct Replay {
     pub failed: usize,
 }
 
-/// Replays every scan through a fresh [`Core`], recording the states and β.
+/// Replays every scan through a fresh [`Core`] (exact enumeration), recording the states and β.
 pub fn replay(scans: &Scans) -> Replay {
+    replay_with(scans, Association::Exact)
+}
+
+/// [`replay`] with the rows weighed by `association`.
+pub fn replay_with(scans: &Scans, association: Association) -> Replay {
     let mut core = Core::new(scans);
+    core.association = association;
     let mut rep = Replay::default();
     for pts in &scans.points {
         let out = core.step(pts);

@@ -89,6 +89,10 @@ typedef int32_t stjpdacf_status;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
+// How [`associate`] weighs a row's joint events (the known-lane stage, docs/design.md §11.3;
+// the spatial row step always enumerates).
+typedef struct Association Association;
+
 // The tracker (opaque to C): the Rust tracker and the lanes of the last frame.
 typedef struct stjpdacf_tracker stjpdacf_tracker;
 
@@ -210,6 +214,13 @@ typedef struct stjpdacf_known_report {
   uint32_t merged;
   // The process-noise scale used by this frame's prediction.
   float q_scale;
+  // Joint events the rows enumerated.
+  uint32_t events;
+  // Rows over the event budget whose least likely candidates were dropped
+  // ([`crate::spatial::row::Association::Exact`]).
+  uint32_t pruned_rows;
+  // Rows weighed by LBP marginals ([`crate::spatial::row::Association`]).
+  uint32_t lbp_rows;
 } stjpdacf_known_report;
 
 // What one frame did (`repr(C)`: the C API hands it to C as is).

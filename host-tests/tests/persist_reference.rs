@@ -646,18 +646,20 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
     let mut explained: Explained<ROWS> = [0; ROWS];
     let mut basis = RowBasis::<RANK, ROWS>::NEW;
     basis.ensure(&DEFAULT, &pass);
-    let failed = ps.associate(
-        &DEFAULT,
-        &basis,
-        temporal.filter(),
-        &lanes,
-        &pass,
-        &pcfg,
-        |k| rows32[k].as_slice(),
-        false,
-        &mut ev,
-        &mut explained,
-    );
+    let failed = ps
+        .associate(
+            &DEFAULT,
+            &basis,
+            temporal.filter(),
+            &lanes,
+            &pass,
+            &pcfg,
+            |k| rows32[k].as_slice(),
+            false,
+            &mut ev,
+            &mut explained,
+        )
+        .failed_rows;
     assert_eq!(failed, 0, "seed {seed}: rows failed in the core");
     // Per lane.
     for (a, &s) in slots.iter().enumerate() {

@@ -545,3 +545,75 @@ fn pda_track(
         p: (&p_new + p_new.transpose()) * 0.5,
     })
 }
+
+/// Loopy belief propagation marginals of one row's association with the *uncoupled* likelihood
+/// (docs/design.md §11.3, Williams & Lau 2014): `ψ_dj = P_D N(z_j; ẑ_d, S_d) / (λ_c · miss)`
+/// for `j` in the gate of track `d` (0 elsewhere), messages `ν_dj = 1` at the start, then per
+/// iteration `μ_dj = ψ_dj / (1 + Σ_{j' ≠ j} ψ_dj' ν_dj')` and
+/// `ν_dj = 1 / (1 + Σ_{d' ≠ d} μ_d'j)`, until no `ν` moves by more than `tolerance` or after
+/// `max_iterations`; `β_d0 = 1 / (1 + Σ_j ψ_dj ν_dj)`, `β_dj = ψ_dj ν_dj β_d0`. Returns the
+/// marginals in [`RowResult::beta`]'s layout and the iterations run (at least 1).
+pub fn lbp_marginals(
+    gating: &Gating,
+    zs: &[f64],
+    params: &RowParams,
+    max_iterations: u32,
+    tolerance: f64,
+) -> (Vec<Vec<f64>>, u32) {
+    let d = gating.zhat.len();
+    let m = zs.len();
+    let miss = params.miss.miss_factor(params.pd, params.pg);
+    let psi: Vec<Vec<f64>> = (0..d)
+        .map(|t| {
+            (0..m)
+                .map(|j| {
+                    if gating.valid[t][j] {
+                        let s = gating.s[t];
+                        let e = zs[j] - gating.zhat[t];
+                        params.pd * (-0.5 * e * e / s).exp()
+                            / ((2.0 * PI * s).sqrt() * params.clutter_density * miss)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let mut nu = vec![vec![1.0; m]; d];
+    let mut iterations = 0;
+    let shared = (0..m).any(|j| (0..d).filter(|&t| gating.valid[t][j]).count() > 1);
+    if shared {
+        while iterations < max_iterations {
+            iterations += 1;
+            let mu: Vec<Vec<f64>> = (0..d)
+                .map(|t| {
+                    let s: f64 = 1.0 + (0..m).map(|j| psi[t][j] * nu[t][j]).sum::<f64>();
+                    (0..m)
+                        .map(|j| psi[t][j] / (s - psi[t][j] * nu[t][j]))
+                        .collect()
+                })
+                .collect();
+            let mut moved = 0.0f64;
+            for j in 0..m {
+                let col: f64 = 1.0 + (0..d).map(|t| mu[t][j]).sum::<f64>();
+                for t in 0..d {
+                    let new = 1.0 / (col - mu[t][j]);
+                    moved = moved.max((new - nu[t][j]).abs());
+                    nu[t][j] = new;
+                }
+            }
+            if moved <= tolerance {
+                break;
+            }
+        }
+    }
+    let beta = (0..d)
+        .map(|t| {
+            let s: f64 = 1.0 + (0..m).map(|j| psi[t][j] * nu[t][j]).sum::<f64>();
+            std::iter::once(1.0 / s)
+                .chain((0..m).map(|j| psi[t][j] * nu[t][j] / s))
+                .collect()
+        })
+        .collect();
+    (beta, iterations.max(1))
+}

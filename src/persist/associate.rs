@@ -9,7 +9,7 @@ use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 
 use super::rows::{band, mean_at, quad, RowBasis};
-use super::{Evidence, Pass, Persist, PersistConfig};
+use super::{Evidence, Pass, PassCounts, Persist, PersistConfig};
 
 /// The rows' points a known lane explains, per row (bit `j` = point `j`).
 pub type Explained<const ROWS: usize> = [u32; ROWS];
@@ -87,8 +87,9 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     /// One pass of the known lanes over the binned rows: per row the predicted lanes, the
     /// joint events, and each lane's evidence (`ev[s]`) and detection counts; the points each
     /// row's lanes explain (`explained[r]`), and the clutter estimate from the rest
-    /// (`estimate_clutter`). `row_points(r)` gives row `r`'s points. Returns the rows whose
-    /// event enumeration failed.
+    /// (`estimate_clutter`). `row_points(r)` gives row `r`'s points. Returns what the rows'
+    /// association did (`cfg.association`): failed rows, events scored, rows pruned to the
+    /// budget, rows weighed by LBP.
     #[allow(clippy::too_many_arguments)]
     pub fn associate<'p, const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,
@@ -102,7 +103,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         estimate_clutter: bool,
         ev: &mut [Evidence<RANK>; LANES],
         explained: &mut Explained<ROWS>,
-    ) -> u32 {
+    ) -> PassCounts {
         let h = &tables.hyper;
         let r_used = (tables.gram_rank as usize).min(RANK).min(POINTS);
         let (slot, n) = self.begin_pass(filter, lanes.slots, cfg.pd_memory);
@@ -121,7 +122,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         };
         let mut unexplained = [0.0f32; POINTS];
         let mut band_rows = [0.0f32; POINTS];
-        let mut failed = 0u32;
+        let mut counts = PassCounts::default();
         for r in 0..pass.rows.min(ROWS) {
             let pts = row_points(r);
             let m = pts.len().min(MAX_ROW_POINTS);
@@ -180,10 +181,13 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 pred.n,
                 pts,
                 &at.params,
-                pass.max_events,
+                (pass.max_events, cfg.association),
                 0,
             );
-            failed += u32::from(out.failed);
+            counts.failed_rows += u32::from(out.failed);
+            counts.events += out.events;
+            counts.pruned_rows += u32::from(out.approximated && out.lbp_iterations == 0);
+            counts.lbp_rows += u32::from(out.lbp_iterations > 0);
             // Explained points.
             let mut ex = 0u32;
             for j in 0..m {
@@ -209,7 +213,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         if estimate_clutter {
             self.update_clutter(&unexplained, &band_rows, cfg.clutter_memory);
         }
-        failed
+        counts
     }
 
     /// Collects the active slots among `slots` and discounts their detection counts with a

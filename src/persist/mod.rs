@@ -36,7 +36,7 @@ use nalgebra::{SMatrix, SVector};
 
 use crate::linalg::{get, set};
 use crate::math;
-use crate::spatial::row::RowParams;
+use crate::spatial::row::{Association, RowParams};
 
 mod associate;
 mod rows;
@@ -88,6 +88,9 @@ pub struct PersistConfig {
     /// keeps it alive: existence and detection probability cannot both be learned from the
     /// same misses.
     pub pd_floor: f32,
+    /// How each row's joint events are weighed (docs/design.md §11.3): exact enumeration with
+    /// pruning over the budget, LBP over the budget, or LBP everywhere.
+    pub association: Association,
 }
 
 impl PersistConfig {
@@ -109,6 +112,7 @@ impl PersistConfig {
         p_visible: 0.9,
         min_spacing: 1.0,
         pd_floor: 0.2,
+        association: Association::ExactOrLbp,
     };
 
     /// The round-1 pipeline (ablation "no temporal prior").
@@ -199,6 +203,19 @@ impl<const RANK: usize> Evidence<RANK> {
         llr: 0.0,
         extent: [f32::INFINITY, f32::NEG_INFINITY],
     };
+}
+
+/// What one [`Persist::associate`] pass did over its rows.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PassCounts {
+    /// Rows whose association failed numerically (every lane missed there).
+    pub failed_rows: u32,
+    /// Joint events scored by exact enumeration.
+    pub events: u32,
+    /// Rows over the event budget whose least likely candidates were dropped.
+    pub pruned_rows: u32,
+    /// Rows weighed by LBP marginals.
+    pub lbp_rows: u32,
 }
 
 /// What [`Persist::associate`] needs besides the lanes.

@@ -41,7 +41,7 @@ impl_tracker! {
                 rows: [(0, last); LANES],
             };
             let spatial = &self.spatial;
-            report.known.failed_rows = self.persist.associate(
+            let counts = self.persist.associate(
                 self.tables,
                 &self.basis,
                 self.temporal.filter(),
@@ -53,6 +53,10 @@ impl_tracker! {
                 &mut ev,
                 &mut explained,
             );
+            report.known.failed_rows = counts.failed_rows;
+            report.known.events = counts.events;
+            report.known.pruned_rows = counts.pruned_rows;
+            report.known.lbp_rows = counts.lbp_rows;
             report.known.lanes = live.count_ones();
         }
         let mut seen = 0u32;

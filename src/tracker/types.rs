@@ -142,6 +142,13 @@ pub struct KnownReport {
     pub merged: u32,
     /// The process-noise scale used by this frame's prediction.
     pub q_scale: f32,
+    /// Joint events the rows enumerated.
+    pub events: u32,
+    /// Rows over the event budget whose least likely candidates were dropped
+    /// ([`crate::spatial::row::Association::Exact`]).
+    pub pruned_rows: u32,
+    /// Rows weighed by LBP marginals ([`crate::spatial::row::Association`]).
+    pub lbp_rows: u32,
 }
 
 /// The output of one frame.

@@ -6,13 +6,20 @@
 //!    go to the residual variance `ρ_r`, docs/design.md §4.1), the labelled last frames;
 //! 2. the exact fixed-lag smoother against the per-lane one (`TrackerConfig::smoother_per_lane`,
 //!    docs/design.md §5.1): the filtered and the smoothed lanes on every frame that has a
-//!    smoothed estimate (the demo's smoother table).
+//!    smoothed estimate (the demo's smoother table);
+//! 3. the known-lane rows' association (`PersistConfig::association`, docs/design.md §11.3):
+//!    exact enumeration (pruned over the budget), LBP over the budget, LBP on every row; the
+//!    labelled last frames, with the events enumerated and the rows pruned or weighed by LBP.
 //!
 //! The instructions per frame of the same models on the Cortex-M4F come from
-//! `STJPDACF_FW_RANK=r` / `STJPDACF_FW_PER_LANE=1 cargo xtask firmware` (docs/measurements.md,
+//! `STJPDACF_FW_RANK=r` / `STJPDACF_FW_PER_LANE=1` / `STJPDACF_FW_ASSOC=lbp|hybrid cargo xtask
+//! firmware` (docs/measurements.md,
 //! "Fitting the MCU").
 //!
-//! `cargo run --release -p stjpdacf-tools --example model_cost [rank ...]`
+//! `cargo run --release -p stjpdacf-tools --example model_cost [rank ...]` (all sections; the
+//! ranks given, or 7 down to 3), `... --example model_cost assoc` (section 3 only).
+use stjpdacf::persist::PersistConfig;
+use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT};
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
@@ -31,9 +38,11 @@ fn truncated(rank: u32) -> ReferenceTables {
 }
 
 fn main() -> anyhow::Result<()> {
+    let only_assoc = std::env::args().nth(1).as_deref() == Some("assoc");
     let ranks: Vec<u32> = {
         let a: Vec<u32> = std::env::args()
             .skip(1)
+            .filter(|s| s != "assoc")
             .map(|s| s.parse())
             .collect::<Result<_, _>>()?;
         if a.is_empty() {
@@ -49,15 +58,29 @@ fn main() -> anyhow::Result<()> {
         .into_iter()
         .map(|l| synth::synthesize(&labels, &SynthParams::preset(l), &cam, 1).map(|o| (l, o)))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    if !only_assoc {
+        gram(&ranks, &replays)?;
+    }
+    association(&replays)?;
+    if !only_assoc {
+        smoother(&levels)?;
+    }
+    Ok(())
+}
+
+type Replays = [(NoiseLevel, synth::SynthOutput)];
+
+/// Section 1.
+fn gram(ranks: &[u32], replays: &Replays) -> anyhow::Result<()> {
     println!("Gram truncation (labelled last frames):\n");
     println!("| Gram rank | variance kept | noise | accuracy | FP | FN | host ms/frame |");
     println!("|---|---|---|---|---|---|---|");
-    for rank in ranks {
+    for &rank in ranks {
         let tables: &'static ReferenceTables = Box::leak(Box::new(truncated(rank)));
         tables
             .validate()
             .map_err(|e| anyhow::anyhow!("rank {rank}: {e:?}"))?;
-        for (level, o) in &replays {
+        for (level, o) in replays {
             let (s, stats) = demo::score_replay_last(o, tables, TrackerConfig::DEFAULT)?;
             println!(
                 "| {} | {:.6} | {level:?} | {:.3} | {:.3} | {:.3} | {:.3} |",
@@ -70,6 +93,48 @@ fn main() -> anyhow::Result<()> {
             );
         }
     }
+    Ok(())
+}
+
+/// Section 3.
+fn association(replays: &Replays) -> anyhow::Result<()> {
+    println!(
+        "\nKnown-lane association (labelled last frames, events per frame over all frames):\n"
+    );
+    println!("| association | noise | accuracy | FP | FN | events / frame | pruned rows / frame | LBP rows / frame | host ms/frame |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for (name, association) in [
+        ("exact (pruned over budget)", Association::Exact),
+        ("exact, LBP over budget", Association::ExactOrLbp),
+        ("LBP every row", Association::Lbp),
+    ] {
+        let config = TrackerConfig {
+            persist: PersistConfig {
+                association,
+                ..PersistConfig::DEFAULT
+            },
+            ..TrackerConfig::DEFAULT
+        };
+        for (level, o) in replays {
+            let (s, st) = demo::score_replay_last(o, &DEFAULT, config)?;
+            let per = |v: u64| v as f64 / st.frames.max(1) as f64;
+            println!(
+                "| {name} | {level:?} | {:.3} | {:.3} | {:.3} | {:.1} | {:.3} | {:.3} | {:.3} |",
+                s.accuracy,
+                s.fp,
+                s.fn_,
+                per(st.known_events),
+                per(st.known_pruned_rows),
+                per(st.known_lbp_rows),
+                st.step_mean_ms
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Section 2.
+fn smoother(levels: &[NoiseLevel]) -> anyhow::Result<()> {
     println!("\nSmoother (every frame with a smoothed estimate, coupled B):\n");
     println!("| smoother | noise | frames | filtered acc/FP/FN | smoothed acc/FP/FN |");
     println!("|---|---|---|---|---|");

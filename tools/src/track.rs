@@ -60,6 +60,12 @@ pub struct TrackStats {
     pub run_mean_ms: f64,
     /// Largest time spent on a frame, ms.
     pub run_max_ms: f64,
+    /// Joint events the known-lane stage enumerated, over all frames.
+    pub known_events: u64,
+    /// Known-lane rows pruned to the event budget, over all frames.
+    pub known_pruned_rows: u64,
+    /// Known-lane rows weighed by LBP, over all frames.
+    pub known_lbp_rows: u64,
 }
 
 impl TrackStats {
@@ -527,7 +533,13 @@ pub fn track_with(
         let res = tr.step(Instant::from_micros(frame_micros(f)), &pts);
         stats.add_step(&mut times, step_start.elapsed().as_secs_f64() * 1e3);
         let output = match res {
-            Ok(o) => Some(o),
+            Ok(o) => {
+                let kr = &o.report.known;
+                stats.known_events += u64::from(kr.events);
+                stats.known_pruned_rows += u64::from(kr.pruned_rows);
+                stats.known_lbp_rows += u64::from(kr.lbp_rows);
+                Some(o)
+            }
             Err(_) => {
                 stats.rejected_steps += 1;
                 None

@@ -41,8 +41,10 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use cortex_m_rt::{exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprint, hprintln};
+use stjpdacf::persist::PersistConfig;
 use stjpdacf::probe::{Probe, Stage};
 use stjpdacf::spatial::filter::{Config as SpatialConfig, LaneObservation, SpatialFilter};
+use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT};
 use stjpdacf::tracker::{LaneEstimate, ReferenceTracker, StepOutput, TrackerConfig};
 use stjpdacf::wire::{self, frame_len, Receiver};
@@ -82,10 +84,29 @@ const fn rank_override(default: u32) -> u32 {
     }
 }
 
+/// The known-lane association of the build-time variable `STJPDACF_FW_ASSOC` (`exact`,
+/// `hybrid`: LBP over the budget, `lbp`: LBP every row), else the default's.
+const fn association_override(default: Association) -> Association {
+    match option_env!("STJPDACF_FW_ASSOC") {
+        Some(s) => match s.as_bytes() {
+            b"exact" => Association::Exact,
+            b"hybrid" => Association::ExactOrLbp,
+            b"lbp" => Association::Lbp,
+            _ => default,
+        },
+        None => default,
+    }
+}
+
 /// The tracker's configuration: [`TrackerConfig::DEFAULT`], with the per-lane smoother when the
-/// build-time variable `STJPDACF_FW_PER_LANE` is `1` (docs/measurements.md "Fitting the MCU").
+/// build-time variable `STJPDACF_FW_PER_LANE` is `1` and the known-lane association of
+/// `STJPDACF_FW_ASSOC` (docs/measurements.md "Fitting the MCU").
 const CONFIG: TrackerConfig = TrackerConfig {
     smoother_per_lane: per_lane_override(),
+    persist: PersistConfig {
+        association: association_override(PersistConfig::DEFAULT.association),
+        ..PersistConfig::DEFAULT
+    },
     ..TrackerConfig::DEFAULT
 };
 

@@ -60,6 +60,7 @@ use crate::math;
 use crate::probe::{NoProbe, Probe, Stage};
 
 mod events;
+mod lbp;
 mod mixture;
 use events::{count_events, Acc, Ctx, WINDOW};
 use mixture::{apply_mixture, at, eligible_gains, mat_vec, put};
@@ -80,6 +81,28 @@ pub enum MissModel {
     /// `1 − P_D P_G`: a detection outside the gate is also a miss (docs/design.md §4.1; the default).
     Gated,
 }
+
+/// How [`associate`] weighs a row's joint events (the known-lane stage, docs/design.md §11.3;
+/// the spatial row step always enumerates).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Association {
+    /// Exact enumeration with the coupled likelihood; a row whose events exceed the budget
+    /// loses its least likely candidates until it fits (§4.1 step 5).
+    Exact,
+    /// Exact enumeration within the budget; a row over it gets the LBP marginals of the
+    /// uncoupled likelihood instead of pruning (`lbp` module).
+    ExactOrLbp,
+    /// The LBP marginals of the uncoupled likelihood on every row: `O(iterations · n · m)`, no
+    /// event enumeration and no cross-covariances.
+    Lbp,
+}
+
+/// Most message iterations of an LBP row ([`Association`]).
+pub const LBP_MAX_ITERATIONS: u32 = lbp::MAX_ITERATIONS;
+
+/// An LBP row stops once no message moves by more than this.
+pub const LBP_TOLERANCE: f32 = lbp::TOLERANCE;
 
 /// Parameters of a row step.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -133,6 +156,10 @@ pub struct RowOutcome<const LANES: usize> {
     pub dropped_candidates: u32,
     /// The event budget forced the approximation.
     pub approximated: bool,
+    /// Message iterations when the weights are LBP marginals ([`Association`]; at least 1, the
+    /// final pass: a row without shared points needs no other); 0 when the events were
+    /// enumerated.
+    pub lbp_iterations: u32,
     /// Points valid for no track.
     pub clutter_points: u32,
     /// Points beyond [`MAX_ROW_POINTS`] or with a non-finite coordinate (not used).
@@ -155,6 +182,7 @@ impl<const LANES: usize> Default for RowOutcome<LANES> {
             patterns: 0,
             dropped_candidates: 0,
             approximated: false,
+            lbp_iterations: 0,
             clutter_points: 0,
             ignored_points: 0,
             failed: false,
@@ -288,12 +316,15 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
 /// `zhat[t]` and `sdiag[t] = S̄_tt` (with the point variance `r` included) for the first `n`
 /// tracks, and `cross(s, t) = S̄_st` (`s < t`), asked only for pairs of tracks that both have
 /// candidates. Gating, the event budget and its pruning, the detection patterns and the events
-/// are those of [`update_probed`] (steps 2, 3 and 5); `out.beta`, `out.beta_miss` and the
-/// counters are filled, `out.failed` set on a numerical failure (every track then missed).
+/// are those of [`update_probed`] (steps 2, 3 and 5) under [`Association::Exact`]; the other
+/// modes replace the enumeration by LBP marginals of the uncoupled likelihood on every row or on
+/// the rows over the budget. `out.beta`, `out.beta_miss` and the counters are filled,
+/// `out.failed` set on a numerical failure (every track then missed).
 ///
 /// # Complexity
-/// As [`update_probed`] without the state update: `n(n−1)/2` calls of `cross` at most, `2^n`
-/// patterns and `max_events` events at most.
+/// Enumerated: as [`update_probed`] without the state update, `n(n−1)/2` calls of `cross` at
+/// most, `2^n` patterns and `max_events` events at most. LBP: no call of `cross`, at most
+/// [`LBP_MAX_ITERATIONS`] × `2 n m` multiply-adds and divisions.
 #[allow(clippy::too_many_arguments)]
 pub fn associate<const LANES: usize>(
     zhat: &[f32; LANES],
@@ -302,7 +333,7 @@ pub fn associate<const LANES: usize>(
     n: usize,
     points: &[f32],
     params: &RowParams,
-    max_events: usize,
+    (max_events, mode): (usize, Association),
     skip: u32,
 ) -> RowOutcome<LANES> {
     let mut out = RowOutcome::<LANES>::default();
@@ -323,6 +354,19 @@ pub fn associate<const LANES: usize>(
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
     let lg = Logs::of(params);
+    if mode == Association::ExactOrLbp && over_budget(&out.valid, n, max_events) {
+        out.approximated = true;
+    }
+    if mode == Association::Lbp || out.approximated {
+        return match lbp::marginals(&mut out, zhat, sdiag, points, n, &lg, skip) {
+            Some(it) => {
+                out.lbp_iterations = it.max(1);
+                exclusive_density(&mut out, zhat, sdiag, points, n);
+                out
+            }
+            None => failed(out),
+        };
+    }
     fit_budget(&mut out, &sbar, zhat, points, n, max_events, &lg);
     let mut elig = [0u8; LANES];
     let mut na = 0usize;
@@ -510,11 +554,18 @@ fn fit_budget<const LANES: usize>(
     max_events: usize,
     lg: &Logs,
 ) {
-    let budget = max_events.max(1) as u64;
-    if event_bound(&out.valid, n) > budget && count_events(&out.valid, n, budget) > budget {
+    if over_budget(&out.valid, n, max_events) {
         out.approximated = true;
-        prune(out, (sbar, zhat, points), n, budget, lg);
+        prune(out, (sbar, zhat, points), n, max_events.max(1) as u64, lg);
     }
+}
+
+/// Whether the first `n` tracks' gates `valid` make more joint events than `max_events` (at
+/// least 1). The bound `Π (1 + n_t)` is checked first, so the events are only counted when it
+/// exceeds the budget.
+fn over_budget<const LANES: usize>(valid: &[u32; LANES], n: usize, max_events: usize) -> bool {
+    let budget = max_events.max(1) as u64;
+    event_bound(valid, n) > budget && count_events(valid, n, budget) > budget
 }
 
 /// `Π_t (1 + n_t)` over the first `n` tracks' gates: an upper bound of the joint events.
