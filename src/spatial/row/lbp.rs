@@ -83,13 +83,7 @@ pub(super) fn marginals<const LANES: usize>(
             iterations += 1;
             // Track → point.
             for ((mrow, prow), nrow) in mu.iter_mut().zip(psi.iter()).zip(nu.iter()).take(n) {
-                let s: f32 = 1.0
-                    + prow
-                        .iter()
-                        .zip(nrow.iter())
-                        .take(m)
-                        .map(|(p, v)| p * v)
-                        .sum::<f32>();
+                let s = track_total(prow, nrow, m);
                 for ((mu_tj, p), v) in mrow.iter_mut().zip(prow.iter()).zip(nrow.iter()).take(m) {
                     *mu_tj = if *p > 0.0 { p / (s - p * v) } else { 0.0 };
                 }
@@ -125,13 +119,7 @@ pub(super) fn marginals<const LANES: usize>(
             *bm = 1.0;
             continue;
         }
-        let s: f32 = 1.0
-            + prow
-                .iter()
-                .zip(nrow.iter())
-                .take(m)
-                .map(|(p, v)| p * v)
-                .sum::<f32>();
+        let s = track_total(prow, nrow, m);
         if !(s.is_finite() && s >= 1.0) {
             return None;
         }
@@ -142,4 +130,16 @@ pub(super) fn marginals<const LANES: usize>(
         }
     }
     Some(iterations)
+}
+
+/// `1 + Σ_j ψ_tj ν_tj` over a track's first `m` points: its miss plus its messages-weighted
+/// candidates (the normaliser of both message directions' track side and of its marginals).
+#[inline(always)]
+fn track_total(psi: &[f32; MAX_ROW_POINTS], nu: &[f32; MAX_ROW_POINTS], m: usize) -> f32 {
+    1.0 + psi
+        .iter()
+        .zip(nu.iter())
+        .take(m)
+        .map(|(p, v)| p * v)
+        .sum::<f32>()
 }

@@ -354,10 +354,9 @@ pub fn associate<const LANES: usize>(
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
     let lg = Logs::of(params);
-    if mode == Association::ExactOrLbp && over_budget(&out.valid, n, max_events) {
-        out.approximated = true;
-    }
-    if mode == Association::Lbp || out.approximated {
+    // The event count is checked once: an over-budget row is weighed by LBP or pruned.
+    out.approximated = mode != Association::Lbp && over_budget(&out.valid, n, max_events);
+    if mode == Association::Lbp || (mode == Association::ExactOrLbp && out.approximated) {
         return match lbp::marginals(&mut out, zhat, sdiag, points, n, &lg, skip) {
             Some(it) => {
                 out.lbp_iterations = it.max(1);
@@ -367,7 +366,15 @@ pub fn associate<const LANES: usize>(
             None => failed(out),
         };
     }
-    fit_budget(&mut out, &sbar, zhat, points, n, max_events, &lg);
+    if out.approximated {
+        prune(
+            &mut out,
+            (&sbar, zhat, points),
+            n,
+            max_events.max(1) as u64,
+            &lg,
+        );
+    }
     let mut elig = [0u8; LANES];
     let mut na = 0usize;
     for (t, v) in out.valid.iter().enumerate().take(n) {
