@@ -208,7 +208,8 @@ typedef struct stjpdacf_known_report {
   uint32_t explained_points;
   // Rows whose joint events failed numerically (every lane missed there).
   uint32_t failed_rows;
-  // Lanes deleted because their existence fell below `p_delete`.
+  // Lanes deleted because their existence fell below `p_delete` or the ray test found them
+  // to be a vertical structure (`ray_deleted` of them).
   uint32_t deleted;
   // Lanes removed as duplicates of another (one lane, one track).
   uint32_t merged;
@@ -221,6 +222,11 @@ typedef struct stjpdacf_known_report {
   uint32_t pruned_rows;
   // Rows weighed by LBP marginals ([`crate::spatial::row::Association`]).
   uint32_t lbp_rows;
+  // New lanes refused because the ray test found them to be a vertical structure
+  // ([`crate::persist::ray`]).
+  uint32_t ray_refused;
+  // Live lanes deleted for the same reason (counted in `deleted` too).
+  uint32_t ray_deleted;
 } stjpdacf_known_report;
 
 // What one frame did (`repr(C)`: the C API hands it to C as is).

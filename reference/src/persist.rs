@@ -592,6 +592,76 @@ fn floored_quadratic(m: &DMatrix<f64>, w: &DVector<f64>, rel: f64) -> f64 {
     z.norm_squared()
 }
 
+/// The ray statistic of docs/design.md §11.10 in f64: over the index points `i` where
+/// `present[i]` (finite `u`, `z`, positive finite `weight`), the weighted least-squares line
+/// `x = a + b t` (`t = u / max|u|`) and quadratic `x = a' + b' s + c s²` (`s = (u − u_mid)/u_half`
+/// over the points used), each solved as
+/// `θ = (Hᵀ W H)⁻¹ Hᵀ W z` (dense LU, `W = diag(weight)`); `â` and `ĉ` are the rows
+/// `f = e_kᵀ (Hᵀ W H)⁻¹ Hᵀ W` applied to `z`, with variances `fᵀ C f` for the covariance `C` of
+/// `z` (full `POINTS × POINTS`, zero where absent). Returns `(â, √(fₐᵀ C fₐ), â²/S_aa, ĉ²/S_cc)`,
+/// or `None` with fewer than 3 points or a singular fit.
+pub fn ray_stat(
+    u: &[f64],
+    z: &[f64],
+    present: &[bool],
+    weight: &[f64],
+    cov: &DMatrix<f64>,
+) -> Option<(f64, f64, f64, f64)> {
+    let idx: Vec<usize> = (0..u.len())
+        .filter(|&i| {
+            present.get(i) == Some(&true)
+                && u[i].is_finite()
+                && z.get(i).is_some_and(|v| v.is_finite())
+                && weight.get(i).is_some_and(|w| w.is_finite() && *w > 0.0)
+        })
+        .collect();
+    if idx.len() < 3 {
+        return None;
+    }
+    let scale = idx.iter().map(|&i| u[i].abs()).fold(0.0, f64::max);
+    if scale <= 0.0 {
+        return None;
+    }
+    // The functional of coefficient `k` of the polynomial of degree `deg`, over all index points.
+    let (lo, hi) = idx
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &i| {
+            (l.min(u[i]), h.max(u[i]))
+        });
+    let functional = |deg: usize, k: usize| -> Option<DVector<f64>> {
+        // The line in `u / max|u|`; the quadratic in `(u − u_mid)/u_half` (its curvature term
+        // does not depend on the origin, and the χ² not on the scale).
+        let x = |i: usize| {
+            if deg == 1 {
+                u[i] / scale
+            } else {
+                (u[i] - (lo + hi) / 2.0) / ((hi - lo) / 2.0)
+            }
+        };
+        let h = DMatrix::from_fn(idx.len(), deg + 1, |r, c| x(idx[r]).powi(c as i32));
+        let w = DMatrix::from_diagonal(&DVector::from_iterator(
+            idx.len(),
+            idx.iter().map(|&i| weight[i]),
+        ));
+        let normal = h.transpose() * &w * &h;
+        let inv = normal.lu().try_inverse()?;
+        let rows = inv * h.transpose() * w;
+        let mut f = DVector::zeros(u.len());
+        for (r, &i) in idx.iter().enumerate() {
+            f[i] = rows[(k, r)];
+        }
+        Some(f)
+    };
+    let zv = DVector::from_column_slice(z).map(|v| if v.is_finite() { v } else { 0.0 });
+    let fa = functional(1, 0)?;
+    let fc = functional(2, 2)?;
+    let a = fa.dot(&zv);
+    let c = fc.dot(&zv);
+    let saa = (fa.transpose() * cov * &fa)[(0, 0)];
+    let scc = (fc.transpose() * cov * &fc)[(0, 0)];
+    (saa > 0.0 && scc > 0.0).then(|| (a, saa.sqrt(), a * a / saa, c * c / scc))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

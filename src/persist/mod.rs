@@ -24,7 +24,8 @@
 //! lane explains; `r_b` the band's point variance from posterior residuals (§11.6).
 //!
 //! Points a known lane explains leave the rows; the spatial JPDACF runs on the rest and may
-//! start new lanes only from them.
+//! start new lanes only from them, except those the ray test ([`ray`], §11.10) finds to be the
+//! image of a vertical structure.
 //!
 //! # Cost
 //! Per row: `n·r` for the predictions, `n·r²` for the variances, at most `n(n−1)/2·r²` for the
@@ -39,9 +40,11 @@ use crate::math;
 use crate::spatial::row::{Association, RowParams};
 
 mod associate;
+pub mod ray;
 mod rows;
 
 pub use associate::{Explained, Lanes};
+pub use ray::{parallel, ray_stat, RayStat, RayVerdict};
 pub use rows::{row_basis, RowBasis};
 
 /// Tuning of the known-lane stage. Values are model constants, not fitted to a data set
@@ -91,12 +94,23 @@ pub struct PersistConfig {
     /// How each row's joint events are weighed (docs/design.md §11.3): exact enumeration with
     /// pruning over the budget, LBP over the budget, or LBP everywhere.
     pub association: Association,
+    /// The ray test (docs/design.md §11.10, [`ray`]): a lane consistent with a straight line
+    /// through the camera's foot point (the BEV origin) within `ray_z` standard deviations, in
+    /// offset and in curvature, is the image of a vertical structure (a vehicle's side, a pole),
+    /// not paint: it starts no lane, and a live lane found so is deleted unless it runs parallel
+    /// to a lane found to be paint (the marking under the camera in a lane change). 0 turns the
+    /// test off; 3 by default (the conventional 3σ, not fitted).
+    pub ray_z: f32,
+    /// The test decides only when the line's offset at the foot point is known to this standard
+    /// deviation or better, metres: 0.5, a third of 1.5 m, the smallest offset of a marking
+    /// from a camera inside its lane.
+    pub ray_resolution: f32,
 }
 
 impl PersistConfig {
     /// The defaults: 10 frames of detection memory, 5 of clutter memory, clutter floor
     /// 0.005 /m, `τ_s` = 10 s, `P_birth` = 0.1, publish at 0.5, delete below 0.01, a point
-    /// explained at 0.5.
+    /// explained at 0.5, the ray test at 3σ and 0.5 m.
     pub const DEFAULT: Self = Self {
         enabled: true,
         pd_memory: 10.0,
@@ -113,6 +127,8 @@ impl PersistConfig {
         min_spacing: 1.0,
         pd_floor: 0.2,
         association: Association::ExactOrLbp,
+        ray_z: 3.0,
+        ray_resolution: 0.5,
     };
 
     /// The round-1 pipeline (ablation "no temporal prior").

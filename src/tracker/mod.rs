@@ -32,12 +32,13 @@ use heapless::Vec;
 
 use crate::linalg::{get, set};
 use crate::observation::LaneObservation;
-use crate::persist::{Persist, RowBasis};
+use crate::persist::{Persist, RayVerdict, RowBasis};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::{SpatialFilter, SpatialReport};
 use crate::tables::Tables;
 use crate::temporal::identity::{
-    IdentityOutcome, IdentityReport, LaneId, LanePrediction, LaneTable, SlotFate,
+    DropReason, IdentityOutcome, IdentityReport, LaneId, LanePrediction, LaneTable, ObsFate,
+    SlotFate,
 };
 use crate::temporal::smoother::{Temporal, MAX_LAG};
 pub use crate::time::Instant;
@@ -290,6 +291,11 @@ impl_tracker! {
         }
         let outcome = self.associate(n_obs);
         report.identity = outcome.report;
+        report.known.ray_refused = outcome
+            .obs
+            .iter()
+            .filter(|f| matches!(f, ObsFate::Dropped(DropReason::Refused)))
+            .count() as u32;
         for s in 0..LANES {
             if known & (1 << s) != 0 {
                 let counted = matches!(outcome.slots.get(s), Some(SlotFate::Matched { .. }));
@@ -333,11 +339,22 @@ impl_tracker! {
                 };
             }
         }
-        self.ids.associate(
-            &preds,
-            self.obs.get(..n_obs).unwrap_or(&[]),
-            &self.cfg.identity,
-        )
+        let obs = self.obs.get(..n_obs).unwrap_or(&[]);
+        let mut may_start = [true; LANES];
+        if self.cfg.persist.enabled {
+            // A ray starts no lane unless it runs parallel to a lane that is paint (the marking
+            // under the camera, docs/design.md §11.10).
+            let mut verdicts = None;
+            for (m, ob) in may_start.iter_mut().zip(obs) {
+                if self.ray_verdict_obs(ob) == RayVerdict::Ray {
+                    let v = *verdicts.get_or_insert_with(|| self.lane_ray_verdicts());
+                    *m = (0..LANES)
+                        .any(|t| get(&v, t) == RayVerdict::Paint && self.obs_parallel(ob, t));
+                }
+            }
+        }
+        self.ids
+            .associate_births(&preds, obs, &self.cfg.identity, &may_start)
     }
 
     /// Steps 4 and 5: removed lanes leave the temporal filter; new lanes start in rank order among

@@ -4,10 +4,11 @@
 //! window.
 
 use heapless::Vec;
-use nalgebra::SVector;
+use nalgebra::{SMatrix, SVector};
 
 use crate::linalg::{get, set};
-use crate::persist::{Evidence, Explained, Lanes, Pass};
+use crate::observation::LaneObservation;
+use crate::persist::{self, ray_stat, Evidence, Explained, Lanes, Pass, RayVerdict};
 use crate::probe::{Probe, Stage};
 use crate::spatial::filter::SpatialFilter;
 use crate::temporal::filter::TemporalFilter;
@@ -116,7 +117,8 @@ impl_tracker! {
     /// of duplicates (the ranks follow when a lane left), existence into the published figures.
     pub(super) fn maintain_known(&mut self, slots: &[SlotFate; LANES], report: &mut StepReport) {
         self.new_lane_existence(slots);
-        let deleted = self.delete_unlikely();
+        let (deleted, rays) = self.delete_unlikely();
+        report.known.ray_deleted = rays;
         let merged = self.merge_duplicates();
         report.known.deleted = deleted;
         report.known.merged = merged;
@@ -256,16 +258,158 @@ impl_tracker! {
     }
 
     /// Lanes whose existence fell below `p_delete` are removed; returns how many.
-    fn delete_unlikely(&mut self) -> u32 {
-        let mut any = 0u32;
+    fn delete_unlikely(&mut self) -> (u32, u32) {
+        // The ray test (docs/design.md §11.10): a lane seen as a ray through the camera's foot
+        // point is a vertical structure, unless it runs parallel to a lane shown to be paint
+        // (the marking under the camera in a lane change does; a vehicle's edge does not).
+        let verdicts = self.lane_ray_verdicts();
+        let (mut any, mut rays) = (0u32, 0u32);
         for s in 0..LANES {
             let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
-            if self.ids.lane(s).is_some() && p < self.cfg.persist.p_delete {
+            let ray = get(&verdicts, s) == RayVerdict::Ray
+                && !(0..LANES).any(|t| {
+                    t != s && get(&verdicts, t) == RayVerdict::Paint && self.parallel(s, t)
+                });
+            if self.ids.lane(s).is_some() && (p < self.cfg.persist.p_delete || ray) {
                 self.remove_slot(s);
                 any += 1;
+                rays += u32::from(ray);
             }
         }
-        any
+        (any, rays)
+    }
+
+    /// `(V_rᵀ p)ᵀ Cov(a_s, a_t) (V_rᵀ q)`: the covariance of `pᵀ z_s` and `qᵀ z_t` for the
+    /// lanes' positions `z = V_r a` at the index points.
+    fn position_cov(&self, s: usize, t: usize, p: &[f32; POINTS], q: &[f32; POINTS]) -> f32 {
+        let r = (self.tables.gram_rank as usize).min(RANK).min(POINTS);
+        let v = &self.tables.gram_eigvec;
+        let coef = |x: &[f32; POINTS]| -> [f32; RANK] {
+            core::array::from_fn(|j| {
+                if j < r {
+                    (0..POINTS)
+                        .map(|i| v.get((i, j)).copied().unwrap_or(0.0) * get(x, i))
+                        .sum()
+                } else {
+                    0.0
+                }
+            })
+        };
+        let (cp, cq) = (coef(p), coef(q));
+        let cov = self.temporal.filter().covariance();
+        let mut acc = 0.0f32;
+        for j in 0..r {
+            let row = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
+            let mut inner = 0.0f32;
+            for k in 0..r {
+                let col = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, 0);
+                inner += cov.get((row, col)).copied().unwrap_or(0.0) * get(&cq, k);
+            }
+            acc += get(&cp, j) * inner;
+        }
+        acc
+    }
+
+    /// Index points inside lane `s`'s observed extent of this frame.
+    fn observed(&self, s: usize) -> [bool; POINTS] {
+        let info = get(&self.info, s);
+        core::array::from_fn(|i| {
+            let u = self.tables.index_u.get(i).copied().unwrap_or(f32::NAN);
+            info.seen && u >= info.extent[0] && u <= info.extent[1]
+        })
+    }
+
+    /// The ray test (docs/design.md §11.10) on live lane `s`'s filtered estimate over its
+    /// observed extent of this frame, with the covariance of its Gram coefficients plus the
+    /// point variance `r` on every index point.
+    fn lane_ray_verdict(&self, s: usize) -> RayVerdict {
+        let c = &self.cfg.persist;
+        let Some((z, var)) = self
+            .temporal
+            .filter()
+            .lane(self.tables, s)
+            .filter(|_| c.ray_z > 0.0)
+        else {
+            return RayVerdict::Undecided;
+        };
+        let rr = self.tables.hyper.meas_noise;
+        let w: [f32; POINTS] =
+            core::array::from_fn(|i| 1.0 / (var.get(i).copied().unwrap_or(f32::NAN) + rr));
+        let cov = |p: &[f32; POINTS], q: &[f32; POINTS]| {
+            self.position_cov(s, s, p, q) + rr * dotp(p, q)
+        };
+        ray_stat(&self.tables.index_u, &z, &self.observed(s), &w, cov)
+            .map_or(RayVerdict::Undecided, |st| st.verdict(c.ray_z, c.ray_resolution))
+    }
+
+    /// Lanes `s` and `t` run parallel over the index points both observed this frame: the slope
+    /// of their difference `z_s − z_t` (weighted line fit) is within `ray_z` standard deviations
+    /// of zero, with `Cov(z_s − z_t)` from the temporal covariance plus `2r` per index point.
+    /// `false` with fewer than 3 common points.
+    fn parallel(&self, s: usize, t: usize) -> bool {
+        let (Some((zs, vs)), Some((zt, vt))) = (
+            self.temporal.filter().lane(self.tables, s),
+            self.temporal.filter().lane(self.tables, t),
+        ) else {
+            return false;
+        };
+        let (os, ot) = (self.observed(s), self.observed(t));
+        let rr = self.tables.hyper.meas_noise;
+        let at = |v: &SVector<f32, POINTS>, i: usize| v.get(i).copied().unwrap_or(f32::NAN);
+        let present: [bool; POINTS] = core::array::from_fn(|i| get(&os, i) && get(&ot, i));
+        let d: [f32; POINTS] = core::array::from_fn(|i| at(&zs, i) - at(&zt, i));
+        let w: [f32; POINTS] = core::array::from_fn(|i| 1.0 / (at(&vs, i) + at(&vt, i) + 2.0 * rr));
+        persist::parallel(&self.tables.index_u, &d, &present, &w, self.cfg.persist.ray_z, |f| {
+            self.position_cov(s, s, f, f) + self.position_cov(t, t, f, f)
+                - 2.0 * self.position_cov(s, t, f, f)
+                + 2.0 * rr * dotp(f, f)
+        })
+    }
+
+    /// An observation of this frame runs parallel to live lane `t` (its prediction) over the
+    /// observation's present index points: [`Tracker::parallel`] with `Cov(z_obs − z_t)` =
+    /// the observation's covariance plus the lane's plus `2r` per point (independent: the
+    /// observation is this frame's points, the prediction the frames before).
+    pub(super) fn obs_parallel(&self, ob: &LaneObservation<POINTS>, t: usize) -> bool {
+        let Some((zt, vt)) = self.temporal.filter().lane(self.tables, t) else {
+            return false;
+        };
+        let rr = self.tables.hyper.meas_noise;
+        let at = |v: &SVector<f32, POINTS>, i: usize| v.get(i).copied().unwrap_or(f32::NAN);
+        let d: [f32; POINTS] = core::array::from_fn(|i| at(&ob.z, i) - at(&zt, i));
+        let w: [f32; POINTS] = core::array::from_fn(|i| {
+            1.0 / (ob.cov.get((i, i)).copied().unwrap_or(f32::NAN) + at(&vt, i) + 2.0 * rr)
+        });
+        persist::parallel(&self.tables.index_u, &d, &ob.present, &w, self.cfg.persist.ray_z, |f| {
+            quadratic_form(&ob.cov, f, f) + self.position_cov(t, t, f, f) + 2.0 * rr * dotp(f, f)
+        })
+    }
+
+    /// The verdicts of the ray test on every live lane (its estimate over this frame's extent).
+    pub(super) fn lane_ray_verdicts(&self) -> [RayVerdict; LANES] {
+        core::array::from_fn(|s| {
+            if self.ids.lane(s).is_some() {
+                self.lane_ray_verdict(s)
+            } else {
+                RayVerdict::Undecided
+            }
+        })
+    }
+
+    /// The ray test on one of this frame's observations (its smoothed covariance).
+    pub(super) fn ray_verdict_obs(&self, ob: &LaneObservation<POINTS>) -> RayVerdict {
+        let c = &self.cfg.persist;
+        if c.ray_z.is_nan() || c.ray_z <= 0.0 {
+            return RayVerdict::Undecided;
+        }
+        let cov = |p: &[f32; POINTS], q: &[f32; POINTS]| {
+            quadratic_form(&ob.cov, p, q) + self.tables.hyper.meas_noise * dotp(p, q)
+        };
+        let rr = self.tables.hyper.meas_noise;
+        let w: [f32; POINTS] =
+            core::array::from_fn(|i| 1.0 / (ob.cov.get((i, i)).copied().unwrap_or(f32::NAN) + rr));
+        ray_stat(&self.tables.index_u, &ob.z, &ob.present, &w, cov)
+            .map_or(RayVerdict::Undecided, |st| st.verdict(c.ray_z, c.ray_resolution))
     }
 
     /// Step 6: this frame's extents and ids enter the histories (newest first).
@@ -474,4 +618,22 @@ impl_tracker! {
         let residual = (h.spatial_variance - explained).max(0.0) * bss;
         Some((mean, var_a + residual))
     }
+}
+
+/// `pᵀ q`.
+fn dotp<const N: usize>(p: &[f32; N], q: &[f32; N]) -> f32 {
+    p.iter().zip(q).map(|(a, b)| a * b).sum()
+}
+
+/// `pᵀ M q` over the entries where `p` is not zero.
+fn quadratic_form<const N: usize>(m: &SMatrix<f32, N, N>, p: &[f32; N], q: &[f32; N]) -> f32 {
+    let mut acc = 0.0f32;
+    for (i, &pi) in p.iter().enumerate() {
+        if pi != 0.0 {
+            for (j, &qj) in q.iter().enumerate() {
+                acc += pi * m.get((i, j)).copied().unwrap_or(0.0) * qj;
+            }
+        }
+    }
+    acc
 }

@@ -136,7 +136,8 @@ pub struct KnownReport {
     pub explained_points: u32,
     /// Rows whose joint events failed numerically (every lane missed there).
     pub failed_rows: u32,
-    /// Lanes deleted because their existence fell below `p_delete`.
+    /// Lanes deleted because their existence fell below `p_delete` or the ray test found them
+    /// to be a vertical structure (`ray_deleted` of them).
     pub deleted: u32,
     /// Lanes removed as duplicates of another (one lane, one track).
     pub merged: u32,
@@ -149,6 +150,11 @@ pub struct KnownReport {
     pub pruned_rows: u32,
     /// Rows weighed by LBP marginals ([`crate::spatial::row::Association`]).
     pub lbp_rows: u32,
+    /// New lanes refused because the ray test found them to be a vertical structure
+    /// ([`crate::persist::ray`]).
+    pub ray_refused: u32,
+    /// Live lanes deleted for the same reason (counted in `deleted` too).
+    pub ray_deleted: u32,
 }
 
 /// The output of one frame.

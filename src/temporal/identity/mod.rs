@@ -176,6 +176,9 @@ pub enum DropReason {
     /// No lane matched and it has fewer than `min_common` valid points (present, finite position,
     /// finite variance `≥ 0`), too few to start a lane.
     Unusable,
+    /// No lane matched and the caller refused it a lane (the tracker's ray test: a line through
+    /// the camera's foot point, docs/design.md §11.10).
+    Refused,
 }
 
 /// What happened to one observation.
@@ -514,6 +517,18 @@ impl<const LANES: usize> LaneTable<LANES> {
         obs: &[LaneObservation<POINTS>],
         cfg: &IdentityConfig,
     ) -> IdentityOutcome<LANES> {
+        self.associate_births(preds, obs, cfg, &[true; LANES])
+    }
+
+    /// [`LaneTable::associate`], where an unmatched observation `i` may start a lane only if
+    /// `may_start[i]`; the others are dropped ([`DropReason::Refused`]).
+    pub fn associate_births<const POINTS: usize>(
+        &mut self,
+        preds: &[LanePrediction<POINTS>; LANES],
+        obs: &[LaneObservation<POINTS>],
+        cfg: &IdentityConfig,
+        may_start: &[bool; LANES],
+    ) -> IdentityOutcome<LANES> {
         let gate = if cfg.gate.is_finite() && cfg.gate >= 0.0 {
             cfg.gate
         } else {
@@ -573,6 +588,10 @@ impl<const LANES: usize> LaneTable<LANES> {
             if valid_points(o) < u32::from(min_common) {
                 *fate = ObsFate::Dropped(DropReason::Unusable);
                 report.dropped_unusable += 1;
+                continue;
+            }
+            if !may_start.get(i).copied().unwrap_or(true) {
+                *fate = ObsFate::Dropped(DropReason::Refused);
                 continue;
             }
             let Some(free) = self.slots.iter().position(Option::is_none) else {
