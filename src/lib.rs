@@ -3,8 +3,9 @@
 //!
 //! The model (see `docs/design.md` in the repository for the mathematics):
 //!
-//! * a lane is a curve `x = c + g(u)` in bird's-eye-view (BEV) coordinates, `u` metres ahead and
-//!   `x` metres lateral; `g` has an RBF Gaussian-process prior along `u`, run as a Taylor-order-`NT`
+//! * a lane is a curve `x = c + g(u)` in bird's-eye-view (BEV) coordinates, `u` metres ahead of
+//!   the camera and `x` metres lateral from its axis (the origin is the camera's foot point, which
+//!   the ray test of [`persist::ray`] relies on); `g` has an RBF Gaussian-process prior along `u`, run as a Taylor-order-`NT`
 //!   state-space model ([`kernel::RbfStateSpace`]);
 //! * lanes are coupled through a coregionalisation matrix `B` over lane slots (rank from the left);
 //! * each index point `u^f_i` of each lane evolves in time as a Matérn-3/2 process

@@ -68,7 +68,7 @@ fn core_ray_stat_matches_reference() {
             }
             acc
         };
-        let core = ray_stat(&u, &z, &present, &w, form);
+        let core = ray_stat(&u, &z, &present, &w, &form);
         let (Some(c), Some((a, sd, chi, chi_c))) = (core, reference) else {
             assert!(
                 core.is_none() || reference.is_none(),

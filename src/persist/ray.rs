@@ -76,12 +76,13 @@ impl RayStat {
 /// than 3 usable points (present, positive finite weight, finite `u` and `z`), when the extent
 /// is too short for either fit in f32 (`det < 10⁻⁵ (Σw)²` for the line, `10⁻⁷ (Σw)³` for the
 /// quadratic), or when a variance is not positive and finite.
+#[inline(never)]
 pub fn ray_stat<const POINTS: usize>(
     u: &SVector<f32, POINTS>,
     z: &SVector<f32, POINTS>,
     present: &[bool; POINTS],
     weight: &[f32; POINTS],
-    cov: impl Fn(&[f32; POINTS], &[f32; POINTS]) -> f32,
+    cov: &dyn Fn(&[f32; POINTS], &[f32; POINTS]) -> f32,
 ) -> Option<RayStat> {
     let usable = |i: usize| {
         get(present, i)
@@ -190,13 +191,14 @@ pub fn ray_stat<const POINTS: usize>(
 /// the difference `d = z_s − z_t` of two lanes over the index points where `present`, with
 /// `var(p) = pᵀ Cov(d) p`. `true` when `b̂² ≤ z²·var(f_b)`: the two run parallel. `false` with
 /// fewer than 3 usable points, a singular fit or a variance that is not positive and finite.
+#[inline(never)]
 pub fn parallel<const POINTS: usize>(
     u: &SVector<f32, POINTS>,
     d: &[f32; POINTS],
     present: &[bool; POINTS],
     weight: &[f32; POINTS],
     z: f32,
-    var: impl Fn(&[f32; POINTS]) -> f32,
+    var: &dyn Fn(&[f32; POINTS]) -> f32,
 ) -> bool {
     let usable = |i: usize| {
         get(present, i)

@@ -281,6 +281,7 @@ impl_tracker! {
 
     /// `(V_rᵀ p)ᵀ Cov(a_s, a_t) (V_rᵀ q)`: the covariance of `pᵀ z_s` and `qᵀ z_t` for the
     /// lanes' positions `z = V_r a` at the index points.
+    #[inline(never)]
     fn position_cov(&self, s: usize, t: usize, p: &[f32; POINTS], q: &[f32; POINTS]) -> f32 {
         let r = (self.tables.gram_rank as usize).min(RANK).min(POINTS);
         let v = &self.tables.gram_eigvec;
@@ -322,6 +323,7 @@ impl_tracker! {
     /// The ray test (docs/design.md §11.10) on live lane `s`'s filtered estimate over its
     /// observed extent of this frame, with the covariance of its Gram coefficients plus the
     /// point variance `r` on every index point.
+    #[inline(never)]
     fn lane_ray_verdict(&self, s: usize) -> RayVerdict {
         let c = &self.cfg.persist;
         let Some((z, var)) = self
@@ -338,7 +340,7 @@ impl_tracker! {
         let cov = |p: &[f32; POINTS], q: &[f32; POINTS]| {
             self.position_cov(s, s, p, q) + rr * dotp(p, q)
         };
-        ray_stat(&self.tables.index_u, &z, &self.observed(s), &w, cov)
+        ray_stat(&self.tables.index_u, &z, &self.observed(s), &w, &cov)
             .map_or(RayVerdict::Undecided, |st| st.verdict(c.ray_z, c.ray_resolution))
     }
 
@@ -346,6 +348,7 @@ impl_tracker! {
     /// of their difference `z_s − z_t` (weighted line fit) is within `ray_z` standard deviations
     /// of zero, with `Cov(z_s − z_t)` from the temporal covariance plus `2r` per index point.
     /// `false` with fewer than 3 common points.
+    #[inline(never)]
     fn parallel(&self, s: usize, t: usize) -> bool {
         let (Some((zs, vs)), Some((zt, vt))) = (
             self.temporal.filter().lane(self.tables, s),
@@ -359,7 +362,7 @@ impl_tracker! {
         let present: [bool; POINTS] = core::array::from_fn(|i| get(&os, i) && get(&ot, i));
         let d: [f32; POINTS] = core::array::from_fn(|i| at(&zs, i) - at(&zt, i));
         let w: [f32; POINTS] = core::array::from_fn(|i| 1.0 / (at(&vs, i) + at(&vt, i) + 2.0 * rr));
-        persist::parallel(&self.tables.index_u, &d, &present, &w, self.cfg.persist.ray_z, |f| {
+        persist::parallel(&self.tables.index_u, &d, &present, &w, self.cfg.persist.ray_z, &|f| {
             self.position_cov(s, s, f, f) + self.position_cov(t, t, f, f)
                 - 2.0 * self.position_cov(s, t, f, f)
                 + 2.0 * rr * dotp(f, f)
@@ -370,6 +373,7 @@ impl_tracker! {
     /// observation's present index points: [`Tracker::parallel`] with `Cov(z_obs − z_t)` =
     /// the observation's covariance plus the lane's plus `2r` per point (independent: the
     /// observation is this frame's points, the prediction the frames before).
+    #[inline(never)]
     pub(super) fn obs_parallel(&self, ob: &LaneObservation<POINTS>, t: usize) -> bool {
         let Some((zt, vt)) = self.temporal.filter().lane(self.tables, t) else {
             return false;
@@ -380,12 +384,13 @@ impl_tracker! {
         let w: [f32; POINTS] = core::array::from_fn(|i| {
             1.0 / (ob.cov.get((i, i)).copied().unwrap_or(f32::NAN) + at(&vt, i) + 2.0 * rr)
         });
-        persist::parallel(&self.tables.index_u, &d, &ob.present, &w, self.cfg.persist.ray_z, |f| {
+        persist::parallel(&self.tables.index_u, &d, &ob.present, &w, self.cfg.persist.ray_z, &|f| {
             quadratic_form(&ob.cov, f, f) + self.position_cov(t, t, f, f) + 2.0 * rr * dotp(f, f)
         })
     }
 
     /// The verdicts of the ray test on every live lane (its estimate over this frame's extent).
+    #[inline(never)]
     pub(super) fn lane_ray_verdicts(&self) -> [RayVerdict; LANES] {
         core::array::from_fn(|s| {
             if self.ids.lane(s).is_some() {
@@ -397,6 +402,7 @@ impl_tracker! {
     }
 
     /// The ray test on one of this frame's observations (its smoothed covariance).
+    #[inline(never)]
     pub(super) fn ray_verdict_obs(&self, ob: &LaneObservation<POINTS>) -> RayVerdict {
         let c = &self.cfg.persist;
         if c.ray_z.is_nan() || c.ray_z <= 0.0 {
@@ -408,7 +414,7 @@ impl_tracker! {
         let rr = self.tables.hyper.meas_noise;
         let w: [f32; POINTS] =
             core::array::from_fn(|i| 1.0 / (ob.cov.get((i, i)).copied().unwrap_or(f32::NAN) + rr));
-        ray_stat(&self.tables.index_u, &ob.z, &ob.present, &w, cov)
+        ray_stat(&self.tables.index_u, &ob.z, &ob.present, &w, &cov)
             .map_or(RayVerdict::Undecided, |st| st.verdict(c.ray_z, c.ray_resolution))
     }
 
@@ -626,6 +632,7 @@ fn dotp<const N: usize>(p: &[f32; N], q: &[f32; N]) -> f32 {
 }
 
 /// `pᵀ M q` over the entries where `p` is not zero.
+#[inline(never)]
 fn quadratic_form<const N: usize>(m: &SMatrix<f32, N, N>, p: &[f32; N], q: &[f32; N]) -> f32 {
     let mut acc = 0.0f32;
     for (i, &pi) in p.iter().enumerate() {
