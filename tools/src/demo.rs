@@ -220,6 +220,9 @@ pub struct DemoRow {
     /// Changes of the tracker id matched to a true lane, per clip (replay only; see
     /// [`IdentityScore`]).
     pub id_switches_per_clip: Option<f64>,
+    /// Published lane ids never matched to a true lane, per clip (replay only; see
+    /// [`IdentityScore`]).
+    pub false_ids_per_clip: Option<f64>,
     /// Published lanes that match no true lane, per frame (replay only; see
     /// [`IdentityScore`]).
     pub false_lanes_per_frame: Option<f64>,
@@ -293,6 +296,9 @@ pub struct IdentityScore {
     /// it the last time it was matched in the clip (frames where it is not matched are
     /// skipped), summed over the lanes, per clip.
     pub id_switches_per_clip: f64,
+    /// Published lane ids never matched to a true lane in their clip, per clip: the false
+    /// lanes' ids (`lane_ids_per_clip` minus this is what the true lanes used).
+    pub false_ids_per_clip: f64,
     /// Published lanes whose point accuracy is below 0.85 on every true lane of the frame, per
     /// frame.
     pub false_lanes_per_frame: f64,
@@ -513,6 +519,8 @@ struct ClipIdentity {
     last_id: HashMap<usize, u32>,
     switches: usize,
     false_lanes: usize,
+    /// The published ids that were matched to a true lane at least once.
+    matched_ids: HashSet<u32>,
 }
 
 /// Accumulates [`IdentityScore`]s per clip over a tracker run.
@@ -554,6 +562,7 @@ impl IdentityTally {
         for (&t, matched) in truth.iter().zip(&m.gt_match) {
             c.true_lanes.insert(t);
             if let Some(&id) = matched.and_then(|i| pred_ids.get(i)) {
+                c.matched_ids.insert(id);
                 if c.last_id.insert(t, id).is_some_and(|prev| prev != id) {
                     c.switches += 1;
                 }
@@ -582,6 +591,7 @@ impl IdentityTally {
             lane_ids_per_clip: sum(&|c| c.ids.len()) as f64 / n,
             true_lanes_per_clip: sum(&|c| c.true_lanes.len()) as f64 / n,
             id_switches_per_clip: sum(&|c| c.switches) as f64 / n,
+            false_ids_per_clip: sum(&|c| c.ids.difference(&c.matched_ids).count()) as f64 / n,
             false_lanes_per_frame: sum(&|c| c.false_lanes) as f64 / frames.max(1) as f64,
         })
     }
@@ -1038,6 +1048,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                 ),
                 true_lanes_per_clip: identity.map(|i| i.true_lanes_per_clip),
                 id_switches_per_clip: identity.map(|i| i.id_switches_per_clip),
+                false_ids_per_clip: identity.map(|i| i.false_ids_per_clip),
                 false_lanes_per_frame: identity.map(|i| i.false_lanes_per_frame),
                 run_time_mean_ms: stats.run_mean_ms,
                 run_time_max_ms: stats.run_max_ms,
@@ -1084,6 +1095,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         gt_lanes_per_clip: None,
         true_lanes_per_clip: None,
         id_switches_per_clip: None,
+        false_ids_per_clip: None,
         false_lanes_per_frame: None,
         smoother: None,
         run_time_mean_ms: run_times.iter().sum::<f64>() / run_times.len().max(1) as f64,
@@ -1115,6 +1127,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         gt_lanes_per_clip: None,
         true_lanes_per_clip: None,
         id_switches_per_clip: None,
+        false_ids_per_clip: None,
         false_lanes_per_frame: None,
         smoother: None,
         run_time_mean_ms: lstats.run_mean_ms,
@@ -1344,11 +1357,12 @@ fn render_identity(r: &DemoReport) -> String {
          each frame the published lanes are matched to the true lanes by the official rule (a \
          true lane's match is the lane of best point accuracy if ≥ 0.85); id switches = changes \
          of the id matched to a true lane between the frames where it is matched, summed over \
-         the lanes; false lanes = published lanes below 0.85 on every true lane. \
+         the lanes; \"of which never a true lane\": published ids never matched to a true lane in \
+         their clip; false lanes = published lanes below 0.85 on every true lane. \
          \"merge/split\": the clips in which the replay animated a merge/split lane. Accuracy / \
          FP / FN: official metric on the clips' labelled last frames.\n\n\
-         | noise | B | clips | accuracy / FP / FN | lane ids / clip | true lanes / clip | id switches / clip | false lanes / frame |\n\
-         |---|---|---|---|---|---|---|---|\n",
+         | noise | B | clips | accuracy / FP / FN | lane ids / clip | of which never a true lane | true lanes / clip | id switches / clip | false lanes / frame |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
     );
     let noise =
         |n: Option<NoiseLevel>| n.map_or("—".to_string(), |n| format!("{n:?}").to_lowercase());
@@ -1356,7 +1370,7 @@ fn render_identity(r: &DemoReport) -> String {
     let f2 = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.2}"));
     for row in &replay {
         s.push_str(&format!(
-            "| {} | {} | all {} | {:.3} / {:.3} / {:.3} | {} | {} | {} | {} |\n",
+            "| {} | {} | all {} | {:.3} / {:.3} / {:.3} | {} | {} | {} | {} | {} |\n",
             noise(row.noise),
             row.coupling.label(),
             row.clips,
@@ -1364,6 +1378,7 @@ fn render_identity(r: &DemoReport) -> String {
             row.score.fp,
             row.score.fn_,
             f2(row.ids_per_clip),
+            f2(row.false_ids_per_clip),
             f2(row.true_lanes_per_clip),
             f2(row.id_switches_per_clip),
             f3(row.false_lanes_per_frame)
@@ -1375,11 +1390,12 @@ fn render_identity(r: &DemoReport) -> String {
         });
         let id = m.identity;
         s.push_str(&format!(
-            "| {} | {} | merge/split {} | {score} | {} | {} | {} | {} |\n",
+            "| {} | {} | merge/split {} | {score} | {} | {} | {} | {} | {} |\n",
             noise(Some(m.noise)),
             m.coupling.label(),
             m.clips.len(),
             f2(id.map(|i| i.lane_ids_per_clip)),
+            f2(id.map(|i| i.false_ids_per_clip)),
             f2(id.map(|i| i.true_lanes_per_clip)),
             f2(id.map(|i| i.id_switches_per_clip)),
             f3(id.map(|i| i.false_lanes_per_frame))
@@ -2021,6 +2037,7 @@ mod tests {
         assert_eq!((c.clips, c.frames), (1, 5));
         assert_eq!(c.id_switches_per_clip, 3.0);
         assert_eq!(c.lane_ids_per_clip, 5.0); // 3, 4, 7, 8, 9
+        assert_eq!(c.false_ids_per_clip, 2.0); // 3, 4 never matched
         assert_eq!(c.true_lanes_per_clip, 2.0);
         // False: 900 (frame 0), 130 (frame 1), 900 (frame 4).
         assert!((c.false_lanes_per_frame - 3.0 / 5.0).abs() < 1e-12);
@@ -2028,6 +2045,7 @@ mod tests {
         assert_eq!((both.clips, both.frames), (2, 6));
         assert_eq!(both.id_switches_per_clip, 1.5);
         assert_eq!(both.lane_ids_per_clip, 3.0);
+        assert_eq!(both.false_ids_per_clip, 1.5); // and id 1 in clip d
         assert!(t.score(|c| c == "e").is_none());
     }
 
