@@ -257,7 +257,8 @@ impl_tracker! {
         }
     }
 
-    /// Lanes whose existence fell below `p_delete` are removed; returns how many.
+    /// Lanes whose existence fell below `p_delete`, or that the ray test finds to be vertical
+    /// structures, are removed; returns how many, and how many of them by the ray test.
     fn delete_unlikely(&mut self) -> (u32, u32) {
         // The ray test (docs/design.md §11.10): a lane seen as a ray through the camera's foot
         // point is a vertical structure, unless it runs parallel to a lane shown to be paint
