@@ -26,7 +26,7 @@
 #![deny(missing_docs)]
 
 use embedded_hal::spi::SpiDevice;
-use stjpdacf::tracker::{LaneEstimate, ReferenceTracker};
+use stjpdacf::tracker::{LaneEstimate, ReferenceTracker, TrackerConfig};
 use stjpdacf::wire::{self, frame_len, ReadError, Receiver};
 
 /// Magic of a lane frame.
@@ -133,6 +133,25 @@ impl Board {
             points: [[0.0; 2]; MAX_POINTS],
             out: [0; lane_frame_len(MAX_LANES)],
         }
+    }
+
+    /// A board whose tracker is [`ReferenceTracker::UNINIT`]: every byte zero, so a `static` of
+    /// it is in `.bss` and takes no flash (a `static` [`Board::new`] stores its ~148 KB initial
+    /// image in flash). Call [`Board::init`] before [`Board::poll`].
+    pub const UNINIT: Self = Self {
+        tracker: ReferenceTracker::UNINIT,
+        rx: Receiver::new(),
+        spi_buf: [0; frame_len(MAX_POINTS)],
+        points: [[0.0; 2]; MAX_POINTS],
+        out: [0; lane_frame_len(MAX_LANES)],
+    };
+
+    /// Makes this board [`Board::new`] in place (the tracker on the built-in tables, the
+    /// receiver's counters zero); also restarts a running board.
+    pub fn init(&mut self) {
+        self.tracker
+            .init(&stjpdacf::tables::DEFAULT, TrackerConfig::DEFAULT);
+        self.rx = Receiver::new();
     }
 
     /// The receiver (its `LinkStats`).

@@ -30,7 +30,9 @@
 extern crate std;
 
 use stjpdacf::tables::DEFAULT;
-use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, StepError, StepReport};
+use stjpdacf::tracker::{
+    Instant, LaneEstimate, ReferenceTracker, StepError, StepReport, TrackerConfig,
+};
 use stjpdacf::wire::{self, WireError};
 
 /// Lane slots of the reference tracker (lanes per read-out at most).
@@ -110,6 +112,7 @@ impl From<StepError> for stjpdacf_status {
     fn from(e: StepError) -> Self {
         match e {
             StepError::NonIncreasingTime => STJPDACF_NON_INCREASING_TIME,
+            StepError::NotInitialised => STJPDACF_NOT_INITIALISED,
             #[allow(unreachable_patterns)]
             _ => STJPDACF_UNKNOWN_ERROR,
         }
@@ -261,11 +264,13 @@ const NO_LANE: stjpdacf_lane = stjpdacf_lane {
     hits: 0,
 };
 
-/// The initial tracker, copied into the caller's buffer by [`stjpdacf_init`] (a `static`, so the
-/// ~142 KB value is never built on the stack).
-static INIT: stjpdacf_tracker = stjpdacf_tracker {
-    magic: MAGIC,
-    tracker: ReferenceTracker::new(&DEFAULT),
+/// An all-zero handle (`magic` 0, [`ReferenceTracker::UNINIT`]): [`stjpdacf_init`] writes it
+/// into the caller's buffer, which compiles to a `memset`, then initialises the tracker in place.
+/// Neither the ~148 KB value nor an image of it exists anywhere else (not on the stack, not in
+/// flash).
+const ZEROED: stjpdacf_tracker = stjpdacf_tracker {
+    magic: 0,
+    tracker: ReferenceTracker::UNINIT,
     filtered: [NO_LANE; STJPDACF_MAX_LANES],
     smoothed: [NO_LANE; STJPDACF_MAX_LANES],
     n_filtered: 0,
@@ -441,10 +446,13 @@ pub unsafe extern "C" fn stjpdacf_init(
         return STJPDACF_BUFFER_TOO_SMALL;
     }
     // SAFETY: `t` is non-null, aligned and has room for a tracker (checked: `size ≥
-    // STJPDACF_TRACKER_SIZE ≥ size_of`); the caller guarantees it is writable and unshared, and
-    // distinct from `INIT` (a Rust static). The tracker has no `Drop` and no self-reference,
-    // so a bitwise copy of `INIT` is a valid, independent value.
-    unsafe { core::ptr::copy_nonoverlapping(&INIT, t, 1) };
+    // STJPDACF_TRACKER_SIZE ≥ size_of`); the caller guarantees it is writable and unshared.
+    // The tracker has no `Drop`, so overwriting whatever was there leaks nothing.
+    unsafe { t.write(ZEROED) };
+    // SAFETY: `t` now holds a valid handle (written above) that nothing else accesses.
+    let h = unsafe { &mut *t };
+    h.tracker.init(&DEFAULT, TrackerConfig::DEFAULT);
+    h.magic = MAGIC;
     // SAFETY: `out` is non-null and aligned (checked), writable (the caller).
     unsafe { out.write(t) };
     STJPDACF_OK

@@ -335,3 +335,47 @@ fn smoothed_lanes_carry_the_extent_of_their_frame() {
         }
     }
 }
+
+/// The all-zero tracker (`UNINIT`, for a `static` in `.bss`) refuses frames until `init`, and
+/// `init` makes any tracker — fresh or after 20 frames with lanes and ids — the tracker
+/// `with_config` builds: the same state (compared through `Debug`, every field) and the same
+/// outputs, bit for bit, over the next 20 frames. A per-lane smoother configuration is carried
+/// over too.
+#[test]
+fn init_in_place_is_with_config_and_restarts() {
+    use stjpdacf::tracker::TrackerConfig;
+    let cfg = TrackerConfig {
+        smoother_per_lane: true,
+        ..TrackerConfig::DEFAULT
+    };
+    let mut z: Box<ReferenceTracker> = Box::new(ReferenceTracker::UNINIT);
+    assert_eq!(
+        z.step(Instant::from_micros(0), &frame(1, 0.0, 3)).err(),
+        Some(StepError::NotInitialised)
+    );
+    assert_eq!(z.frames(), 0);
+    assert!(z.lane_at(0, 10.0).is_none());
+    let frames: Vec<_> = (0..20u64).map(|k| frame(k, 0.02 * k as f64, 3)).collect();
+    for cfg in [TrackerConfig::DEFAULT, cfg] {
+        let fresh: Box<ReferenceTracker> = Box::new(ReferenceTracker::with_config(&DEFAULT, cfg));
+        let mut used = tracker();
+        for (k, f) in frames.iter().enumerate() {
+            used.step(Instant::from_micros(50_000 * k as i64), f)
+                .unwrap();
+        }
+        assert!(used.frames() == 20 && used.lane_at(0, 10.0).is_some());
+        z.init(&DEFAULT, cfg);
+        used.init(&DEFAULT, cfg);
+        let want = format!("{fresh:?}");
+        assert_eq!(format!("{z:?}"), want);
+        assert_eq!(format!("{used:?}"), want);
+        let mut fresh = fresh;
+        for (k, f) in frames.iter().enumerate() {
+            let at = Instant::from_micros(1_000_000 + 50_000 * k as i64);
+            let a = fresh.step(at, f).unwrap();
+            let b = used.step(at, f).unwrap();
+            assert_eq!(format!("{a:?}"), format!("{b:?}"), "frame {k}");
+            assert!(!a.filtered.is_empty() || k < 6, "frame {k}");
+        }
+    }
+}

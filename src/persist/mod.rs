@@ -260,16 +260,28 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Default
 impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, POINTS, ROWS> {
     /// No lanes, no clutter or noise estimate.
     pub const fn new() -> Self {
-        Self {
-            lanes: [LaneState::NEW; LANES],
-            clutter: [f32::NAN; POINTS],
-            noise: [[0.0; 2]; POINTS],
-            rows: [[[0.0; 2]; ROWS]; LANES],
-            span: [[f32::INFINITY, f32::NEG_INFINITY]; POINTS],
-            log_q_scale: 0.0,
-            nis: [0.0; 2],
-            last_nis_ratio: 0.0,
-        }
+        let mut p = Self::ZEROED;
+        p.mark_unestimated();
+        p
+    }
+
+    /// Every byte zero (the tracker's all-zero constant, which lives in `.bss`): [`Persist::new`]
+    /// before [`Persist::mark_unestimated`].
+    pub(crate) const ZEROED: Self = Self {
+        lanes: [LaneState::NEW; LANES],
+        clutter: [0.0; POINTS],
+        noise: [[0.0; 2]; POINTS],
+        rows: [[[0.0; 2]; ROWS]; LANES],
+        span: [[0.0; 2]; POINTS],
+        log_q_scale: 0.0,
+        nis: [0.0; 2],
+        last_nis_ratio: 0.0,
+    };
+
+    /// The clutter densities not yet estimated (`NaN`), the spans empty. O(POINTS).
+    pub(crate) const fn mark_unestimated(&mut self) {
+        self.clutter = [f32::NAN; POINTS];
+        self.span = [[f32::INFINITY, f32::NEG_INFINITY]; POINTS];
     }
 
     /// The temporal process-noise scale `e^{log_q_scale}` (≥ 1).

@@ -81,8 +81,9 @@ pub struct Temporal<
     window: [Lagged<LANES, RANK, NA, NX>; LAG],
     head: usize,
     frames: u32,
-    /// `false`: the per-lane approximation (see [`Temporal::with_per_lane`]).
-    coupled: bool,
+    /// `true`: the per-lane approximation (see [`Temporal::with_per_lane`]); `false` (all-zero,
+    /// the default) the exact smoother.
+    per_lane: bool,
 }
 
 impl<
@@ -132,7 +133,7 @@ impl<
             window: [Self::EMPTY; LAG],
             head: 0,
             frames: 0,
-            coupled: true,
+            per_lane: false,
         }
     }
 
@@ -151,8 +152,14 @@ impl<
     /// is for.
     pub const fn with_per_lane(per_lane: bool) -> Self {
         let mut t = Self::new();
-        t.coupled = !per_lane;
+        t.per_lane = per_lane;
         t
+    }
+
+    /// Chooses the smoother of [`Temporal::with_per_lane`] on an empty window (the tracker's
+    /// in-place `init`).
+    pub(crate) const fn set_per_lane(&mut self, per_lane: bool) {
+        self.per_lane = per_lane;
     }
 
     /// The filter (filtered lanes at the current frame).
@@ -196,7 +203,7 @@ impl<
         let a = self.filter.start_lane(tables, s, rank, ranks)?;
         let r = TemporalFilter::<LANES, POINTS, RANK, NX>::r_used(tables);
         let base = |t: usize| TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, 0, 0);
-        if !self.coupled {
+        if self.per_lane {
             // Per lane: the new lane's state is not related to any lagged lane.
             for lag in &mut self.window {
                 if let Some(cols) = lag
@@ -340,7 +347,7 @@ impl<
                         };
                     }
                 }
-                let coupled = self.coupled;
+                let coupled = !self.per_lane;
                 for col in sp.indices() {
                     // Per lane: only lane s's own columns.
                     let keep = coupled || col / (2 * RANK) == s;
@@ -367,7 +374,7 @@ impl<
             }
         }
         for lag in &mut self.window {
-            times_transition(lag, &sp, &f, r, self.coupled);
+            times_transition(lag, &sp, &f, r, !self.per_lane);
         }
         probe.enter(Stage::Temporal);
         self.filter.predict_with(tables, &f, &q);
@@ -461,7 +468,7 @@ impl<
             }
         }
         let sp = self.filter.spans(g.r);
-        let only = (!self.coupled).then_some(g.slot);
+        let only = self.per_lane.then_some(g.slot);
         for lag in &mut self.window {
             lag_update(lag, g, &sp, a0, only);
         }

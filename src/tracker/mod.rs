@@ -83,7 +83,8 @@ pub struct Tracker<
     const NA: usize,
     const LAG: usize,
 > {
-    tables: &'static Tables<NT, LANES, POINTS>,
+    /// `None`: [`Tracker::UNINIT`], before [`Tracker::init`].
+    tables: Option<&'static Tables<NT, LANES, POINTS>>,
     cfg: TrackerConfig,
     spatial: SpatialFilter<NS, LANES, ROWS, PER_ROW>,
     obs: [LaneObservation<POINTS>; LANES],
@@ -132,29 +133,73 @@ impl_tracker! {
         Self::with_config(tables, TrackerConfig::DEFAULT)
     }
 
-    /// A tracker with a given configuration.
+    /// A tracker with a given configuration: [`Tracker::UNINIT`] after [`Tracker::init`].
     pub const fn with_config(
         tables: &'static Tables<NT, LANES, POINTS>,
         cfg: TrackerConfig,
     ) -> Self {
+        let mut t = Self::UNINIT;
+        t.init(tables, cfg);
+        t
+    }
+
+    /// A tracker with no tables, every byte zero, so that a `static` of it is placed in `.bss`
+    /// and takes no flash (a `static` of [`Tracker::new`] is in `.data`: its ~148 KB initial
+    /// image is stored in flash). It must be given its tables with [`Tracker::init`] before it
+    /// runs; until then [`Tracker::step`] returns [`StepError::NotInitialised`] and it has no
+    /// lanes.
+    ///
+    /// ```
+    /// use stjpdacf::tracker::{ReferenceTracker, StepError, TrackerConfig, Instant};
+    /// let mut t: Box<ReferenceTracker> = Box::new(ReferenceTracker::UNINIT);
+    /// assert_eq!(t.step(Instant::from_micros(0), &[]).err(), Some(StepError::NotInitialised));
+    /// t.init(&stjpdacf::tables::DEFAULT, TrackerConfig::DEFAULT);
+    /// assert!(t.step(Instant::from_micros(0), &[]).is_ok());
+    /// ```
+    pub const UNINIT: Self = {
         const { assert!(LAG >= 1 && LAG <= MAX_LAG, "LAG must be 1..=MAX_LAG") };
         const { assert!(MEAS >= 1, "MEAS must be at least 1") };
+        const ZERO_INFO: SlotInfo = SlotInfo {
+            existence: 0.0,
+            extent: [0.0; 2],
+            seen: false,
+        };
         Self {
-            tables,
-            cfg,
-            spatial: SpatialFilter::new(),
+            tables: None,
+            cfg: TrackerConfig::ZEROED,
+            spatial: SpatialFilter::ZEROED,
             obs: [Self::EMPTY_OBS; LANES],
             ids: LaneTable::new(),
-            temporal: Temporal::with_per_lane(cfg.smoother_per_lane),
-            info: [NO_INFO; LANES],
-            extent: [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; EXTENT_HISTORY],
+            temporal: Temporal::new(),
+            info: [ZERO_INFO; LANES],
+            extent: [[[0.0; 2]; LANES]; EXTENT_HISTORY],
             id_hist: [[None; LANES]; MAX_LAG + 1],
             ranks: [0; LANES],
-            persist: Persist::new(),
+            persist: Persist::ZEROED,
             basis: RowBasis::NEW,
             last: None,
             frames: 0,
         }
+    };
+
+    /// Makes this tracker a fresh one on `tables` with `cfg`, in place: what
+    /// [`Tracker::with_config`] returns, without building a ~148 KB value on the stack (so a
+    /// `static` [`Tracker::UNINIT`] is set up with a few hundred bytes of stack). Also restarts
+    /// a running tracker (a new drive): every lane, estimate and id is forgotten, ids start at
+    /// 0 again.
+    ///
+    /// # Complexity
+    /// A `memset` of the tracker (`size_of`, ~148 KB at the reference configuration) and
+    /// `O(LANES·(LAG + POINTS))` stores.
+    pub const fn init(&mut self, tables: &'static Tables<NT, LANES, POINTS>, cfg: TrackerConfig) {
+        *self = Self::UNINIT;
+        self.tables = Some(tables);
+        self.cfg = cfg;
+        self.spatial.clear_meta();
+        self.temporal.set_per_lane(cfg.smoother_per_lane);
+        self.info = [NO_INFO; LANES];
+        self.extent = [[[f32::INFINITY, f32::NEG_INFINITY]; LANES]; EXTENT_HISTORY];
+        self.persist.mark_unestimated();
     }
 
     /// Frames processed.
@@ -214,6 +259,9 @@ impl_tracker! {
         points: &[[f32; 2]],
         probe: &mut P,
     ) -> Result<StepOutput<LANES, POINTS>, StepError> {
+        let Some(tables) = self.tables else {
+            return Err(StepError::NotInitialised);
+        };
         probe.enter(Stage::Binning);
         let dt_us = match self.last {
             Some(last) if now <= last => return Err(StepError::NonIncreasingTime),
@@ -237,7 +285,7 @@ impl_tracker! {
             *o = Self::EMPTY_OBS;
         }
         let srep = self.spatial.bin(
-            self.tables,
+            tables,
             &self.cfg.spatial,
             points.get(..used).unwrap_or(&[]),
         );
@@ -255,7 +303,7 @@ impl_tracker! {
         if dt > 0.0
             && self
                 .temporal
-                .predict_scaled_probed(self.tables, dt, q_scale, probe)
+                .predict_scaled_probed(tables, dt, q_scale, probe)
                 .is_err()
         {
             report.temporal_failures += 1;
@@ -269,7 +317,7 @@ impl_tracker! {
                 self.persist
                     .observe_spans(pass.rows, pass.k_rows, |r| spatial.row_points(r));
             }
-            self.known_lanes(&mut report, probe)
+            self.known_lanes(tables, &mut report, probe)
         } else {
             0
         };
@@ -280,7 +328,7 @@ impl_tracker! {
         }
         let (n_obs, srep) =
             self.spatial
-                .walk_probed(self.tables, &scfg, srep, &mut self.obs, probe);
+                .walk_probed(tables, &scfg, srep, &mut self.obs, probe);
         report.spatial = srep;
         probe.enter(Stage::Identity);
         // 5. Identity against the predictions (a lane the known-lane pass saw has no miss).
@@ -289,7 +337,7 @@ impl_tracker! {
                 self.ids.reset_misses(s);
             }
         }
-        let outcome = self.associate(n_obs);
+        let outcome = self.associate(tables, n_obs);
         report.identity = outcome.report;
         report.known.ray_refused = outcome
             .obs
@@ -304,7 +352,7 @@ impl_tracker! {
         }
         probe.enter(Stage::Temporal);
         // 6. Removed lanes leave the temporal filter, new lanes start, seen lanes are updated.
-        self.temporal_stage(&outcome.slots, known, &mut report, probe);
+        self.temporal_stage(tables, &outcome.slots, known, &mut report, probe);
         if self.cfg.persist.enabled {
             probe.enter(Stage::Known);
             self.maintain_known(&outcome.slots, &mut report);
@@ -328,10 +376,11 @@ impl_tracker! {
     /// Step 3: this frame's observations against the temporal predictions.
     // Not inlined: its predictions (~0.9 KiB) must not add to the temporal stage's stack.
     #[inline(never)]
-    fn associate(&mut self, n_obs: usize) -> IdentityOutcome<LANES> {
+    fn associate(&mut self,
+        tables: &'static Tables<NT, LANES, POINTS>, n_obs: usize) -> IdentityOutcome<LANES> {
         let mut preds = [LanePrediction::<POINTS>::EMPTY; LANES];
         for (s, p) in preds.iter_mut().enumerate() {
-            if let Some((z, var)) = self.temporal.filter().lane(self.tables, s) {
+            if let Some((z, var)) = self.temporal.filter().lane(tables, s) {
                 *p = LanePrediction {
                     present: [true; POINTS],
                     z,
@@ -364,6 +413,7 @@ impl_tracker! {
     #[inline(always)]
     fn temporal_stage<P: Probe>(
         &mut self,
+        tables: &'static Tables<NT, LANES, POINTS>,
         slots: &[SlotFate; LANES],
         known: u32,
         report: &mut StepReport,
@@ -394,7 +444,7 @@ impl_tracker! {
                 let ranks = self.ranks_of(Some((s, x)));
                 if self
                     .temporal
-                    .start_lane(self.tables, s, get(&ranks, s), &ranks)
+                    .start_lane(tables, s, get(&ranks, s), &ranks)
                     .is_err()
                 {
                     report.temporal_failures += 1;
@@ -410,7 +460,7 @@ impl_tracker! {
             match (o.and_then(|i| self.obs.get(i)), info) {
                 (Some(ob), Some(info)) => {
                     if self.temporal.filter().is_active(s) {
-                        match self.temporal.update_probed(self.tables, s, ob, probe) {
+                        match self.temporal.update_probed(tables, s, ob, probe) {
                             Ok(u) => {
                                 report.pseudo_cov_repairs += u32::from(u.repaired_pivots > 0);
                             }
@@ -437,7 +487,7 @@ impl_tracker! {
             }
         }
         probe.enter(Stage::Temporal);
-        report.temporal_cov_repairs = self.temporal.repair_covariance(self.tables);
+        report.temporal_cov_repairs = self.temporal.repair_covariance(tables);
         // The ranks of the active lanes are a permutation by construction, so this does not fail;
         // if it did, the filter would keep its ranks and the failure would be counted.
         let ranks = self.ranks_of(None);

@@ -11,6 +11,7 @@ use crate::observation::LaneObservation;
 use crate::persist::{self, ray_stat, Evidence, Explained, Lanes, Pass, RayVerdict};
 use crate::probe::{Probe, Stage};
 use crate::spatial::filter::SpatialFilter;
+use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 use crate::temporal::identity::SlotFate;
 
@@ -21,7 +22,8 @@ impl_tracker! {
     /// temporal update with it, their existence; the points they explain leave the rows.
     /// Returns the lanes seen (bit = slot).
     #[inline(never)]
-    pub(super) fn known_lanes<P: Probe>(&mut self, report: &mut StepReport, probe: &mut P) -> u32 {
+    pub(super) fn known_lanes<P: Probe>(&mut self,
+        tables: &'static Tables<NT, LANES, POINTS>, report: &mut StepReport, probe: &mut P) -> u32 {
         let Some(pass) = self.pass() else {
             return 0;
         };
@@ -31,7 +33,7 @@ impl_tracker! {
                 live |= 1 << s;
             }
         }
-        self.basis.ensure(self.tables, &pass);
+        self.basis.ensure(tables, &pass);
         let mut explained: Explained<ROWS> = [0; ROWS];
         let mut ev = [Evidence::<RANK>::NONE; LANES];
         if live != 0 {
@@ -43,7 +45,7 @@ impl_tracker! {
             };
             let spatial = &self.spatial;
             let counts = self.persist.associate(
-                self.tables,
+                tables,
                 &self.basis,
                 self.temporal.filter(),
                 &lanes,
@@ -69,10 +71,10 @@ impl_tracker! {
             if e.weight > 0.0 {
                 match self
                     .temporal
-                    .update_info_probed(self.tables, s, &e.j, &e.i, probe)
+                    .update_info_probed(tables, s, &e.j, &e.i, probe)
                 {
                     Ok(u) => {
-                        let dof = (self.tables.gram_rank as usize).min(RANK) as f32;
+                        let dof = (tables.gram_rank as usize).min(RANK) as f32;
                         self.persist
                             .count_nis(s, u.nis, dof, self.cfg.persist.p_publish);
                     }
@@ -96,7 +98,7 @@ impl_tracker! {
             self.persist.adapt_q_scale(self.cfg.persist.q_memory, 10.0);
         }
         self.persist.estimate_noise(
-            self.tables,
+            tables,
             &self.basis,
             self.temporal.filter(),
             (live, &self.ranks),
@@ -136,8 +138,9 @@ impl_tracker! {
 
     /// The row pass parameters of the known-lane stage.
     pub(super) fn pass(&self) -> Option<Pass> {
+        let tables = self.tables?;
         let (rows, du) =
-            SpatialFilter::<NS, LANES, ROWS, PER_ROW>::geometry(self.tables, &self.cfg.spatial)?;
+            SpatialFilter::<NS, LANES, ROWS, PER_ROW>::geometry(tables, &self.cfg.spatial)?;
         let c = &self.cfg.spatial;
         Some(Pass {
             rows,
@@ -148,7 +151,7 @@ impl_tracker! {
                 pg: c.pg,
                 gamma: c.gamma,
                 clutter_density: c.clutter_density,
-                r: self.tables.hyper.meas_noise,
+                r: tables.hyper.meas_noise,
                 miss: c.miss,
             },
             max_events: c.max_events,
@@ -182,8 +185,11 @@ impl_tracker! {
     /// `LANES²/2` pairs, each `POINTS·(r² + 2r)` multiply-adds.
     #[inline(never)]
     fn merge_duplicates(&mut self) -> u32 {
+        let Some(tables) = self.tables else {
+            return 0;
+        };
         let mut any = 0u32;
-        let r = (self.tables.gram_rank as usize).min(RANK).min(POINTS);
+        let r = (tables.gram_rank as usize).min(RANK).min(POINTS);
         for s in 0..LANES {
             for t in s + 1..LANES {
                 let (Some(ls), Some(lt)) = (self.ids.lane(s), self.ids.lane(t)) else {
@@ -195,8 +201,8 @@ impl_tracker! {
                     continue;
                 }
                 let (Some((zs, vs)), Some((zt, vt))) = (
-                    self.temporal.filter().lane(self.tables, s),
-                    self.temporal.filter().lane(self.tables, t),
+                    self.temporal.filter().lane(tables, s),
+                    self.temporal.filter().lane(tables, t),
                 ) else {
                     continue;
                 };
@@ -208,11 +214,11 @@ impl_tracker! {
                 let mut dist = 0.0f32;
                 let mut n = 0u32;
                 for i in 0..POINTS {
-                    let u = self.tables.index_u.get(i).copied().unwrap_or(f32::NAN);
+                    let u = tables.index_u.get(i).copied().unwrap_or(f32::NAN);
                     if !(u >= lo && u <= hi) {
                         continue;
                     }
-                    let vi = |j: usize| self.tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0);
+                    let vi = |j: usize| tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0);
                     let mut cov = 0.0f32;
                     for j in 0..r {
                         let ij = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
@@ -226,7 +232,7 @@ impl_tracker! {
                     let d = zs.get(i).copied().unwrap_or(0.0) - zt.get(i).copied().unwrap_or(0.0);
                     let var = vs.get(i).copied().unwrap_or(0.0) + vt.get(i).copied().unwrap_or(0.0)
                         - 2.0 * cov;
-                    let var = var.max(self.tables.hyper.pseudo_noise);
+                    let var = var.max(tables.hyper.pseudo_noise);
                     cost += d * d / var;
                     dist += d.abs();
                     n += 1;
@@ -284,8 +290,11 @@ impl_tracker! {
     /// lanes' positions `z = V_r a` at the index points.
     #[inline(never)]
     fn position_cov(&self, s: usize, t: usize, p: &[f32; POINTS], q: &[f32; POINTS]) -> f32 {
-        let r = (self.tables.gram_rank as usize).min(RANK).min(POINTS);
-        let v = &self.tables.gram_eigvec;
+        let Some(tables) = self.tables else {
+            return 0.0;
+        };
+        let r = (tables.gram_rank as usize).min(RANK).min(POINTS);
+        let v = &tables.gram_eigvec;
         let coef = |x: &[f32; POINTS]| -> [f32; RANK] {
             core::array::from_fn(|j| {
                 if j < r {
@@ -314,9 +323,12 @@ impl_tracker! {
 
     /// Index points inside lane `s`'s observed extent of this frame.
     fn observed(&self, s: usize) -> [bool; POINTS] {
+        let Some(tables) = self.tables else {
+            return [false; POINTS];
+        };
         let info = get(&self.info, s);
         core::array::from_fn(|i| {
-            let u = self.tables.index_u.get(i).copied().unwrap_or(f32::NAN);
+            let u = tables.index_u.get(i).copied().unwrap_or(f32::NAN);
             info.seen && u >= info.extent[0] && u <= info.extent[1]
         })
     }
@@ -326,22 +338,25 @@ impl_tracker! {
     /// point variance `r` on every index point.
     #[inline(never)]
     fn lane_ray_verdict(&self, s: usize) -> RayVerdict {
+        let Some(tables) = self.tables else {
+            return RayVerdict::Undecided;
+        };
         let c = &self.cfg.persist;
         let Some((z, var)) = self
             .temporal
             .filter()
-            .lane(self.tables, s)
+            .lane(tables, s)
             .filter(|_| c.ray_z > 0.0)
         else {
             return RayVerdict::Undecided;
         };
-        let rr = self.tables.hyper.meas_noise;
+        let rr = tables.hyper.meas_noise;
         let w: [f32; POINTS] =
             core::array::from_fn(|i| 1.0 / (var.get(i).copied().unwrap_or(f32::NAN) + rr));
         let cov = |p: &[f32; POINTS], q: &[f32; POINTS]| {
             self.position_cov(s, s, p, q) + rr * dotp(p, q)
         };
-        ray_stat(&self.tables.index_u, &z, &self.observed(s), &w, &cov)
+        ray_stat(&tables.index_u, &z, &self.observed(s), &w, &cov)
             .map_or(RayVerdict::Undecided, |st| st.verdict(c.ray_z, c.ray_resolution))
     }
 
@@ -351,19 +366,22 @@ impl_tracker! {
     /// `false` with fewer than 3 common points.
     #[inline(never)]
     fn parallel(&self, s: usize, t: usize) -> bool {
+        let Some(tables) = self.tables else {
+            return false;
+        };
         let (Some((zs, vs)), Some((zt, vt))) = (
-            self.temporal.filter().lane(self.tables, s),
-            self.temporal.filter().lane(self.tables, t),
+            self.temporal.filter().lane(tables, s),
+            self.temporal.filter().lane(tables, t),
         ) else {
             return false;
         };
         let (os, ot) = (self.observed(s), self.observed(t));
-        let rr = self.tables.hyper.meas_noise;
+        let rr = tables.hyper.meas_noise;
         let at = |v: &SVector<f32, POINTS>, i: usize| v.get(i).copied().unwrap_or(f32::NAN);
         let present: [bool; POINTS] = core::array::from_fn(|i| get(&os, i) && get(&ot, i));
         let d: [f32; POINTS] = core::array::from_fn(|i| at(&zs, i) - at(&zt, i));
         let w: [f32; POINTS] = core::array::from_fn(|i| 1.0 / (at(&vs, i) + at(&vt, i) + 2.0 * rr));
-        persist::parallel(&self.tables.index_u, &d, &present, &w, self.cfg.persist.ray_z, &|f| {
+        persist::parallel(&tables.index_u, &d, &present, &w, self.cfg.persist.ray_z, &|f| {
             self.position_cov(s, s, f, f) + self.position_cov(t, t, f, f)
                 - 2.0 * self.position_cov(s, t, f, f)
                 + 2.0 * rr * dotp(f, f)
@@ -376,16 +394,19 @@ impl_tracker! {
     /// observation is this frame's points, the prediction the frames before).
     #[inline(never)]
     pub(super) fn obs_parallel(&self, ob: &LaneObservation<POINTS>, t: usize) -> bool {
-        let Some((zt, vt)) = self.temporal.filter().lane(self.tables, t) else {
+        let Some(tables) = self.tables else {
             return false;
         };
-        let rr = self.tables.hyper.meas_noise;
+        let Some((zt, vt)) = self.temporal.filter().lane(tables, t) else {
+            return false;
+        };
+        let rr = tables.hyper.meas_noise;
         let at = |v: &SVector<f32, POINTS>, i: usize| v.get(i).copied().unwrap_or(f32::NAN);
         let d: [f32; POINTS] = core::array::from_fn(|i| at(&ob.z, i) - at(&zt, i));
         let w: [f32; POINTS] = core::array::from_fn(|i| {
             1.0 / (ob.cov.get((i, i)).copied().unwrap_or(f32::NAN) + at(&vt, i) + 2.0 * rr)
         });
-        persist::parallel(&self.tables.index_u, &d, &ob.present, &w, self.cfg.persist.ray_z, &|f| {
+        persist::parallel(&tables.index_u, &d, &ob.present, &w, self.cfg.persist.ray_z, &|f| {
             quadratic_form(&ob.cov, f, f) + self.position_cov(t, t, f, f) + 2.0 * rr * dotp(f, f)
         })
     }
@@ -405,17 +426,20 @@ impl_tracker! {
     /// The ray test on one of this frame's observations (its smoothed covariance).
     #[inline(never)]
     pub(super) fn ray_verdict_obs(&self, ob: &LaneObservation<POINTS>) -> RayVerdict {
+        let Some(tables) = self.tables else {
+            return RayVerdict::Undecided;
+        };
         let c = &self.cfg.persist;
         if c.ray_z.is_nan() || c.ray_z <= 0.0 {
             return RayVerdict::Undecided;
         }
         let cov = |p: &[f32; POINTS], q: &[f32; POINTS]| {
-            quadratic_form(&ob.cov, p, q) + self.tables.hyper.meas_noise * dotp(p, q)
+            quadratic_form(&ob.cov, p, q) + tables.hyper.meas_noise * dotp(p, q)
         };
-        let rr = self.tables.hyper.meas_noise;
+        let rr = tables.hyper.meas_noise;
         let w: [f32; POINTS] =
             core::array::from_fn(|i| 1.0 / (ob.cov.get((i, i)).copied().unwrap_or(f32::NAN) + rr));
-        ray_stat(&self.tables.index_u, &ob.z, &ob.present, &w, &cov)
+        ray_stat(&tables.index_u, &ob.z, &ob.present, &w, &cov)
             .map_or(RayVerdict::Undecided, |st| st.verdict(c.ray_z, c.ray_resolution))
     }
 
@@ -456,10 +480,13 @@ impl_tracker! {
         filtered: &mut Vec<LaneEstimate<POINTS>, LANES>,
         smoothed: &mut Vec<LaneEstimate<POINTS>, LANES>,
     ) {
+        let Some(tables) = self.tables else {
+            return;
+        };
         for s in 0..LANES {
             if let (Some(lane), Some((z, var))) = (
                 self.ids.lane(s),
-                self.temporal.filter().lane(self.tables, s),
+                self.temporal.filter().lane(tables, s),
             ) {
                 let (u_first, u_last) = self.extent_of(s, 0);
                 let info = get(&self.info, s);
@@ -498,7 +525,7 @@ impl_tracker! {
             if let (true, Some(id), Some((z, var))) = (
                 publish_smoothed,
                 id_then,
-                self.temporal.lagged(self.tables, s, LAG),
+                self.temporal.lagged(tables, s, LAG),
             ) {
                 // The same lane's counters at the current frame (0 once it is gone).
                 let now = self.ids.lane(s).filter(|l| l.id == id);
@@ -535,7 +562,8 @@ impl_tracker! {
             hi = hi.max(b);
         }
         if lo > hi {
-            (self.tables.hyper.u_min, self.tables.hyper.u_min)
+            let u = self.tables.map_or(0.0, |t| t.hyper.u_min);
+            (u, u)
         } else {
             (lo, hi)
         }
@@ -544,6 +572,9 @@ impl_tracker! {
     /// Lateral position at the nearest index point: the observation's first present point, else
     /// the temporal filter's prediction.
     pub(super) fn bottom_position(&self, s: usize, obs: Option<usize>) -> f32 {
+        let Some(tables) = self.tables else {
+            return 0.0;
+        };
         if let Some(o) = obs.and_then(|i| self.obs.get(i)) {
             if let Some(i) = (0..POINTS).find(|&i| get(&o.present, i)) {
                 return o.z.get(i).copied().unwrap_or(0.0);
@@ -551,7 +582,7 @@ impl_tracker! {
         }
         self.temporal
             .filter()
-            .position(self.tables, s, 0)
+            .position(tables, s, 0)
             .unwrap_or(0.0)
     }
 
@@ -586,24 +617,25 @@ impl_tracker! {
     /// `f(u) = Σ_j (k(u, U)·v_j / λ_j) a_j`, plus the prior's residual variance at `u`.
     /// `None` for a free slot, or `u` outside the window or not finite.
     pub fn lane_at(&self, slot: usize, u: f32) -> Option<(f32, f32)> {
-        let h = &self.tables.hyper;
+        let tables = self.tables?;
+        let h = &tables.hyper;
         if !(u.is_finite() && u >= h.u_min && u <= h.u_max) {
             return None;
         }
-        let (z, _) = self.temporal.filter().lane(self.tables, slot)?;
-        let r = (self.tables.gram_rank as usize).min(RANK);
+        let (z, _) = self.temporal.filter().lane(tables, slot)?;
+        let r = (tables.gram_rank as usize).min(RANK);
         let l2 = 2.0 * h.spatial_lengthscale * h.spatial_lengthscale;
         let k = SVector::<f32, POINTS>::from_fn(|i, _| {
-            let d = u - self.tables.index_u.get(i).copied().unwrap_or(0.0);
+            let d = u - tables.index_u.get(i).copied().unwrap_or(0.0);
             h.spatial_variance * crate::math::exp(-d * d / l2)
         });
         // c_j = k·v_j / λ_j; f(u) = Σ c_j a_j with a = V_rᵀ z (z = V_r a).
-        let v = &self.tables.gram_eigvec;
+        let v = &tables.gram_eigvec;
         let mut mean = 0.0;
         let mut explained = 0.0;
         let mut cvec = [0.0f32; POINTS];
         for j in 0..r {
-            let lam = self.tables.gram_eigval.get(j).copied().unwrap_or(0.0);
+            let lam = tables.gram_eigval.get(j).copied().unwrap_or(0.0);
             if lam <= 0.0 {
                 continue;
             }
@@ -621,7 +653,7 @@ impl_tracker! {
         // Variance: cᵀ Cov(a_slot) c from the filter's coefficient block.
         let var_a = self.temporal.filter().coefficient_var(slot, &cvec, r);
         let rank = usize::from(get(&self.ranks, slot));
-        let bss = self.tables.coreg.get((rank, rank)).copied().unwrap_or(0.0);
+        let bss = tables.coreg.get((rank, rank)).copied().unwrap_or(0.0);
         let residual = (h.spatial_variance - explained).max(0.0) * bss;
         Some((mean, var_a + residual))
     }

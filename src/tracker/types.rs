@@ -5,6 +5,7 @@ use nalgebra::SVector;
 
 use crate::persist::PersistConfig;
 use crate::spatial::filter::{Config as SpatialConfig, SpatialReport};
+use crate::spatial::row::{Association, MissModel};
 use crate::temporal::identity::{IdentityConfig, IdentityReport, LaneId};
 
 #[cfg(doc)]
@@ -17,11 +18,16 @@ use super::Tracker;
 pub enum StepError {
     /// `now` is not after the previous frame's time.
     NonIncreasingTime,
+    /// The tracker is [`Tracker::UNINIT`]: [`Tracker::init`] has not been called.
+    NotInitialised,
 }
 
 impl core::fmt::Display for StepError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str("frame time does not increase")
+        f.write_str(match self {
+            Self::NonIncreasingTime => "frame time does not increase",
+            Self::NotInitialised => "tracker not initialised",
+        })
     }
 }
 
@@ -60,6 +66,54 @@ impl TrackerConfig {
     pub const ROUND1: Self = Self {
         persist: PersistConfig::ROUND1,
         ..Self::DEFAULT
+    };
+
+    /// Every byte zero: the configuration of [`Tracker::UNINIT`], which never runs with it
+    /// ([`Tracker::init`] replaces it). Not a usable configuration.
+    pub(super) const ZEROED: Self = Self {
+        spatial: SpatialConfig {
+            pd: 0.0,
+            pg: 0.0,
+            gamma: 0.0,
+            clutter_density: 0.0,
+            miss: MissModel::Textbook,
+            max_events: 0,
+            rows_per_interval: 0,
+            init_rows: 0,
+            init_gate: 0.0,
+            max_tentative: 0,
+            confirm_hits: 0,
+            tentative_misses: 0,
+            max_misses: 0,
+            merge_distance: 0.0,
+            merge_rows: 0,
+        },
+        identity: IdentityConfig {
+            gate: 0.0,
+            min_common: 0,
+            max_misses: 0,
+        },
+        existence_decay: 0.0,
+        persist: PersistConfig {
+            enabled: false,
+            pd_memory: 0.0,
+            clutter_memory: 0.0,
+            clutter_floor: 0.0,
+            survival_time: 0.0,
+            p_birth: 0.0,
+            p_publish: 0.0,
+            p_delete: 0.0,
+            explained: 0.0,
+            confirm_hits: 0,
+            q_memory: 0.0,
+            p_visible: 0.0,
+            min_spacing: 0.0,
+            pd_floor: 0.0,
+            association: Association::Exact,
+            ray_z: 0.0,
+            ray_resolution: 0.0,
+        },
+        smoother_per_lane: false,
     };
 }
 

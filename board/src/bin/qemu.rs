@@ -18,8 +18,9 @@ use panic_semihosting as _;
 use stjpdacf::wire::HEADER_LEN;
 use stjpdacf_board::{Board, Polled};
 
-/// The board (tracker, receiver, buffers): a static, never on the stack.
-static BOARD: Mutex<RefCell<Board>> = Mutex::new(RefCell::new(Board::new()));
+/// The board (tracker, receiver, buffers): a static, never on the stack; all zero until `main`
+/// initialises it in place, so it is in `.bss`.
+static BOARD: Mutex<RefCell<Board>> = Mutex::new(RefCell::new(Board::UNINIT));
 
 /// The host file the SPI side reads (NUL-terminated for semihosting).
 const FRAMES: &[u8] = b"target/frames.stjf\0";
@@ -145,6 +146,7 @@ impl embedded_io::Write for Uart {
 fn main() -> ! {
     let ok = cortex_m::interrupt::free(|cs| {
         let mut board = BOARD.borrow(cs).borrow_mut();
+        board.init();
         let Some(mut spi) = FileSpi::open(FRAMES) else {
             hprintln!("ERROR cannot open target/frames.stjf");
             return false;

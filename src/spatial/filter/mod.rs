@@ -251,15 +251,35 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             )
         };
         const { assert!(ROWS >= 2 && ROWS <= 1024, "ROWS must be 2..=1024") };
+        let mut f = Self::ZEROED;
+        f.clear_meta();
+        f
+    }
+
+    /// Every byte zero (the tracker's all-zero constant, which lives in `.bss`): [`SpatialFilter::new`]
+    /// with its tracks' row markers zero; every frame resets them (`walk`), and the tracker's
+    /// `init` does too.
+    pub(crate) const ZEROED: Self = {
+        const ZERO_META: Meta = Meta {
+            first_row: 0,
+            last_row: 0,
+            ..Meta::EMPTY
+        };
         Self {
             state: Stacked::new(),
-            meta: [Meta::EMPTY; LANES],
+            meta: [ZERO_META; LANES],
             hist: [[Rec::EMPTY; ROWS]; LANES],
             bin_n: [0; ROWS],
             bins: [[0.0; PER_ROW]; ROWS],
             buf: [[0.0; PER_ROW]; MAX_INIT_ROWS],
             buf_n: [0; MAX_INIT_ROWS],
         }
+    };
+
+    /// The tracks' row markers reset to "no row" (what [`SpatialFilter::new`] adds to
+    /// [`SpatialFilter::ZEROED`]). O(LANES).
+    pub(crate) const fn clear_meta(&mut self) {
+        self.meta = [Meta::EMPTY; LANES];
     }
 
     /// Runs the filter on one frame's BEV points `(u, x)` and writes one [`LaneObservation`] per
