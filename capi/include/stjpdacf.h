@@ -208,8 +208,9 @@ typedef struct stjpdacf_known_report {
   uint32_t explained_points;
   // Rows whose joint events failed numerically (every lane missed there).
   uint32_t failed_rows;
-  // Lanes deleted because their existence fell below `p_delete` or the ray test found them
-  // to be a vertical structure (`ray_deleted` of them).
+  // Lanes deleted because their existence fell below `p_delete`, the ray test found them
+  // to be a vertical structure (`ray_deleted` of them) or they join two markings
+  // (`connectors_deleted`).
   uint32_t deleted;
   // Lanes removed as duplicates of another (one lane, one track).
   uint32_t merged;
@@ -227,6 +228,9 @@ typedef struct stjpdacf_known_report {
   uint32_t ray_refused;
   // Live lanes deleted for the same reason (counted in `deleted` too).
   uint32_t ray_deleted;
+  // Live lanes deleted as connectors: they cross or touch two published lanes that do not
+  // meet each other (docs/design.md §11.11; counted in `deleted` too).
+  uint32_t connectors_deleted;
 } stjpdacf_known_report;
 
 // What one frame did (`repr(C)`: the C API hands it to C as is).

@@ -600,7 +600,7 @@ fn compare_frame(
 /// Matches published lanes to true lines: mean |Δx| over the lane's observed index points
 /// < 0.5 m, greedy by error. Returns (line index, lane id, error) per match and the count of
 /// unmatched lanes.
-fn match_truth(
+pub fn match_truth(
     lanes: &[LaneEstimate<POINTS>],
     truth: &[(i64, Vec<f64>)],
 ) -> (Vec<(i64, u32, f64)>, [u64; 2]) {

@@ -105,6 +105,14 @@ pub struct PersistConfig {
     /// deviation or better, metres: 0.5, a third of 1.5 m, the smallest offset of a marking
     /// from a camera inside its lane.
     pub ray_resolution: f32,
+    /// Lanes do not cross, and no marking joins two others (docs/design.md §11.11): a live lane
+    /// that crosses or touches two published lanes which do not meet each other is the track
+    /// of no marking and is removed. `true` by default.
+    pub connectors: bool,
+    /// Consecutive frames a lane must be a connector before it is removed: 2 (one frame can be
+    /// a transient mis-association; chosen on the replay's robustness curve and the soak's
+    /// drives, docs/design.md §11.11).
+    pub connector_frames: u8,
 }
 
 impl PersistConfig {
@@ -129,6 +137,8 @@ impl PersistConfig {
         association: Association::ExactOrLbp,
         ray_z: 3.0,
         ray_resolution: 0.5,
+        connectors: true,
+        connector_frames: 2,
     };
 
     /// The round-1 pipeline (ablation "no temporal prior").

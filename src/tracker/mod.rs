@@ -99,6 +99,8 @@ pub struct Tracker<
     id_hist: [[Option<LaneId>; LANES]; MAX_LAG + 1],
     /// B slot (rank from the left) of each active lane after the last step.
     ranks: [u8; LANES],
+    /// Consecutive frames each slot's lane has been a connector (docs/design.md §11.11).
+    connector_run: [u8; LANES],
     /// Known lanes' existence and detection probabilities, the clutter estimate.
     persist: Persist<LANES, POINTS, ROWS>,
     /// The known-lane stage's row vectors (computed once for the row geometry).
@@ -175,6 +177,7 @@ impl_tracker! {
             extent: [[[0.0; 2]; LANES]; EXTENT_HISTORY],
             id_hist: [[None; LANES]; MAX_LAG + 1],
             ranks: [0; LANES],
+            connector_run: [0; LANES],
             persist: Persist::ZEROED,
             basis: RowBasis::NEW,
             last: None,
@@ -429,6 +432,7 @@ impl_tracker! {
                     }
                 );
             if removed {
+                set(&mut self.connector_run, s, 0);
                 self.temporal.remove_lane(s);
                 self.persist.remove(s);
                 set(&mut self.info, s, NO_INFO);

@@ -7,6 +7,7 @@ use heapless::Vec;
 use nalgebra::{SMatrix, SVector};
 
 use crate::linalg::{get, set};
+use crate::math;
 use crate::observation::LaneObservation;
 use crate::persist::{self, ray_stat, Evidence, Explained, Lanes, Pass, RayVerdict};
 use crate::probe::{Probe, Stage};
@@ -122,9 +123,15 @@ impl_tracker! {
         let (deleted, rays) = self.delete_unlikely();
         report.known.ray_deleted = rays;
         let merged = self.merge_duplicates();
-        report.known.deleted = deleted;
+        let connectors = if self.cfg.persist.connectors {
+            self.remove_connectors()
+        } else {
+            0
+        };
+        report.known.deleted = deleted + connectors;
+        report.known.connectors_deleted = connectors;
         report.known.merged = merged;
-        if merged + deleted > 0 {
+        if merged + deleted + connectors > 0 {
             let ranks = self.ranks_of(None);
             match self.temporal.set_ranks(&ranks) {
                 Ok(()) => self.ranks = ranks,
@@ -189,7 +196,6 @@ impl_tracker! {
             return 0;
         };
         let mut any = 0u32;
-        let r = (tables.gram_rank as usize).min(RANK).min(POINTS);
         for s in 0..LANES {
             for t in s + 1..LANES {
                 let (Some(ls), Some(lt)) = (self.ids.lane(s), self.ids.lane(t)) else {
@@ -209,7 +215,6 @@ impl_tracker! {
                 let (as0, ae0) = self.extent_of(s, 0);
                 let (at0, ate) = self.extent_of(t, 0);
                 let (lo, hi) = (as0.max(at0), ae0.min(ate));
-                let p = self.temporal.filter().covariance();
                 let mut cost = 0.0f32;
                 let mut dist = 0.0f32;
                 let mut n = 0u32;
@@ -218,20 +223,7 @@ impl_tracker! {
                     if !(u >= lo && u <= hi) {
                         continue;
                     }
-                    let vi = |j: usize| tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0);
-                    let mut cov = 0.0f32;
-                    for j in 0..r {
-                        let ij = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
-                        let mut inner = 0.0f32;
-                        for k in 0..r {
-                            let ik = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, 0);
-                            inner += p.get((ij, ik)).copied().unwrap_or(0.0) * vi(k);
-                        }
-                        cov += vi(j) * inner;
-                    }
-                    let d = zs.get(i).copied().unwrap_or(0.0) - zt.get(i).copied().unwrap_or(0.0);
-                    let var = vs.get(i).copied().unwrap_or(0.0) + vt.get(i).copied().unwrap_or(0.0)
-                        - 2.0 * cov;
+                    let (d, var) = self.difference_at(tables, (s, &zs, &vs), (t, &zt, &vt), i);
                     let var = var.max(tables.hyper.pseudo_noise);
                     cost += d * d / var;
                     dist += d.abs();
@@ -254,6 +246,7 @@ impl_tracker! {
 
     /// Removes the lane in slot `s` from every stage.
     pub(super) fn remove_slot(&mut self, s: usize) {
+        set(&mut self.connector_run, s, 0);
         self.ids.remove(s);
         self.temporal.remove_lane(s);
         self.persist.remove(s);
@@ -261,6 +254,176 @@ impl_tracker! {
         for h in self.extent.iter_mut() {
             set(h, s, [f32::INFINITY, f32::NEG_INFINITY]);
         }
+    }
+
+    /// `z_s − z_t` at index point `i` and its variance `σ_s² + σ_t² − 2 Cov(z_s, z_t)` from
+    /// the temporal covariance (`(slot, z, σ²)` of each lane).
+    ///
+    /// # Complexity
+    /// `r² + 2r` multiply-adds (`r` Gram components).
+    fn difference_at(
+        &self,
+        tables: &Tables<NT, LANES, POINTS>,
+        (s, zs, vs): (usize, &SVector<f32, POINTS>, &SVector<f32, POINTS>),
+        (t, zt, vt): (usize, &SVector<f32, POINTS>, &SVector<f32, POINTS>),
+        i: usize,
+    ) -> (f32, f32) {
+        let r = (tables.gram_rank as usize).min(RANK).min(POINTS);
+        let p = self.temporal.filter().covariance();
+        let vi = |j: usize| tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0);
+        let mut cov = 0.0f32;
+        for j in 0..r {
+            let ij = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
+            let mut inner = 0.0f32;
+            for k in 0..r {
+                let ik = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, 0);
+                inner += p.get((ij, ik)).copied().unwrap_or(0.0) * vi(k);
+            }
+            cov += vi(j) * inner;
+        }
+        let at = |v: &SVector<f32, POINTS>| v.get(i).copied().unwrap_or(f32::NAN);
+        (at(zs) - at(zt), at(vs) + at(vt) - 2.0 * cov)
+    }
+
+    /// Lanes do not cross, and no marking joins two others (docs/design.md §11.11). For each
+    /// pair of live lanes seen this frame, over the index points both observed (at least
+    /// `min_common`), with `d = z_s − z_t` and `V = Var(d) + 2r`: the pair is *apart* at a
+    /// point where `d² > gate·V` and *together* where not. Two lanes **cross** when they are
+    /// apart on both sides (`d > 0` at one point, `d < 0` at another); a lane **touches**
+    /// another when they are together at two points or more and apart at one. A lane that
+    /// crosses a lane or touches two is a *connector*, the track of no marking (it runs from
+    /// one marking to the next through their shared points). Repeatedly, the connector with
+    /// the most crossings and touches (on a tie the younger, then the higher slot) is removed,
+    /// until none is left. Returns how many were.
+    ///
+    /// # Complexity
+    /// `LANES²/2` pairs, each `POINTS·(r² + 2r)` multiply-adds; then at most `LANES` rounds of
+    /// `O(LANES²)` comparisons.
+    #[inline(never)]
+    fn remove_connectors(&mut self) -> u32 {
+        let Some(tables) = self.tables else {
+            return 0;
+        };
+        let gate = self.cfg.identity.gate;
+        let rr = tables.hyper.meas_noise;
+        let min_common = usize::from(self.cfg.identity.min_common.max(1));
+        // Bit t of cross[s] / touch[s]: s crosses / touches t.
+        let mut cross = [0u32; LANES];
+        let mut touch = [0u32; LANES];
+        // Published lanes seen this frame: a connector joins established markings.
+        let p_publish = self.cfg.persist.p_publish;
+        let live = |s: usize| {
+            self.ids.lane(s).is_some()
+                && get(&self.info, s).seen
+                && self.persist.lanes.get(s).is_some_and(|l| l.existence >= p_publish)
+        };
+        // Each lane's positions, variances and observed points, once.
+        let lanes: [Option<(SVector<f32, POINTS>, SVector<f32, POINTS>)>; LANES] =
+            core::array::from_fn(|s| {
+                if live(s) {
+                    self.temporal.filter().lane(tables, s)
+                } else {
+                    None
+                }
+            });
+        let observed: [[bool; POINTS]; LANES] = core::array::from_fn(|s| self.observed(s));
+        for s in 0..LANES {
+            for t in s + 1..LANES {
+                let (Some(Some((zs, vs))), Some(Some((zt, vt))), Some(os), Some(ot)) =
+                    (lanes.get(s), lanes.get(t), observed.get(s), observed.get(t))
+                else {
+                    continue;
+                };
+                let (mut pos, mut neg, mut together, mut common) = (false, false, 0usize, 0usize);
+                for i in (0..POINTS).filter(|&i| get(os, i) && get(ot, i)) {
+                    // 2r ≤ V ≤ (σ_s + σ_t)² + 2r (|Cov| ≤ σ_s σ_t): the covariance term is
+                    // computed only when the bounds do not decide.
+                    let at = |v: &SVector<f32, POINTS>| v.get(i).copied().unwrap_or(f32::NAN);
+                    let d = at(zs) - at(zt);
+                    let sd = math::sqrt(at(vs).max(0.0)) + math::sqrt(at(vt).max(0.0));
+                    if !(d.is_finite() && sd.is_finite()) {
+                        continue;
+                    }
+                    let apart = if d * d <= gate * 2.0 * rr {
+                        false
+                    } else if d * d > gate * (sd * sd + 2.0 * rr) {
+                        true
+                    } else {
+                        let (_, var) = self.difference_at(tables, (s, zs, vs), (t, zt, vt), i);
+                        d * d > gate * (var.max(0.0) + 2.0 * rr)
+                    };
+                    common += 1;
+                    if apart {
+                        pos |= d > 0.0;
+                        neg |= d < 0.0;
+                    } else {
+                        together += 1;
+                    }
+                }
+                if common < min_common {
+                    continue;
+                }
+                let rel = if pos && neg {
+                    &mut cross
+                } else if together >= 2 && (pos || neg) {
+                    &mut touch
+                } else {
+                    continue;
+                };
+                for (a, b) in [(s, t), (t, s)] {
+                    if let Some(m) = rel.get_mut(a) {
+                        *m |= 1 << b;
+                    }
+                }
+            }
+        }
+        let rel = |c: &[u32; LANES], t: &[u32; LANES], x: usize| get(c, x) | get(t, x);
+        // Two of the lanes it meets that do not meet each other: two markings.
+        let joins = |c: &[u32; LANES], t: &[u32; LANES], s: usize| {
+            let mine = rel(c, t, s);
+            (0..LANES).any(|a| {
+                mine & (1 << a) != 0
+                    && (a + 1..LANES).any(|b| mine & (1 << b) != 0 && rel(c, t, a) & (1 << b) == 0)
+            })
+        };
+        let persist = self.cfg.persist.connector_frames;
+        for s in 0..LANES {
+            let run = get(&self.connector_run, s);
+            let now = if joins(&cross, &touch, s) {
+                run.saturating_add(1)
+            } else {
+                0
+            };
+            set(&mut self.connector_run, s, now);
+        }
+        let mut removed = 0u32;
+        for _ in 0..LANES {
+            let mut pick: Option<(u32, u32, usize)> = None;
+            for s in 0..LANES {
+                if get(&self.connector_run, s) < persist || !joins(&cross, &touch, s) {
+                    continue;
+                }
+                let degree = rel(&cross, &touch, s).count_ones();
+                let age = self.ids.lane(s).map_or(0, |l| l.age);
+                // Most relations first, then the younger, then the higher slot.
+                let better = pick.is_none_or(|(d, a, _)| degree > d || (degree == d && age <= a));
+                if better {
+                    pick = Some((degree, age, s));
+                }
+            }
+            let Some((_, _, s)) = pick else {
+                break;
+            };
+            self.remove_slot(s);
+            removed += 1;
+            let gone = !(1u32 << s);
+            set(&mut cross, s, 0);
+            set(&mut touch, s, 0);
+            for m in cross.iter_mut().chain(touch.iter_mut()) {
+                *m &= gone;
+            }
+        }
+        removed
     }
 
     /// Lanes whose existence fell below `p_delete`, or that the ray test finds to be vertical

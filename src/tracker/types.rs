@@ -112,6 +112,8 @@ impl TrackerConfig {
             association: Association::Exact,
             ray_z: 0.0,
             ray_resolution: 0.0,
+            connectors: false,
+            connector_frames: 0,
         },
         smoother_per_lane: false,
     };
@@ -190,8 +192,9 @@ pub struct KnownReport {
     pub explained_points: u32,
     /// Rows whose joint events failed numerically (every lane missed there).
     pub failed_rows: u32,
-    /// Lanes deleted because their existence fell below `p_delete` or the ray test found them
-    /// to be a vertical structure (`ray_deleted` of them).
+    /// Lanes deleted because their existence fell below `p_delete`, the ray test found them
+    /// to be a vertical structure (`ray_deleted` of them) or they join two markings
+    /// (`connectors_deleted`).
     pub deleted: u32,
     /// Lanes removed as duplicates of another (one lane, one track).
     pub merged: u32,
@@ -209,6 +212,9 @@ pub struct KnownReport {
     pub ray_refused: u32,
     /// Live lanes deleted for the same reason (counted in `deleted` too).
     pub ray_deleted: u32,
+    /// Live lanes deleted as connectors: they cross or touch two published lanes that do not
+    /// meet each other (docs/design.md §11.11; counted in `deleted` too).
+    pub connectors_deleted: u32,
 }
 
 /// The output of one frame.
