@@ -91,7 +91,7 @@ pub fn run() -> Result<()> {
     step("README command 2: tests");
     cargo(&["test", "--workspace"])?;
 
-    step("reliability in release: soak against the f64 reference, fuzz corpora");
+    step("reliability in release: soak against the f64 reference, fuzz corpora, connectors on the soak drives");
     cargo(&[
         "test",
         "--release",
@@ -101,6 +101,8 @@ pub fn run() -> Result<()> {
         "soak",
         "--test",
         "fuzz_corpus",
+        "--test",
+        "connectors",
         "--",
         "--include-ignored",
     ])?;
