@@ -379,8 +379,11 @@ impl_tracker! {
     /// Step 3: this frame's observations against the temporal predictions.
     // Not inlined: its predictions (~0.9 KiB) must not add to the temporal stage's stack.
     #[inline(never)]
-    fn associate(&mut self,
-        tables: &'static Tables<NT, LANES, POINTS>, n_obs: usize) -> IdentityOutcome<LANES> {
+    fn associate(
+        &mut self,
+        tables: &'static Tables<NT, LANES, POINTS>,
+        n_obs: usize,
+    ) -> IdentityOutcome<LANES> {
         let mut preds = [LanePrediction::<POINTS>::EMPTY; LANES];
         for (s, p) in preds.iter_mut().enumerate() {
             if let Some((z, var)) = self.temporal.filter().lane(tables, s) {

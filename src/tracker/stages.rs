@@ -23,8 +23,12 @@ impl_tracker! {
     /// temporal update with it, their existence; the points they explain leave the rows.
     /// Returns the lanes seen (bit = slot).
     #[inline(never)]
-    pub(super) fn known_lanes<P: Probe>(&mut self,
-        tables: &'static Tables<NT, LANES, POINTS>, report: &mut StepReport, probe: &mut P) -> u32 {
+    pub(super) fn known_lanes<P: Probe>(
+        &mut self,
+        tables: &'static Tables<NT, LANES, POINTS>,
+        report: &mut StepReport,
+        probe: &mut P,
+    ) -> u32 {
         let Some(pass) = self.pass() else {
             return 0;
         };
@@ -286,19 +290,21 @@ impl_tracker! {
     }
 
     /// Lanes do not cross, and no marking joins two others (docs/design.md §11.11). For each
-    /// pair of live lanes seen this frame, over the index points both observed (at least
+    /// pair of published lanes seen this frame, over the index points both observed (at least
     /// `min_common`), with `d = z_s − z_t` and `V = Var(d) + 2r`: the pair is *apart* at a
     /// point where `d² > gate·V` and *together* where not. Two lanes **cross** when they are
     /// apart on both sides (`d > 0` at one point, `d < 0` at another); a lane **touches**
-    /// another when they are together at two points or more and apart at one. A lane that
-    /// crosses a lane or touches two is a *connector*, the track of no marking (it runs from
-    /// one marking to the next through their shared points). Repeatedly, the connector with
-    /// the most crossings and touches (on a tie the younger, then the higher slot) is removed,
-    /// until none is left. Returns how many were.
+    /// another when they are together at two points or more and apart at one. A lane is a
+    /// *connector* when two of the lanes it crosses or touches do not cross or touch each
+    /// other: it runs from one marking to the next through their shared points, the track of
+    /// no marking. A connector in `connector_frames` consecutive frames is removed, the one
+    /// with the most crossings and touches first (on a tie the younger, then the higher slot),
+    /// the relations recomputed without it. Returns how many were.
     ///
     /// # Complexity
-    /// `LANES²/2` pairs, each `POINTS·(r² + 2r)` multiply-adds; then at most `LANES` rounds of
-    /// `O(LANES²)` comparisons.
+    /// `LANES` lane read-outs (`POINTS·(r + r²)` each); `LANES²/2` pairs of `POINTS` bound
+    /// tests, each pair's covariance term (`r² + 2r` multiply-adds) only at points the bounds
+    /// do not decide; at most `LANES` rounds of `O(LANES³)` bit tests.
     #[inline(never)]
     fn remove_connectors(&mut self) -> u32 {
         let Some(tables) = self.tables else {
