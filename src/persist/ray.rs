@@ -91,31 +91,14 @@ pub fn ray_stat<const POINTS: usize>(
             && u.get(i).is_some_and(|v| v.is_finite())
             && z.get(i).is_some_and(|v| v.is_finite())
     };
-    let mut n = 0usize;
-    let mut scale = 0.0f32;
-    for i in 0..POINTS {
-        if usable(i) {
-            n += 1;
-            scale = scale.max(u.get(i).copied().unwrap_or(0.0).abs());
-        }
-    }
-    if n < 3 || scale <= 0.0 {
-        return None;
-    }
+    let LineMoments {
+        scale,
+        m0,
+        m1,
+        m2,
+        det,
+    } = line_moments(u, weight, &usable)?;
     let t = |i: usize| u.get(i).copied().unwrap_or(0.0) / scale;
-    // Weighted normal matrix [[Σw, Σwt], [Σwt, Σwt²]] of the line x = a + b·t.
-    let (mut m0, mut m1, mut m2) = (0.0f32, 0.0f32, 0.0f32);
-    for i in (0..POINTS).filter(|&i| usable(i)) {
-        let (wi, ti) = (get(weight, i), t(i));
-        m0 += wi;
-        m1 += wi * ti;
-        m2 += wi * ti * ti;
-    }
-    // A fit over less than about a twentieth of the distance is singular in f32: no statistic.
-    let det = m0 * m2 - m1 * m1;
-    if !(det.is_finite() && det > 1e-5 * m0 * m0) {
-        return None;
-    }
     let mut wa = [0.0f32; POINTS];
     let mut a = 0.0f32;
     for i in (0..POINTS).filter(|&i| usable(i)) {
@@ -207,23 +190,17 @@ pub fn parallel<const POINTS: usize>(
             && get(d, i).is_finite()
             && u.get(i).is_some_and(|v| v.is_finite())
     };
-    let scale = (0..POINTS)
-        .filter(|&i| usable(i))
-        .map(|i| u.get(i).copied().unwrap_or(0.0).abs())
-        .fold(0.0f32, f32::max);
-    let t = |i: usize| u.get(i).copied().unwrap_or(0.0) / scale;
-    let (mut m0, mut m1, mut m2, mut n) = (0.0f32, 0.0f32, 0.0f32, 0u32);
-    for i in (0..POINTS).filter(|&i| usable(i)) {
-        let (wi, ti) = (get(weight, i), t(i));
-        m0 += wi;
-        m1 += wi * ti;
-        m2 += wi * ti * ti;
-        n += 1;
-    }
-    let det = m0 * m2 - m1 * m1;
-    if n < 3 || scale <= 0.0 || !(det.is_finite() && det > 1e-5 * m0 * m0) {
+    let Some(LineMoments {
+        scale,
+        m0,
+        m1,
+        m2: _,
+        det,
+    }) = line_moments(u, weight, &usable)
+    else {
         return false;
-    }
+    };
+    let t = |i: usize| u.get(i).copied().unwrap_or(0.0) / scale;
     let mut fb = [0.0f32; POINTS];
     let mut b = 0.0f32;
     for i in (0..POINTS).filter(|&i| usable(i)) {
@@ -233,4 +210,48 @@ pub fn parallel<const POINTS: usize>(
     }
     let v = var(&fb);
     v.is_finite() && v > 0.0 && b * b <= z * z * v
+}
+
+/// The weighted normal matrix `[[m0, m1], [m1, m2]] = [[Σw, Σwt], [Σwt, Σwt²]]` of the line
+/// `x = a + b·t` over the usable points, `t = u / scale` with `scale = max |u|` there, and its
+/// determinant.
+struct LineMoments {
+    scale: f32,
+    m0: f32,
+    m1: f32,
+    m2: f32,
+    det: f32,
+}
+
+/// [`LineMoments`] of the points `usable` accepts; `None` with fewer than 3 of them, no extent,
+/// or a fit over less than about a twentieth of the distance (singular in f32).
+fn line_moments<const POINTS: usize>(
+    u: &SVector<f32, POINTS>,
+    weight: &[f32; POINTS],
+    usable: &dyn Fn(usize) -> bool,
+) -> Option<LineMoments> {
+    let mut n = 0usize;
+    let mut scale = 0.0f32;
+    for i in (0..POINTS).filter(|&i| usable(i)) {
+        n += 1;
+        scale = scale.max(u.get(i).copied().unwrap_or(0.0).abs());
+    }
+    if n < 3 || scale <= 0.0 {
+        return None;
+    }
+    let (mut m0, mut m1, mut m2) = (0.0f32, 0.0f32, 0.0f32);
+    for i in (0..POINTS).filter(|&i| usable(i)) {
+        let (wi, ti) = (get(weight, i), u.get(i).copied().unwrap_or(0.0) / scale);
+        m0 += wi;
+        m1 += wi * ti;
+        m2 += wi * ti * ti;
+    }
+    let det = m0 * m2 - m1 * m1;
+    (det.is_finite() && det > 1e-5 * m0 * m0).then_some(LineMoments {
+        scale,
+        m0,
+        m1,
+        m2,
+        det,
+    })
 }
