@@ -114,7 +114,7 @@ pub enum BoardError<S, U> {
     Uart(U),
 }
 
-/// The tracker with its receiver and buffers (~143 KB: put it in a `static`).
+/// The tracker with its receiver and buffers (~150 KB: put it in a `static` of [`Board::UNINIT`]).
 pub struct Board {
     tracker: ReferenceTracker,
     rx: Receiver,

@@ -4,7 +4,7 @@
 //! if the optimiser removed every path to a panic: `cargo build --release --bin nopanic`
 //! succeeding is the proof (for the release profile: LTO, `opt-level = 3`, no overflow checks).
 //!
-//! Never run: the objects live on its stack (the reference tracker alone is ≈141 KB), which keeps
+//! Never run: the objects live on its stack (the reference tracker alone is ≈148 KB), which keeps
 //! the proof independent of the RAM budget that the other binaries check.
 #![no_std]
 #![no_main]
