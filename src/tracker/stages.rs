@@ -273,18 +273,11 @@ impl_tracker! {
         i: usize,
     ) -> (f32, f32) {
         let r = (tables.gram_rank as usize).min(RANK).min(POINTS);
-        let p = self.temporal.filter().covariance();
-        let vi = |j: usize| tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0);
-        let mut cov = 0.0f32;
-        for j in 0..r {
-            let ij = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
-            let mut inner = 0.0f32;
-            for k in 0..r {
-                let ik = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, 0);
-                inner += p.get((ij, ik)).copied().unwrap_or(0.0) * vi(k);
-            }
-            cov += vi(j) * inner;
-        }
+        // Row i of V_r: z_i = v_iᵀ a.
+        let vi: [f32; RANK] = core::array::from_fn(|j| {
+            tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0)
+        });
+        let cov = self.coefficient_form(s, t, &vi, &vi, r);
         let at = |v: &SVector<f32, POINTS>| v.get(i).copied().unwrap_or(f32::NAN);
         (at(zs) - at(zt), at(vs) + at(vt) - 2.0 * cov)
     }
@@ -476,6 +469,19 @@ impl_tracker! {
             })
         };
         let (cp, cq) = (coef(p), coef(q));
+        self.coefficient_form(s, t, &cp, &cq, r)
+    }
+
+    /// `cpᵀ Cov(a_s, a_t) cq` over the first `r` Gram coefficients of lanes `s` and `t`
+    /// (the temporal covariance's position block). `r²` multiply-adds.
+    fn coefficient_form(
+        &self,
+        s: usize,
+        t: usize,
+        cp: &[f32; RANK],
+        cq: &[f32; RANK],
+        r: usize,
+    ) -> f32 {
         let cov = self.temporal.filter().covariance();
         let mut acc = 0.0f32;
         for j in 0..r {
@@ -483,9 +489,9 @@ impl_tracker! {
             let mut inner = 0.0f32;
             for k in 0..r {
                 let col = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, 0);
-                inner += cov.get((row, col)).copied().unwrap_or(0.0) * get(&cq, k);
+                inner += cov.get((row, col)).copied().unwrap_or(0.0) * get(cq, k);
             }
-            acc += get(&cp, j) * inner;
+            acc += get(cp, j) * inner;
         }
         acc
     }
