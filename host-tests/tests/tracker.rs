@@ -379,3 +379,55 @@ fn init_in_place_is_with_config_and_restarts() {
         }
     }
 }
+
+/// One lane, one track (docs/design.md §11.9): a second stroke appears 0.8 m beside a tracked
+/// line (a double marking, a road edge). The tracks started on it duplicate the line, and a
+/// lane started this frame has no extent history to be merged on: it is held back from
+/// publication in its first frame, so no published lane of age 0 lies within `min_spacing`
+/// (mean over the index points both observed) of another published lane.
+#[test]
+fn a_duplicate_is_not_published_in_its_first_frame() {
+    let mut t = tracker();
+    let spacing = stjpdacf::persist::PersistConfig::DEFAULT.min_spacing;
+    let (mut started, mut checked) = (0, 0);
+    for k in 0..40u64 {
+        let mut pts = frame(k, 0.0, 3);
+        if k >= 10 {
+            // The second stroke: the points of the line at 1.8 m, moved 0.8 m out.
+            let stroke: Vec<[f32; 2]> = pts
+                .iter()
+                .filter(|p| (p[1] - 1.8).abs() < 0.3 && p[0] < 40.0)
+                .map(|p| [p[0], p[1] + 0.8])
+                .collect();
+            pts.extend(stroke);
+        }
+        let out = t
+            .step(Instant::from_micros(50_000 * (k as i64 + 1)), &pts)
+            .unwrap();
+        if k >= 10 {
+            started += out.report.identity.started;
+        }
+        for a in out.filtered.iter().filter(|l| l.age == 0) {
+            for b in out.filtered.iter().filter(|b| b.id != a.id) {
+                let (lo, hi) = (a.u_first.max(b.u_first), a.u_last.min(b.u_last));
+                let d: Vec<f32> = DEFAULT
+                    .index_u
+                    .iter()
+                    .zip(a.z.iter().zip(b.z.iter()))
+                    .filter(|(u, _)| **u >= lo && **u <= hi)
+                    .map(|(_, (za, zb))| (za - zb).abs())
+                    .collect();
+                if d.len() >= 3 {
+                    checked += 1;
+                    let mean = d.iter().sum::<f32>() / d.len() as f32;
+                    assert!(mean > spacing, "frame {k}: {a:?} duplicates {b:?}");
+                }
+            }
+        }
+    }
+    println!("lanes started on the stroke: {started}; new lanes checked: {checked}");
+    assert!(
+        started > 0,
+        "the stroke started no lane: the test saw no duplicate"
+    );
+}

@@ -48,12 +48,16 @@ struct SlotInfo {
     existence: f32,
     extent: [f32; 2],
     seen: bool,
+    /// A lane started this frame as a duplicate of a live lane (docs/design.md §11.9): not
+    /// published this frame.
+    held: bool,
 }
 
 const NO_INFO: SlotInfo = SlotInfo {
     existence: 0.0,
     extent: [f32::INFINITY, f32::NEG_INFINITY],
     seen: false,
+    held: false,
 };
 
 impl Default for SlotInfo {
@@ -165,6 +169,7 @@ impl_tracker! {
             existence: 0.0,
             extent: [0.0; 2],
             seen: false,
+            held: false,
         };
         Self {
             tables: None,

@@ -123,6 +123,9 @@ impl_tracker! {
     /// After the temporal stage: new lanes' existence, deletion of unlikely lanes and merging
     /// of duplicates (the ranks follow when a lane left), existence into the published figures.
     pub(super) fn maintain_known(&mut self, slots: &[SlotFate; LANES], report: &mut StepReport) {
+        for i in self.info.iter_mut() {
+            i.held = false;
+        }
         self.new_lane_existence(slots);
         let (deleted, rays) = self.delete_unlikely();
         report.known.ray_deleted = rays;
@@ -190,7 +193,11 @@ impl_tracker! {
     /// `Var = σ_s² + σ_t² − 2 Cov(z_s, z_t)` from the temporal covariance — describe one
     /// marking, and so do two lanes closer than `min_spacing` on average there (no two
     /// markings run that close; a double line is one marking); the younger (on a tie, the
-    /// higher slot) is removed. Returns how many were.
+    /// higher slot) is removed. Returns how many were. The observed extents are those of the
+    /// `LAG + 1` frames before this one; a lane started this frame has none, so a pair with one
+    /// is compared over this frame's extents ([`Self::extent_this_frame`]) and the younger,
+    /// when a duplicate, is only held back from publication this frame (`SlotInfo::held`);
+    /// the next frame's test decides.
     ///
     /// # Complexity
     /// `LANES²/2` pairs, each `POINTS·(r² + 2r)` multiply-adds.
@@ -216,8 +223,16 @@ impl_tracker! {
                 ) else {
                     continue;
                 };
-                let (as0, ae0) = self.extent_of(s, 0);
-                let (at0, ate) = self.extent_of(t, 0);
+                // A lane started this frame has no extent history yet: it is compared over
+                // this frame's extents, and a duplicate is held back from publication (not
+                // removed: the next frame's joint association decides between the two, then
+                // the merge below).
+                let newborn = lt.age == 0 || ls.age == 0;
+                let ((as0, ae0), (at0, ate)) = if newborn {
+                    (self.extent_this_frame(s), self.extent_this_frame(t))
+                } else {
+                    (self.extent_of(s, 0), self.extent_of(t, 0))
+                };
                 let (lo, hi) = (as0.max(at0), ae0.min(ate));
                 let mut cost = 0.0f32;
                 let mut dist = 0.0f32;
@@ -240,8 +255,21 @@ impl_tracker! {
                         || dist / nf <= self.cfg.persist.min_spacing)
                 {
                     let drop = if lt.age <= ls.age { t } else { s };
-                    self.remove_slot(drop);
-                    any += 1;
+                    if newborn {
+                        // Held only while the lane it duplicates is published.
+                        let keep = if drop == t { s } else { t };
+                        let shown = self
+                            .persist
+                            .lanes
+                            .get(keep)
+                            .is_some_and(|l| l.existence >= self.cfg.persist.p_publish);
+                        if let (true, Some(info)) = (shown, self.info.get_mut(drop)) {
+                            info.held = true;
+                        }
+                    } else {
+                        self.remove_slot(drop);
+                        any += 1;
+                    }
                 }
             }
         }
@@ -665,7 +693,9 @@ impl_tracker! {
             ) {
                 let (u_first, u_last) = self.extent_of(s, 0);
                 let info = get(&self.info, s);
-                if self.cfg.persist.enabled && info.existence < self.cfg.persist.p_publish {
+                if self.cfg.persist.enabled
+                    && (info.existence < self.cfg.persist.p_publish || info.held)
+                {
                     continue;
                 }
                 // At most one estimate per slot: the vectors hold `LANES`, so no push fails.
@@ -726,8 +756,27 @@ impl_tracker! {
         }
     }
 
+    /// Slot `s`'s observed extent as it will be published at this frame, before the frame's
+    /// extent enters the history ([`Self::push_histories`]): the union of this frame's
+    /// observed extent and the `LAG` frames before it, as [`Self::extent_of`]`(s, 0)` after the
+    /// push. A lane started this frame has only this frame's.
+    pub(super) fn extent_this_frame(&self, s: usize) -> (f32, f32) {
+        let [mut lo, mut hi] = get(&self.info, s).extent;
+        for h in self.extent.iter().take(LAG) {
+            let [a, b] = get(h, s);
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        if lo > hi {
+            let u = self.tables.map_or(0.0, |t| t.hyper.u_min);
+            (u, u)
+        } else {
+            (lo, hi)
+        }
+    }
+
     /// Union of slot `s`'s observed extents over the history frames `from..=from + LAG` (0 is
-    /// the current frame).
+    /// the current frame once [`Self::push_histories`] has run).
     pub(super) fn extent_of(&self, s: usize, from: usize) -> (f32, f32) {
         let mut lo = f32::INFINITY;
         let mut hi = f32::NEG_INFINITY;
