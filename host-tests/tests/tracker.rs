@@ -131,6 +131,8 @@ fn blackout_coasts_then_recovers_with_the_same_ids() {
     }
 }
 
+/// A lane that appears while others are tracked gets a new id and is published from its second
+/// frame.
 #[test]
 fn new_lane_gets_a_new_id() {
     let mut t = tracker();
@@ -159,12 +161,21 @@ fn new_lane_gets_a_new_id() {
             .iter()
             .map(|l| (l.z[0], l.u_first, l.u_last))
             .collect();
+        // The first frame's lanes are published at once (nothing is tracked yet); the third
+        // lane, started at frame 6 while two are tracked, from its second frame (§11.5).
+        let published = if k == 6 { 2 } else { lanes };
         assert_eq!(
             out.filtered.len(),
-            lanes,
+            published,
             "frame {k}: {z0:?} {:?}",
             out.report.spatial
         );
+        if k == 6 {
+            assert_eq!(
+                out.report.identity.started, 1,
+                "frame 6: the third lane starts"
+            );
+        }
         seen.extend(out.filtered.iter().map(|l| l.id.0));
     }
     assert_eq!(seen.len(), 3);

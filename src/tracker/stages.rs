@@ -450,6 +450,16 @@ impl_tracker! {
                 *m &= gone;
             }
         }
+        // A lane started this frame that already joins two markings is not published before
+        // its second frame decides (as a duplicate is not, §11.9).
+        for s in 0..LANES {
+            let newborn = self.ids.lane(s).is_some_and(|l| l.age == 0);
+            if newborn && joins(&cross, &touch, s) {
+                if let Some(info) = self.info.get_mut(s) {
+                    info.held = true;
+                }
+            }
+        }
         removed
     }
 
@@ -686,6 +696,9 @@ impl_tracker! {
         let Some(tables) = self.tables else {
             return;
         };
+        // Lanes tracked from an earlier frame: a lane this frame's points alone started then
+        // waits for its first confirming frame (docs/design.md §11.5).
+        let tracking = (0..LANES).any(|t| self.ids.lane(t).is_some_and(|l| l.age > 0));
         for s in 0..LANES {
             if let (Some(lane), Some((z, var))) = (
                 self.ids.lane(s),
@@ -694,7 +707,9 @@ impl_tracker! {
                 let (u_first, u_last) = self.extent_of(s, 0);
                 let info = get(&self.info, s);
                 if self.cfg.persist.enabled
-                    && (info.existence < self.cfg.persist.p_publish || info.held)
+                    && (info.existence < self.cfg.persist.p_publish
+                        || info.held
+                        || (lane.age == 0 && tracking))
                 {
                     continue;
                 }
