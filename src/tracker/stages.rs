@@ -256,13 +256,16 @@ impl_tracker! {
                 {
                     let drop = if lt.age <= ls.age { t } else { s };
                     if newborn {
-                        // Held only while the lane it duplicates is published.
+                        // Held only while the lane it duplicates is tracked (from an earlier
+                        // frame) and published: two lanes of one frame are both kept (11.5).
                         let keep = if drop == t { s } else { t };
-                        let shown = self
-                            .persist
-                            .lanes
-                            .get(keep)
-                            .is_some_and(|l| l.existence >= self.cfg.persist.p_publish);
+                        let tracked = self.ids.lane(keep).is_some_and(|l| l.age > 0);
+                        let shown = tracked
+                            && self
+                                .persist
+                                .lanes
+                                .get(keep)
+                                .is_some_and(|l| l.existence >= self.cfg.persist.p_publish);
                         if let (true, Some(info)) = (shown, self.info.get_mut(drop)) {
                             info.held = true;
                         }
