@@ -251,8 +251,8 @@ fn culane_sized_camera_and_horizon_estimate() {
         ..Camera::culane()
     };
     let img = synthetic_road(&truth);
-    // The vote finds the vanishing column; its horizon row is biased upwards (measured: row
-    // 116 for a true 206; on the TuSimple frames 18–50 rows high on half of them), so the
+    // The edge vote finds the vanishing column; its horizon row is biased upwards (measured:
+    // row 116 for a true 206; on the TuSimple frames 18–50 rows high on half of them), so its
     // row is not asserted.
     let (c, r) = frontend::estimate_vanishing_point(&img).unwrap();
     eprintln!(
@@ -260,6 +260,19 @@ fn culane_sized_camera_and_horizon_estimate() {
         truth.vp_col, truth.vp_row
     );
     assert!((c - truth.vp_col).abs() <= 10.0, "vanishing column {c}");
+    // The markings' own lines find the row too, starting from the guess 30 rows off.
+    let est = frontend::camera_with(&img, &CameraMode::Estimate(Camera::culane())).unwrap();
+    eprintln!("from the marking lines: ({}, {})", est.vp_col, est.vp_row);
+    assert!(
+        (est.vp_col - truth.vp_col).abs() <= 5.0,
+        "column {}",
+        est.vp_col
+    );
+    assert!(
+        (est.vp_row - truth.vp_row).abs() <= 3.0,
+        "row {}",
+        est.vp_row
+    );
     // With the camera given, the points lie on the markings: each maps to within 0.3 m of one.
     let p = FrontendParams::default();
     let cam = frontend::camera_with(&img, &CameraMode::Given(truth)).unwrap();
