@@ -249,11 +249,12 @@ fn sample(img: &RgbImage, col: f64, row: f64) -> Option<[f64; 3]> {
     let (c0, r0) = (c0 as u32, r0 as u32);
     let c1 = (c0 + 1).min(img.width() - 1);
     let r1 = (r0 + 1).min(img.height() - 1);
+    let (p00, p10) = (img.get_pixel(c0, r0), img.get_pixel(c1, r0));
+    let (p01, p11) = (img.get_pixel(c0, r1), img.get_pixel(c1, r1));
     let mut out = [0.0; 3];
     for (k, o) in out.iter_mut().enumerate() {
-        let p = |c: u32, r: u32| f64::from(img.get_pixel(c, r)[k]);
-        let top = p(c0, r0) * (1.0 - fc) + p(c1, r0) * fc;
-        let bot = p(c0, r1) * (1.0 - fc) + p(c1, r1) * fc;
+        let top = f64::from(p00[k]) * (1.0 - fc) + f64::from(p10[k]) * fc;
+        let bot = f64::from(p01[k]) * (1.0 - fc) + f64::from(p11[k]) * fc;
         *o = top * (1.0 - fr) + bot * fr;
     }
     Some(out)
@@ -290,7 +291,7 @@ pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f
         img.height()
     );
     let mut out = Vec::new();
-    let peaks = ridge_peaks(img, cam, p, 0)?;
+    let peaks = ridge_peaks(img, cam, p, 0, 1)?;
     // Continuity: a marking persists over neighbouring BEV rows, road texture does not. Keep a
     // peak with at least `support` peaks within ±`support_rows` rows and a lateral distance of
     // max(marking_width, 2 px).
@@ -323,13 +324,15 @@ pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f
     Ok(out)
 }
 
-/// Ridge peaks (steps 1–4 of the module doc) of the image rows at or below `row_min`: (BEV row
-/// index, u, x, bright), bottom row first, each row ordered by x.
+/// Ridge peaks (steps 1–4 of the module doc) of every `row_step`-th image row from the
+/// bottom, at or below `row_min`: (BEV row index, u, x, bright), bottom row first, each row
+/// ordered by x.
 fn ridge_peaks(
     img: &RgbImage,
     cam: &Camera,
     p: &FrontendParams,
     row_min: i64,
+    row_step: usize,
 ) -> Result<Vec<(usize, f64, f64, bool)>> {
     let nx = (2.0 * p.x_max / p.dx).round() as usize + 1;
     let xs: Vec<f64> = (0..nx).map(|i| -p.x_max + i as f64 * p.dx).collect();
@@ -346,7 +349,7 @@ fn ridge_peaks(
     // (BEV row index, u, x) of every ridge peak, bottom row first.
     let mut peaks: Vec<(usize, f64, f64, bool)> = Vec::new();
     let mut row_idx = 0usize;
-    for row in (row_far.max(0)..=row_near).rev() {
+    for row in (row_far.max(0)..=row_near).rev().step_by(row_step.max(1)) {
         let rowf = row as f64;
         let Some((u, _)) = cam.to_bev(cam.vp_col, rowf) else {
             row_idx += 1;
@@ -400,8 +403,8 @@ fn ridge_peaks(
             row_idx += 1;
             continue;
         }
-        vals.sort_by(f64::total_cmp);
-        let road = vals[vals.len() / 2];
+        let k = vals.len() / 2;
+        let road = *vals.select_nth_unstable_by(k, f64::total_cmp).1;
         // The row's texture level: a robust σ of the ridge response.
         let noise = if p.noise_k > 0.0 {
             vals.clear();
@@ -725,8 +728,9 @@ pub enum CameraMode {
     /// This camera for every image (its size must match).
     Given(Camera),
     /// The horizon and the vanishing column estimated from each image
-    /// ([`estimate_vanishing_point`]); the camera height and focal length from this guess
-    /// (scaled to the image's width), which is also used when the estimate fails.
+    /// ([`estimate_vanishing_point_from_lines`], else [`estimate_vanishing_point`]), the camera
+    /// height from the width of the ego lane between the marking lines ([`LANE_WIDTH`]); the
+    /// focal length, and whatever is not found, from this guess (scaled to the image's width).
     Estimate(Camera),
 }
 
@@ -834,6 +838,13 @@ fn marking_lines(
         .map(|i| (i as f64 - 90.0).to_radians())
         .map(|t| (t.cos(), t.sin()))
         .collect();
+    // Coordinates relative to the peaks' centroid keep the ρ range small.
+    let m = pts.len().max(1) as f64;
+    let o = pts
+        .iter()
+        .fold((0.0, 0.0), |a, q| (a.0 + q.0 / m, a.1 + q.1 / m));
+    let pts: Vec<(f64, f64)> = pts.iter().map(|q| (q.0 - o.0, q.1 - o.1)).collect();
+    let pts = &pts[..];
     let rmax = pts
         .iter()
         .map(|q| q.0.hypot(q.1))
@@ -923,7 +934,7 @@ fn marking_lines(
                     a.1 + pts[i].1 / inl.len() as f64,
                 )
             });
-            lines.push(([mx, my], n, inl.len()));
+            lines.push(([mx + o.0, my + o.1], n, inl.len()));
         }
     }
     lines
@@ -941,9 +952,19 @@ pub fn estimate_vanishing_point_from_lines(
     guess: &Camera,
     p: &FrontendParams,
 ) -> Option<(f64, f64)> {
+    vanishing_point_and_lines(img, guess, p).map(|(q, _)| q)
+}
+
+/// [`estimate_vanishing_point_from_lines`], also returning the slopes dcol/drow of the lines
+/// through the point.
+fn vanishing_point_and_lines(
+    img: &RgbImage,
+    guess: &Camera,
+    p: &FrontendParams,
+) -> Option<((f64, f64), Vec<f64>)> {
     let h = f64::from(img.height());
     let r0 = (0.45 * h).ceil() as i64;
-    let peaks = ridge_peaks(img, guess, p, r0).ok()?;
+    let peaks = ridge_peaks(img, guess, p, r0, 1).ok()?;
     let pts: Vec<(f64, f64)> = peaks
         .iter()
         .filter(|q| q.3)
@@ -1004,8 +1025,36 @@ pub fn estimate_vanishing_point_from_lines(
         }
         q = [(a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det];
     }
-    Some((q[0], q[1]))
+    // Each line through the vanishing point as its slope dcol/drow = x / camera height.
+    let slopes = lines
+        .iter()
+        .filter(|l| dist(l, q) <= tol)
+        .map(|l| -l.1[1] / l.1[0])
+        .collect();
+    Some(((q[0], q[1]), slopes))
 }
+
+/// The camera height (m) that makes the ego lane (the lines through the vanishing point nearest
+/// either side of the camera, as slopes dcol/drow = x/height) `lane_width` metres wide; `None`
+/// without a line on each side or outside 1.0–2.5 m.
+fn height_from_lane_width(slopes: &[f64], lane_width: f64) -> Option<f64> {
+    let left = slopes
+        .iter()
+        .copied()
+        .filter(|&b| b < 0.0)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let right = slopes
+        .iter()
+        .copied()
+        .filter(|&b| b > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let h = lane_width / (right - left);
+    (h.is_finite() && (1.0..=2.5).contains(&h)).then_some(h)
+}
+
+/// Width of a lane (m) assumed when the camera height is estimated from an image: a US
+/// interstate lane is 12 ft (3.66 m); [`Camera::tusimple`]'s height was fitted to 3.7 m.
+pub const LANE_WIDTH: f64 = 3.7;
 
 /// The camera of `img` under `mode` (see [`CameraMode`]).
 pub fn camera_with(img: &RgbImage, mode: &CameraMode) -> Result<Camera> {
@@ -1016,11 +1065,21 @@ pub fn camera_with(img: &RgbImage, mode: &CameraMode) -> Result<Camera> {
             let mut cam = guess.scaled(f64::from(img.width()) / guess.width);
             cam.height = f64::from(img.height());
             // The markings' own lines first; the edge vote if fewer than two lines cross.
-            let vp = estimate_vanishing_point_from_lines(img, &cam, &FrontendParams::default())
+            let found = vanishing_point_and_lines(img, &cam, &FrontendParams::default());
+            let vp = found
+                .as_ref()
+                .map(|f| f.0)
                 .or_else(|| estimate_vanishing_point(img));
             if let Some((c, r)) = vp {
                 cam.vp_col = c;
                 cam.vp_row = r;
+            }
+            // The camera height from the ego lane's width, else the guess's.
+            if let Some(h) = found
+                .as_ref()
+                .and_then(|f| height_from_lane_width(&f.1, LANE_WIDTH))
+            {
+                cam.height_m = h;
             }
             Ok(cam)
         }
