@@ -44,6 +44,9 @@
 //!    least squares (a wrong pitch or a fork bends lanes apart) and keeps the peaks within
 //!    max(`lane_tol` \[0.15 m\], 1.5 px) of it, if they still add up to `lane_support` of
 //!    which `bright_support` \[2 m\] from bright peaks (lines of dark seams alone are dropped).
+//!    Of kept lines nearer than `line_spacing` \[0.5 m\] to each other (at 15 m ahead) only the
+//!    one with the most evidence stays (the two lines of a double marking are one lane
+//!    boundary).
 //! 7. **Output**: each kept line as samples of its fitted curve, one per image row, between its
 //!    nearest and farthest peaks, across gaps between peaks of at most `fill_gap` \[12 m: one
 //!    US dash period, 3 m on + 9 m off\] (0 = the peaks themselves), mapped back with
@@ -166,6 +169,9 @@ pub struct FrontendParams {
     /// and farthest peaks, across gaps between peaks of at most this length (m); 0 = output the
     /// peaks themselves.
     pub fill_gap: f64,
+    /// Parallel-lane filter: of kept lines nearer than this (m, at 15 m ahead) to each other,
+    /// only the one with the most evidence is kept; 0 = all.
+    pub line_spacing: f64,
 }
 
 impl Default for FrontendParams {
@@ -194,6 +200,7 @@ impl Default for FrontendParams {
             max_curvature: 0.004,
             fill_gap: 12.0,
             bright_support: 2.0,
+            line_spacing: 0.5,
         }
     }
 }
@@ -223,6 +230,7 @@ impl FrontendParams {
             "max_curvature" => &mut self.max_curvature,
             "fill_gap" => &mut self.fill_gap,
             "bright_support" => &mut self.bright_support,
+            "line_spacing" => &mut self.line_spacing,
             "support_rows" => {
                 self.support_rows = v.round().max(0.0) as usize;
                 return Ok(());
@@ -573,8 +581,8 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
     }
     // Each lane's own curve: x = c + s·u + κu²/2 + a + b·u, (a, b) by weighted least squares on
     // the peaks within a band, twice with the band narrowed to the tolerance.
-    let mut keep = vec![false; pts.len()];
-    let mut filled: Vec<(f64, f64)> = Vec::new();
+    // Candidate lines: (offset c, correction a, b, peak indices, evidence).
+    let mut cands: Vec<(f64, f64, f64, Vec<usize>, f64)> = Vec::new();
     for &c in &lanes {
         let base = |u: f64| c + s * u + 0.5 * k * u * u;
         let (mut a, mut b) = (0.0, 0.0);
@@ -612,6 +620,33 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
             }
         }
         if support >= p.lane_support && bright >= p.bright_support {
+            cands.push((c, a, b, idx, support));
+        }
+    }
+    // Lateral non-maximum suppression: of lines nearer than `line_spacing` to each other (at
+    // 15 m) only the one with the most evidence is a marking (double lines, seams and the
+    // shadow beside a line are not separate lanes).
+    let at = |l: &(f64, f64, f64, Vec<usize>, f64), u: f64| {
+        l.0 + s * u + 0.5 * k * u * u + l.1 + l.2 * u
+    };
+    let mut order: Vec<usize> = (0..cands.len()).collect();
+    order.sort_by(|&i, &j| cands[j].4.total_cmp(&cands[i].4));
+    let mut chosen: Vec<usize> = Vec::new();
+    for i in order {
+        if chosen
+            .iter()
+            .all(|&j| (at(&cands[i], 15.0) - at(&cands[j], 15.0)).abs() >= p.line_spacing)
+        {
+            chosen.push(i);
+        }
+    }
+    chosen.sort_unstable();
+    let mut keep = vec![false; pts.len()];
+    let mut filled: Vec<(f64, f64)> = Vec::new();
+    for &ci in &chosen {
+        let (c, a, b, ref idx, _) = cands[ci];
+        let base = |u: f64| c + s * u + 0.5 * k * u * u;
+        {
             if p.fill_gap > 0.0 {
                 let mut us: Vec<f64> = idx.iter().map(|&i| pts[i].0).collect();
                 us.sort_by(f64::total_cmp);
@@ -636,7 +671,7 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
                     }
                 }
             }
-            for i in idx {
+            for &i in idx {
                 keep[i] = true;
             }
         }
