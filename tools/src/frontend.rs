@@ -246,28 +246,6 @@ impl FrontendParams {
     }
 }
 
-/// Bilinear RGB sample at (col, row); `None` outside the image.
-fn sample(img: &RgbImage, col: f64, row: f64) -> Option<[f64; 3]> {
-    let (w, h) = (img.width() as f64, img.height() as f64);
-    if !(col >= 0.0 && row >= 0.0 && col <= w - 1.0 && row <= h - 1.0) {
-        return None;
-    }
-    let (c0, r0) = (col.floor(), row.floor());
-    let (fc, fr) = (col - c0, row - r0);
-    let (c0, r0) = (c0 as u32, r0 as u32);
-    let c1 = (c0 + 1).min(img.width() - 1);
-    let r1 = (r0 + 1).min(img.height() - 1);
-    let (p00, p10) = (img.get_pixel(c0, r0), img.get_pixel(c1, r0));
-    let (p01, p11) = (img.get_pixel(c0, r1), img.get_pixel(c1, r1));
-    let mut out = [0.0; 3];
-    for (k, o) in out.iter_mut().enumerate() {
-        let top = f64::from(p00[k]) * (1.0 - fc) + f64::from(p10[k]) * fc;
-        let bot = f64::from(p01[k]) * (1.0 - fc) + f64::from(p11[k]) * fc;
-        *o = top * (1.0 - fr) + bot * fr;
-    }
-    Some(out)
-}
-
 /// HSV hue (degrees), saturation and value (0..255) of an RGB triple.
 fn hsv([r, g, b]: [f64; 3]) -> (f64, f64, f64) {
     let max = r.max(g).max(b);
@@ -357,17 +335,26 @@ fn ridge_peaks(
     // (BEV row index, u, x) of every ridge peak, bottom row first.
     let mut peaks: Vec<(usize, f64, f64, bool)> = Vec::new();
     let mut row_idx = 0usize;
+    let w = img.width() as usize;
     for row in (row_far.max(0)..=row_near).rev().step_by(row_step.max(1)) {
         let rowf = row as f64;
         let Some((u, _)) = cam.to_bev(cam.vp_col, rowf) else {
             row_idx += 1;
             continue;
         };
-        // IPM: this BEV row, every lateral cell, sampled in the image.
+        // IPM: this BEV row, every lateral cell, sampled in the image. A BEV row is an image
+        // row (`row`), so the bilinear sample is linear along it.
+        let line = &img.as_raw()[row as usize * w * 3..(row as usize + 1) * w * 3];
         for (i, &x) in xs.iter().enumerate() {
-            rgb[i] = cam
-                .to_image(u, x)
-                .and_then(|(c, r)| sample(img, c, r.min(rowf)));
+            let col = cam.vp_col + cam.focal_px * x / u;
+            rgb[i] = (col >= 0.0 && col <= (w - 1) as f64).then(|| {
+                let c0 = col.floor() as usize;
+                let fc = col - c0 as f64;
+                let c1 = (c0 + 1).min(w - 1);
+                std::array::from_fn(|k| {
+                    f64::from(line[c0 * 3 + k]) * (1.0 - fc) + f64::from(line[c1 * 3 + k]) * fc
+                })
+            });
             inten[i] = match rgb[i] {
                 Some([r, g, b]) => {
                     let grey = 0.299 * r + 0.587 * g + 0.114 * b;
