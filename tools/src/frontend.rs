@@ -58,16 +58,18 @@
 //! bright ridge peaks of steps 1–4 below 0.45 × the height, found with the guessed camera,
 //! straight lines through them by a Hough transform, and the point nearest to most of those
 //! lines), or, if fewer than two lines cross, from strong edges ([`estimate_vanishing_point`]);
-//! camera height and focal length from a guess ([`Camera::guess`], [`Camera::culane`] for
-//! 1640×590). The height only scales lateral metres and the focal length longitudinal ones;
-//! the horizon row is what matters: an error of δ rows bends parallel lanes apart in the BEV
-//! (`x` off by a factor `1 + δ·u/(f·h)`). On the 10 TuSimple frames the marking lines put the
-//! horizon within 3.1 rows of the calibration on every frame (the edge vote alone: within 7
-//! rows on 5 frames, 18–50 rows too high on the others), on a synthetic 1640×590 road within
-//! 1 row (the edge vote: 90 rows too high), and the tracker's accuracy on the 10 frames is
-//! 0.701 against 0.742 calibrated (0.580 with the edge vote). A guess's height and focal
-//! length may be 20 % off at some cost (the calibrated horizon with the guess's height and
-//! focal length: 0.677); its horizon should be within ~5 rows at 288 rows (~1° of pitch).
+//! the camera height from the ego lane's width between the lines through that point, taken as
+//! [`LANE_WIDTH`]; the focal length (and a height not found) from a guess ([`Camera::guess`],
+//! [`Camera::culane`] for 1640×590). The height only scales lateral metres and the focal length
+//! longitudinal ones; the horizon row matters most: an error of δ rows bends parallel lanes
+//! apart in the BEV (`x` off by a factor `1 + δ·u/(f·h)`). On the 10 TuSimple frames the
+//! marking lines put the horizon within 3.0 rows of the calibration on every frame (the edge
+//! vote alone: within 7 rows on 5 frames, 18–50 rows too high on the others), on a synthetic
+//! 1640×590 road within 1 row (the edge vote: 90 rows too high). The tracker on the 10 frames:
+//! 0.738 / 0.373 / 0.475 with the estimated camera against 0.752 / 0.383 / 0.400 calibrated
+//! (0.580 with the edge vote and the guessed height; 0.701 with the lines' vanishing point and
+//! the guessed height). Estimating the camera costs about 3 ms (a second ridge pass and the
+//! Hough transform).
 //!
 //! # Measured accuracy (512×288, 10 labelled TuSimple frames)
 //! The parameters were chosen on a fixed half of `data/tusimple/sample_512x288` ([`TUNING_SET`],
@@ -77,27 +79,30 @@
 //!
 //! | set | precision | mean lane recall | lanes with recall ≥ 0.25 |
 //! |---|---|---|---|
-//! | tuning (in-sample) | 0.608 | 0.668 | 17 of 19 |
-//! | held-out | 0.389 | 0.560 | 14 of 19 |
+//! | tuning (in-sample) | 0.629 | 0.668 | 17 of 19 |
+//! | held-out | 0.449 | 0.549 | 14 of 19 |
 //!
 //! The tracker on these points (one frame per clip, official metric at 1280×720): accuracy /
-//! FP / FN 0.848 / 0.287 / 0.250 on the tuning frames, 0.635 / 0.530 / 0.600 held-out, 0.742 /
-//! 0.408 / 0.425 on all 10. Chosen on the tuning frames only (the held-out ones were only
+//! FP / FN 0.848 / 0.287 / 0.250 on the tuning frames, 0.655 / 0.480 / 0.550 held-out, 0.752 /
+//! 0.383 / 0.400 on all 10. Chosen on the tuning frames only (the held-out ones were only
 //! measured): `support` 0 and `lane_support` 3 m, `fill_gap` 12 m, `ridge_threshold` 20 (by
 //! the tracker's mean accuracy there: 0.814 / 0.818 / 0.848 / 0.710 / 0.655 for 10 / 15 / 20
-//! / 25 / 30), `bright_support` 2 m (a tie on accuracy, by precision + recall). Before (the
-//! previous front end: continuity with `support` 2, threshold 10, peaks as output): 0.530 /
-//! 0.484 / 16 of 19 tuning and 0.417 / 0.462 / 15 of 19 held-out, tracker 0.335 on all 10.
-//! Tried and dropped: a lane-width comb (lines 3.0–4.2 m apart; tuning precision 0.78 but
-//! held-out recall 0.27, it locks onto barriers); a threshold relative to the road's grey
-//! level (Weber contrast 0.1–0.3; tuning accuracy ≤ 0.814); correcting the horizon from the
-//! fan of the kept lines (δ = ε·f·h; accuracy 0.54–0.58, no better than the vote). Remaining false points are mostly real lines that are
-//! not labelled lanes (barriers, kerbs, the road edge, the second line of double markings,
-//! slab seams). About 5 ms per image in release on a loaded 2-core machine (detection only).
-//! Reproduce with `cargo run --release -p stjpdacf-tools --example frontend_eval` (per-frame
-//! figures, the tracker on them, calibrated and estimated camera; takes `name=value`
-//! parameter overrides) or `cargo test --release -p stjpdacf-tools --test frontend --
-//! --nocapture`.
+//! / 25 / 30), `bright_support` 2 m and `line_spacing` 0.5 m (ties on accuracy, by the sum
+//! of precision and recall). Before `line_spacing`: 0.608 / 0.668 tuning, 0.389 / 0.560 held-out, tracker
+//! 0.742 / 0.408 / 0.425 on all 10. Before that (the previous front end: continuity with
+//! `support` 2, threshold 10, peaks as output): 0.530 / 0.484 / 16 of 19 tuning and 0.417 /
+//! 0.462 / 15 of 19 held-out, tracker 0.335 on all 10. Tried and dropped: a lane-width comb
+//! (lines 3.0–4.2 m apart; tuning precision 0.78 but held-out recall 0.27, it locks onto
+//! barriers); a threshold relative to the road's grey level (Weber contrast 0.1–0.3; tuning
+//! accuracy ≤ 0.814); correcting the horizon from the fan of the kept lines (δ = ε·f·h;
+//! accuracy 0.54–0.58, no better than the vote); a minimum fraction of the strongest line's
+//! evidence (tuning accuracy ≤ 0.786). Remaining false points are mostly real lines that are
+//! not labelled lanes (barriers, kerbs, the road edge, lanes two over, slab seams). About
+//! 3 ms per image in release on a loaded 2-core machine (detection only; 5.3–6.1 ms with the
+//! camera estimated). Reproduce with `cargo run --release -p stjpdacf-tools --example
+//! frontend_eval` (per-frame figures, the tracker on them, calibrated and estimated camera;
+//! takes `name=value` parameter overrides) or `cargo test --release -p stjpdacf-tools --test
+//! frontend -- --nocapture`.
 //!
 //! Images are read with the `image` crate (JPEG, PNG). [`overlay_png`] draws feature points (and
 //! optionally labelled lanes) over an image for inspection.
@@ -963,12 +968,12 @@ fn marking_lines(
 }
 
 /// The vanishing point `(column, row)` of the lane markings, from the markings themselves: the
-/// bright ridge peaks (steps 1–4, with `guess` as camera) below 0.55 × the height, straight
-/// lines through them ([`marking_lines`]), then the point nearest (perpendicular distance) to
-/// the most lines, weighted by their peaks: every pair of lines crossing between 0.05 and 0.6
-/// × the height proposes its crossing, the proposal with the most weight within
-/// `0.015 × height` px wins and is refined by least squares on those lines. `None` without
-/// two such lines.
+/// bright ridge peaks (steps 1–4, with `guess` as camera) below 0.45 × the height, straight
+/// lines through them (a Hough transform, each line of at least 10 peaks at 288 rows refitted
+/// by total least squares), then the point nearest (perpendicular distance) to the most lines,
+/// weighted by their peaks: every pair of lines crossing between 0.05 and 0.6 × the height
+/// proposes its crossing, the proposal with the most weight within `0.015 × height` px wins
+/// and is refined by least squares on those lines. `None` without two such lines.
 pub fn estimate_vanishing_point_from_lines(
     img: &RgbImage,
     guess: &Camera,
