@@ -273,6 +273,23 @@ fn culane_sized_camera_and_horizon_estimate() {
         "row {}",
         est.vp_row
     );
+    // Estimating and detecting in one go finds the same camera, and points on the markings.
+    let (cam2, pts2) =
+        frontend::estimate_and_detect(&img, &Camera::culane(), &FrontendParams::default()).unwrap();
+    assert_eq!(cam2, est);
+    let on2 = pts2
+        .iter()
+        .filter(|p| {
+            truth
+                .to_bev(p[0], p[1])
+                .is_some_and(|(_, x)| [-5.4, -1.8, 1.8, 5.4].iter().any(|m| (x - m).abs() < 0.3))
+        })
+        .count();
+    eprintln!(
+        "estimated camera: {on2} of {} points on a marking",
+        pts2.len()
+    );
+    assert!(pts2.len() > 100 && on2 as f64 >= 0.9 * pts2.len() as f64);
     // With the camera given, the points lie on the markings: each maps to within 0.3 m of one.
     let p = FrontendParams::default();
     let cam = frontend::camera_with(&img, &CameraMode::Given(truth)).unwrap();
