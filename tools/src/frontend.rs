@@ -66,10 +66,11 @@
 //! marking lines put the horizon within 3.0 rows of the calibration on every frame (the edge
 //! vote alone: within 7 rows on 5 frames, 18–50 rows too high on the others), on a synthetic
 //! 1640×590 road within 1 row (the edge vote: 90 rows too high). The tracker on the 10 frames:
-//! 0.738 / 0.373 / 0.475 with the estimated camera against 0.752 / 0.383 / 0.400 calibrated
-//! (0.580 with the edge vote and the guessed height; 0.701 with the lines' vanishing point and
-//! the guessed height). Estimating the camera costs about 3 ms (a second ridge pass and the
-//! Hough transform).
+//! 0.761 / 0.353 / 0.425 with the estimated camera ([`estimate_and_detect`]) against 0.752 /
+//! 0.383 / 0.400 calibrated (0.580 with the edge vote and the guessed height; 0.701 with the
+//! lines' vanishing point and the guessed height). Estimating the camera costs about 3 ms (a
+//! ridge pass and the Hough transform), 1.5–2 ms when detection shares the ridge pass
+//! ([`estimate_and_detect`]).
 //!
 //! # Measured accuracy (512×288, 10 labelled TuSimple frames)
 //! The parameters were chosen on a fixed half of `data/tusimple/sample_512x288` ([`TUNING_SET`],
@@ -98,8 +99,8 @@
 //! accuracy 0.54–0.58, no better than the vote); a minimum fraction of the strongest line's
 //! evidence (tuning accuracy ≤ 0.786). Remaining false points are mostly real lines that are
 //! not labelled lanes (barriers, kerbs, the road edge, lanes two over, slab seams). About
-//! 3 ms per image in release on a loaded 2-core machine (detection only; 5.3–6.1 ms with the
-//! camera estimated). Reproduce with `cargo run --release -p stjpdacf-tools --example
+//! 3 ms per image in release on a loaded 2-core machine (detection only; 4.0–4.5 ms with the
+//! camera estimated by [`estimate_and_detect`]). Reproduce with `cargo run --release -p stjpdacf-tools --example
 //! frontend_eval` (per-frame figures, the tracker on them, calibrated and estimated camera;
 //! takes `name=value` parameter overrides) or `cargo test --release -p stjpdacf-tools --test
 //! frontend -- --nocapture`.
