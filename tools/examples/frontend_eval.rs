@@ -87,6 +87,7 @@ fn main() -> anyhow::Result<()> {
     // End to end: front end → tracker → official metric, all 10 frames, with the calibrated
     // camera and with the horizon estimated from each image (no calibration: Camera::guess).
     let guess = Camera::guess(1280.0, 720.0);
+    let calibrated = Camera::tusimple().scaled(0.4);
     for (name, mode) in [
         ("calibrated", CameraMode::TuSimple),
         ("horizon estimated", CameraMode::Estimate(guess)),
@@ -96,14 +97,27 @@ fn main() -> anyhow::Result<()> {
             let img = frontend::load_rgb(&dir.join(f.raw_file.as_deref().unwrap_or("")))?;
             let cam = frontend::camera_with(&img, &mode)?;
             println!(
-                "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes), points P {:.2} R {:.2}, vanishing point ({:.1}, {:.1})",
+                "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes), points P {:.2} R {:.2}, vanishing point ({:.1}, {:.1}), row {:+.1} from the calibration",
                 r.raw_file, r.score.accuracy, r.score.fp, r.score.fn_, r.lanes, r.gt_lanes,
-                r.precision, r.recall, cam.vp_col, cam.vp_row
+                r.precision, r.recall, cam.vp_col, cam.vp_row, cam.vp_row - calibrated.vp_row
             );
         }
+        let n = real.results.len() as f64;
+        // The camera alone (estimating it is part of the front end's time above).
+        let mut cam_ms = 0.0;
+        for f in &real.frames {
+            let img = frontend::load_rgb(&dir.join(f.raw_file.as_deref().unwrap_or("")))?;
+            let t0 = Instant::now();
+            frontend::camera_with(&img, &mode)?;
+            cam_ms += t0.elapsed().as_secs_f64() * 1e3;
+        }
         println!(
-            "tracker on the front end's points ({name}): accuracy {:.3}, FP {:.3}, FN {:.3}",
-            real.score.accuracy, real.score.fp, real.score.fn_
+            "tracker on the front end's points ({name}): accuracy {:.3}, FP {:.3}, FN {:.3}, front end {:.1} ms per image ({:.1} ms the camera)",
+            real.score.accuracy,
+            real.score.fp,
+            real.score.fn_,
+            real.results.iter().map(|r| r.frontend_ms).sum::<f64>() / n,
+            cam_ms / n
         );
     }
     Ok(())
