@@ -699,9 +699,10 @@ impl_tracker! {
         let Some(tables) = self.tables else {
             return;
         };
-        // Lanes tracked from an earlier frame: a lane this frame's points alone started then
-        // waits for its first confirming frame (docs/design.md §11.5).
-        let tracking = (0..LANES).any(|t| self.ids.lane(t).is_some_and(|l| l.age > 0));
+        // An established picture (a lane through two known-lane passes): a lane this frame's
+        // points alone started then waits for its first confirming frame (docs/design.md
+        // §11.5). In the first two frames after nothing was tracked every lane is published.
+        let tracking = (0..LANES).any(|t| self.ids.lane(t).is_some_and(|l| l.age > 1));
         for s in 0..LANES {
             if let (Some(lane), Some((z, var))) = (
                 self.ids.lane(s),
