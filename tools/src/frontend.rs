@@ -178,6 +178,11 @@ pub struct FrontendParams {
     /// Parallel-lane filter: of kept lines nearer than this (m, at 15 m ahead) to each other,
     /// only the one with the most evidence is kept; 0 = all.
     pub line_spacing: f64,
+    /// Parallel-lane filter: each peak's weight in its line's own least-squares refit is
+    /// `(f/u)^refit_exponent`, f/u the pixels per metre at its distance (a peak's lateral error
+    /// is about a pixel, u/f metres: 2 is inverse variance, 0 one per image row, −2 about
+    /// the road length of its row, the evidence weight).
+    pub refit_exponent: f64,
 }
 
 impl Default for FrontendParams {
@@ -207,6 +212,7 @@ impl Default for FrontendParams {
             fill_gap: 12.0,
             bright_support: 2.0,
             line_spacing: 0.5,
+            refit_exponent: 0.5,
         }
     }
 }
@@ -237,6 +243,7 @@ impl FrontendParams {
             "fill_gap" => &mut self.fill_gap,
             "bright_support" => &mut self.bright_support,
             "line_spacing" => &mut self.line_spacing,
+            "refit_exponent" => &mut self.refit_exponent,
             "support_rows" => {
                 self.support_rows = v.round().max(0.0) as usize;
                 return Ok(());
@@ -588,9 +595,10 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
         let (mut a, mut b) = (0.0, 0.0);
         for band in [3.0, 1.5, 1.0] {
             let (mut sw, mut su, mut suu, mut sr, mut sur) = (0.0, 0.0, 0.0, 0.0, 0.0);
-            for &(u, x, wt) in &pts {
+            for &(u, x, _) in &pts {
                 let r = x - base(u);
                 if (r - a - b * u).abs() <= band * lane_tolerance(cam, p, u) {
+                    let wt = (cam.focal_px / u).powf(p.refit_exponent);
                     sw += wt;
                     su += wt * u;
                     suu += wt * u * u;
