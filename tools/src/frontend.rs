@@ -183,6 +183,14 @@ pub struct FrontendParams {
     /// is about a pixel, u/f metres: 2 is inverse variance, 0 one per image row, −2 about
     /// the road length of its row, the evidence weight).
     pub refit_exponent: f64,
+    /// Parallel-lane filter: the narrowest lane (m). Two lane boundaries are at least this far
+    /// apart (at 15 m ahead), so of two kept lines nearer than this (but `line_spacing` or
+    /// more) one is not a lane boundary (a slab seam, a bright strip, a tyre track, a kerb
+    /// beside the edge line): the weaker is dropped if its evidence is below `gap_ratio` × the
+    /// stronger's.
+    pub lane_gap: f64,
+    /// See `lane_gap`; 0 = no such test.
+    pub gap_ratio: f64,
 }
 
 impl Default for FrontendParams {
@@ -213,6 +221,8 @@ impl Default for FrontendParams {
             bright_support: 2.0,
             line_spacing: 0.5,
             refit_exponent: 0.5,
+            lane_gap: 2.5,
+            gap_ratio: 0.6,
         }
     }
 }
@@ -244,6 +254,8 @@ impl FrontendParams {
             "bright_support" => &mut self.bright_support,
             "line_spacing" => &mut self.line_spacing,
             "refit_exponent" => &mut self.refit_exponent,
+            "lane_gap" => &mut self.lane_gap,
+            "gap_ratio" => &mut self.gap_ratio,
             "support_rows" => {
                 self.support_rows = v.round().max(0.0) as usize;
                 return Ok(());
@@ -641,10 +653,10 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
     order.sort_by(|&i, &j| cands[j].4.total_cmp(&cands[i].4));
     let mut chosen: Vec<usize> = Vec::new();
     for i in order {
-        if chosen
-            .iter()
-            .all(|&j| (at(&cands[i], 15.0) - at(&cands[j], 15.0)).abs() >= p.line_spacing)
-        {
+        if chosen.iter().all(|&j| {
+            let d = (at(&cands[i], 15.0) - at(&cands[j], 15.0)).abs();
+            d >= p.line_spacing && (d >= p.lane_gap || cands[i].4 >= p.gap_ratio * cands[j].4)
+        }) {
             chosen.push(i);
         }
     }
