@@ -66,7 +66,8 @@ pub struct PersistConfig {
     pub survival_time: f32,
     /// Existence of a lane before its first frame's evidence.
     pub p_birth: f32,
-    /// A lane is published while its existence is at least this.
+    /// A lane is published while its existence is at least this (a lane started this frame
+    /// may wait one frame more, docs/design.md §11.5).
     pub p_publish: f32,
     /// A lane is deleted when its existence falls below this.
     pub p_delete: f32,

@@ -220,7 +220,10 @@ pub struct KnownReport {
 /// The output of one frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StepOutput<const LANES: usize, const POINTS: usize> {
-    /// Filtered lanes at this frame.
+    /// Filtered lanes at this frame: with the known-lane stage, the live lanes whose existence
+    /// is at least `PersistConfig::p_publish`, except a lane started this frame while the
+    /// tracker has an established picture (a lane of age ≥ 2) or that duplicates a tracked
+    /// lane: it is published from its second frame (docs/design.md §11.5, §11.9).
     pub filtered: Vec<LaneEstimate<POINTS>, LANES>,
     /// Smoothed lanes `LAG` frames back (empty until the window is full).
     pub smoothed: Vec<LaneEstimate<POINTS>, LANES>,
