@@ -228,6 +228,22 @@ impl_tracker! {
                 // removed: the next frame's joint association decides between the two, then
                 // the merge below).
                 let newborn = lt.age == 0 || ls.age == 0;
+                // The younger (on a tie, the higher slot) is the duplicate.
+                let (drop, keep) = if lt.age <= ls.age { (t, s) } else { (s, t) };
+                // A lane started this frame is held only against a lane tracked since an
+                // earlier frame and published (two lanes of one frame are both kept, §11.5):
+                // otherwise the test has nothing to decide.
+                let p_publish = self.cfg.persist.p_publish;
+                if newborn
+                    && !(self.ids.lane(keep).is_some_and(|l| l.age > 0)
+                        && self
+                            .persist
+                            .lanes
+                            .get(keep)
+                            .is_some_and(|l| l.existence >= p_publish))
+                {
+                    continue;
+                }
                 let ((as0, ae0), (at0, ate)) = if newborn {
                     (self.extent_this_frame(s), self.extent_this_frame(t))
                 } else {
@@ -254,19 +270,8 @@ impl_tracker! {
                     && (cost / nf <= self.cfg.identity.gate
                         || dist / nf <= self.cfg.persist.min_spacing)
                 {
-                    let drop = if lt.age <= ls.age { t } else { s };
                     if newborn {
-                        // Held only while the lane it duplicates is tracked (from an earlier
-                        // frame) and published: two lanes of one frame are both kept (11.5).
-                        let keep = if drop == t { s } else { t };
-                        let tracked = self.ids.lane(keep).is_some_and(|l| l.age > 0);
-                        let shown = tracked
-                            && self
-                                .persist
-                                .lanes
-                                .get(keep)
-                                .is_some_and(|l| l.existence >= self.cfg.persist.p_publish);
-                        if let (true, Some(info)) = (shown, self.info.get_mut(drop)) {
+                        if let Some(info) = self.info.get_mut(drop) {
                             info.held = true;
                         }
                     } else {
@@ -780,26 +785,20 @@ impl_tracker! {
     /// observed extent and the `LAG` frames before it, as [`Self::extent_of`]`(s, 0)` after the
     /// push. A lane started this frame has only this frame's.
     pub(super) fn extent_this_frame(&self, s: usize) -> (f32, f32) {
-        let [mut lo, mut hi] = get(&self.info, s).extent;
-        for h in self.extent.iter().take(LAG) {
-            let [a, b] = get(h, s);
-            lo = lo.min(a);
-            hi = hi.max(b);
-        }
-        if lo > hi {
-            let u = self.tables.map_or(0.0, |t| t.hyper.u_min);
-            (u, u)
-        } else {
-            (lo, hi)
-        }
+        self.extent_union(s, get(&self.info, s).extent, 0, LAG)
     }
 
     /// Union of slot `s`'s observed extents over the history frames `from..=from + LAG` (0 is
     /// the current frame once [`Self::push_histories`] has run).
     pub(super) fn extent_of(&self, s: usize, from: usize) -> (f32, f32) {
-        let mut lo = f32::INFINITY;
-        let mut hi = f32::NEG_INFINITY;
-        for h in self.extent.iter().skip(from).take(LAG + 1) {
+        self.extent_union(s, [f32::INFINITY, f32::NEG_INFINITY], from, LAG + 1)
+    }
+
+    /// Union of `start` and slot `s`'s extents in the history frames `from..from + frames`;
+    /// an empty union is the point `u_min`.
+    fn extent_union(&self, s: usize, start: [f32; 2], from: usize, frames: usize) -> (f32, f32) {
+        let [mut lo, mut hi] = start;
+        for h in self.extent.iter().skip(from).take(frames) {
             let [a, b] = get(h, s);
             lo = lo.min(a);
             hi = hi.max(b);

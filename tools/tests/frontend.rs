@@ -277,14 +277,17 @@ fn culane_sized_camera_and_horizon_estimate() {
     let (cam2, pts2) =
         frontend::estimate_and_detect(&img, &Camera::culane(), &FrontendParams::default()).unwrap();
     assert_eq!(cam2, est);
-    let on2 = pts2
-        .iter()
-        .filter(|p| {
-            truth
-                .to_bev(p[0], p[1])
-                .is_some_and(|(_, x)| [-5.4, -1.8, 1.8, 5.4].iter().any(|m| (x - m).abs() < 0.3))
-        })
-        .count();
+    // Points that map to within 0.3 m of a marking of the synthetic road.
+    let on_marking = |pts: &[[f64; 2]]| {
+        pts.iter()
+            .filter(|p| {
+                truth.to_bev(p[0], p[1]).is_some_and(|(_, x)| {
+                    [-5.4, -1.8, 1.8, 5.4].iter().any(|m| (x - m).abs() < 0.3)
+                })
+            })
+            .count()
+    };
+    let on2 = on_marking(&pts2);
     eprintln!(
         "estimated camera: {on2} of {} points on a marking",
         pts2.len()
@@ -296,14 +299,7 @@ fn culane_sized_camera_and_horizon_estimate() {
     assert_eq!(cam, truth);
     let pts = frontend::detect(&img, &cam, &p).unwrap();
     assert!(pts.len() > 100, "{} points", pts.len());
-    let on = pts
-        .iter()
-        .filter(|p| {
-            truth
-                .to_bev(p[0], p[1])
-                .is_some_and(|(_, x)| [-5.4, -1.8, 1.8, 5.4].iter().any(|m| (x - m).abs() < 0.3))
-        })
-        .count();
+    let on = on_marking(&pts);
     eprintln!("{on} of {} points on a marking", pts.len());
     assert!(on as f64 >= 0.95 * pts.len() as f64);
 }
