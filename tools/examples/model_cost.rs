@@ -146,6 +146,7 @@ fn smoother(levels: &[NoiseLevel]) -> anyhow::Result<()> {
             images: false,
             score_run_time: false,
             robustness_clips: 0,
+            heldout_clips: 0,
             config: TrackerConfig {
                 smoother_per_lane: per_lane,
                 ..TrackerConfig::DEFAULT

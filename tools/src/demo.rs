@@ -35,6 +35,10 @@
 //!    tracker (default tables, each configuration of [`DemoOptions::robustness_variants`])
 //!    against the per-frame RANSAC baseline ([`crate::baseline`], its default parameters) on
 //!    the same frames, official metric on the labelled last frames.
+//! 6. **Held-out check** ([`HeldoutReport`], [`heldout_check`]): a second generator
+//!    ([`crate::heldout`]) on the held-out labels of [`crate::heldout::LABELS`] (the first
+//!    [`DemoOptions::heldout_clips`]), clutter × 1, 2, 4, 8 and segments; the same
+//!    configurations and baseline, and the baseline capped at [`HELDOUT_BASELINE_LANES`] lanes.
 //!
 //! Every run is sequential on one thread, so the per-frame `run_time` is not inflated by a
 //! sibling run. Replay `run_time`: the tracker's time on a frame, from its points to its lanes
@@ -72,6 +76,7 @@ use stjpdacf::tracker::{LaneEstimate, TrackerConfig};
 use crate::baseline::{self, BaselineParams};
 use crate::camera::Camera;
 use crate::frontend::{self, FrontendParams};
+use crate::heldout::{self, HeldoutParams};
 use crate::metric::{self, Score};
 use crate::synth::{self, NoiseLevel, SynthParams};
 use crate::track::{self, lane_band, FrameView, LaneBand, Space, MAX_REPORT_MISSES};
@@ -100,6 +105,16 @@ pub const ROBUSTNESS_CLUTTER: [f64; 4] = [1.0, 2.0, 4.0, 8.0];
 /// Distractor segments per frame of the robustness section's distractor condition (at
 /// clutter × 1).
 pub const ROBUSTNESS_DISTRACTORS: f64 = 3.0;
+
+/// Multipliers of the held-out generator's reference clutter density in the held-out check.
+pub const HELDOUT_CLUTTER: [f64; 4] = [1.0, 2.0, 4.0, 8.0];
+/// Segments fixed on the road per clip in the held-out check's segment condition (at clutter
+/// × 1).
+pub const HELDOUT_SEGMENTS: f64 = 8.0;
+/// The capped baseline of the held-out check: at most this many lanes a frame (the default
+/// baseline's 6 clutter lanes can trip the metric's "more than 2 lanes too many" penalty on
+/// 3-lane roads; a user would cap them).
+pub const HELDOUT_BASELINE_LANES: usize = 4;
 
 /// Options of [`run`].
 #[derive(Debug, Clone, PartialEq)]
@@ -131,6 +146,10 @@ pub struct DemoOptions {
     /// The tracker configurations the robustness section runs, by name (default: one,
     /// `"tracker"`, [`TrackerConfig::DEFAULT`]).
     pub robustness_variants: Vec<(String, TrackerConfig)>,
+    /// Labels of the held-out check ([`heldout_check`]: the second generator on the held-out
+    /// labels; the first K of [`crate::heldout::LABELS`]; default 40; 0 leaves it out). It runs
+    /// the configurations of [`DemoOptions::robustness_variants`].
+    pub heldout_clips: usize,
     /// The tracker configuration of the replay rows and the labels-as-points row (default
     /// [`TrackerConfig::DEFAULT`]; e.g. the per-lane smoother in `examples/model_cost.rs`).
     pub config: TrackerConfig,
@@ -154,6 +173,7 @@ impl Default for DemoOptions {
                 ("no temporal prior".to_string(), TrackerConfig::ROUND1),
             ],
             config: TrackerConfig::DEFAULT,
+            heldout_clips: 40,
         }
     }
 }
@@ -365,6 +385,37 @@ pub struct RobustnessReport {
     pub rows: Vec<RobustnessRow>,
 }
 
+/// One condition of the held-out check.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HeldoutRow {
+    /// Its name in the tables.
+    pub condition: String,
+    /// Uniform clutter, points per m² of road.
+    pub clutter_density: f64,
+    /// Clutter points per frame in the image (mean).
+    pub clutter_per_frame: f64,
+    /// Segment points per frame (mean).
+    pub segment_points_per_frame: f64,
+    /// Each tracker configuration (`accuracy_minus_baseline`: against the default baseline).
+    pub trackers: Vec<VariantScore>,
+    /// The RANSAC baseline, default parameters.
+    pub baseline: Score,
+    /// The RANSAC baseline with at most [`HELDOUT_BASELINE_LANES`] lanes a frame.
+    pub baseline_capped: Score,
+}
+
+/// The held-out check (see [`heldout_check`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HeldoutReport {
+    /// Clips per condition.
+    pub clips: usize,
+    /// The generator's reference parameters (each condition changes the clutter or the
+    /// segments).
+    pub params: HeldoutParams,
+    /// The conditions: clutter × 1, 2, 4, 8, then × 1 with segments.
+    pub rows: Vec<HeldoutRow>,
+}
+
 /// Everything [`run`] measured and wrote.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DemoReport {
@@ -375,6 +426,8 @@ pub struct DemoReport {
     pub merge_split: Vec<MergeSplitRow>,
     /// The robustness section (`None` when [`DemoOptions::robustness_clips`] is 0).
     pub robustness: Option<RobustnessReport>,
+    /// The held-out check (`None` when [`DemoOptions::heldout_clips`] is 0).
+    pub heldout: Option<HeldoutReport>,
     /// Per real frame.
     pub real_frames: Vec<RealFrameResult>,
     /// The real frames through the front end with the horizon estimated from each image
@@ -682,6 +735,87 @@ pub fn robustness(
     })
 }
 
+/// The held-out check: the first `clips` labels of `labels` (the held-out geometry,
+/// [`crate::heldout::LABELS`]) rendered by the second generator ([`crate::heldout`]) at its
+/// reference parameters with the clutter density × 1, 2, 4, 8 and once × 1 with
+/// [`HELDOUT_SEGMENTS`] segments per clip; each tracker configuration of `variants` (default
+/// tables) against the RANSAC baseline (default parameters, and capped at
+/// [`HELDOUT_BASELINE_LANES`] lanes) on the same frames, official metric on the labelled last
+/// frames. Nothing of the tracker or the baseline was chosen on this data.
+///
+/// # Errors
+/// A generator, replay or scoring failure.
+pub fn heldout_check(
+    labels: &[TuSimpleRecord],
+    clips: usize,
+    seed: u64,
+    variants: &[(&str, TrackerConfig)],
+    timed: bool,
+    mut progress: impl FnMut(&str),
+) -> Result<HeldoutReport> {
+    let labels = labels.get(..clips.min(labels.len())).unwrap_or_default();
+    ensure!(!labels.is_empty(), "no labels for the held-out check");
+    let tables: &'static ReferenceTables = &stjpdacf::tables::DEFAULT;
+    let cam = Camera::tusimple();
+    let bp = BaselineParams::default();
+    let capped = BaselineParams {
+        max_lanes: HELDOUT_BASELINE_LANES,
+        ..bp
+    };
+    let base = HeldoutParams::default();
+    let mut conditions: Vec<(String, f64, f64)> = HELDOUT_CLUTTER
+        .iter()
+        .map(|&m| (format!("clutter ×{m}"), m, 0.0))
+        .collect();
+    conditions.push(("clutter ×1 + segments".to_string(), 1.0, HELDOUT_SEGMENTS));
+    let mut rows = Vec::new();
+    for (condition, m, segments) in conditions {
+        progress(&format!("held-out check: {condition}"));
+        let params = HeldoutParams {
+            clutter_density: base.clutter_density * m,
+            segments,
+            ..base.clone()
+        };
+        let o = heldout::generate(labels, &params, &cam, seed)?;
+        let per_frame = |n: usize| n as f64 / o.frames.len().max(1) as f64;
+        let (bpreds, _) = baseline::track(&o.frames, tables, &cam, Space::Image, &bp, |_| {})?;
+        let baseline = score_on(&bpreds, &o.gt_last, timed)?;
+        let (cpreds, _) = baseline::track(&o.frames, tables, &cam, Space::Image, &capped, |_| {})?;
+        let baseline_capped = score_on(&cpreds, &o.gt_last, timed)?;
+        let mut trackers = Vec::new();
+        for (name, config) in variants {
+            let (preds, _) = track::track_with(
+                &o.frames,
+                tables,
+                &cam,
+                Space::Image,
+                *config,
+                |_: FrameView<'_>| {},
+            )?;
+            let score = score_on(&preds, &o.gt_last, timed)?;
+            trackers.push(VariantScore {
+                name: (*name).to_string(),
+                score,
+                accuracy_minus_baseline: score.accuracy - baseline.accuracy,
+            });
+        }
+        rows.push(HeldoutRow {
+            condition,
+            clutter_density: params.clutter_density,
+            clutter_per_frame: per_frame(o.clutter_points),
+            segment_points_per_frame: per_frame(o.segment_points),
+            trackers,
+            baseline,
+            baseline_capped,
+        });
+    }
+    Ok(HeldoutReport {
+        clips: labels.len(),
+        params: base,
+        rows,
+    })
+}
+
 /// A frame whose feature points are a label's lanes, sampled at every image row between
 /// consecutive labelled rows (linear interpolation); clip = the `raw_file`'s folder, t = 0.95 s
 /// (TuSimple's 20th frame), with the label's `raw_file` and `h_samples`.
@@ -899,7 +1033,12 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     } else {
         0
     };
-    let total = 2 * opts.levels.len() + 2 + robustness_stages;
+    let heldout_stages = if opts.heldout_clips > 0 {
+        HELDOUT_CLUTTER.len() + 1
+    } else {
+        0
+    };
+    let total = 2 * opts.levels.len() + 2 + robustness_stages + heldout_stages;
     let mut done = 0;
     let mut rows = Vec::new();
     let mut merge_split = Vec::new();
@@ -1163,6 +1302,29 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         None
     };
 
+    // The held-out check: the second generator on the held-out labels.
+    let heldout = if opts.heldout_clips > 0 {
+        let hlabels = tusimple::read_labels(&opts.data.join(heldout::LABELS))?;
+        let variants: Vec<(&str, TrackerConfig)> = opts
+            .robustness_variants
+            .iter()
+            .map(|(n, c)| (n.as_str(), *c))
+            .collect();
+        Some(heldout_check(
+            &hlabels,
+            opts.heldout_clips,
+            opts.seed,
+            &variants,
+            opts.score_run_time,
+            |what| {
+                progress(done, total, what);
+                done += 1;
+            },
+        )?)
+    } else {
+        None
+    };
+
     progress(done, total, "figures");
     if opts.images {
         register_fonts()?;
@@ -1212,6 +1374,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
         rows,
         merge_split,
         robustness,
+        heldout,
         real_frames: real.results,
         real_uncalibrated,
         replay_clips: labels.len(),
@@ -1339,6 +1502,9 @@ pub fn render_markdown(r: &DemoReport) -> String {
     if let Some(rob) = &r.robustness {
         s.push_str(&render_robustness(rob));
     }
+    if let Some(h) = &r.heldout {
+        s.push_str(&render_heldout(h));
+    }
     s
 }
 
@@ -1453,6 +1619,75 @@ fn render_robustness(r: &RobustnessReport) -> String {
         ));
         for t in &row.trackers {
             s.push_str(&format!(" {:+.3} |", t.accuracy_minus_baseline));
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// The held-out check's table.
+fn render_heldout(r: &HeldoutReport) -> String {
+    let names: Vec<&str> = r
+        .rows
+        .first()
+        .map(|row| row.trackers.iter().map(|t| t.name.as_str()).collect())
+        .unwrap_or_default();
+    let p = &r.params;
+    let mut s = format!(
+        "\nHeld-out check: a second generator, written apart from the replay's \
+         (`tools/src/heldout.rs`), on {} held-out labels (TuSimple sessions 0531 and 0601; \
+         every threshold was chosen on 0313 and the replay), {} frames at {:.0} fps; vehicle \
+         pose an Ornstein–Uhlenbeck offset and a heading random walk, misses in bursts, dashes \
+         of {}–{} m paint and {}–{} m gap, Student-t (ν = {}) column noise of scale {} px, \
+         uniform clutter over the road area ({} /m² at × 1) and, in the last row, {} short \
+         segments fixed on the road per clip. The tracker against the same RANSAC baseline, \
+         and that baseline capped at {} lanes.\n\n\
+         | condition | clutter / frame | segment points / frame |",
+        r.clips,
+        p.frames_per_clip,
+        1.0 / p.frame_step,
+        p.dash_paint.0,
+        p.dash_paint.1,
+        p.dash_gap.0,
+        p.dash_gap.1,
+        p.noise_dof,
+        p.pixel_noise,
+        p.clutter_density,
+        HELDOUT_SEGMENTS,
+        HELDOUT_BASELINE_LANES
+    );
+    for n in &names {
+        s.push_str(&format!(" {n} accuracy / FP / FN |"));
+    }
+    s.push_str(&format!(
+        " RANSAC accuracy / FP / FN | RANSAC ≤ {HELDOUT_BASELINE_LANES} lanes accuracy / FP / FN |"
+    ));
+    for n in &names {
+        s.push_str(&format!(" Δ accuracy ({n} − the better RANSAC) |"));
+    }
+    s.push_str("\n|---|---|---|");
+    s.push_str(&"---|".repeat(2 * names.len() + 2));
+    s.push('\n');
+    for row in &r.rows {
+        s.push_str(&format!(
+            "| {} | {:.0} | {:.0} |",
+            row.condition, row.clutter_per_frame, row.segment_points_per_frame
+        ));
+        for t in &row.trackers {
+            s.push_str(&format!(
+                " {:.3} / {:.3} / {:.3} |",
+                t.score.accuracy, t.score.fp, t.score.fn_
+            ));
+        }
+        for b in [&row.baseline, &row.baseline_capped] {
+            s.push_str(&format!(
+                " {:.3} / {:.3} / {:.3} |",
+                b.accuracy, b.fp, b.fn_
+            ));
+        }
+        let best = row.baseline.accuracy.max(row.baseline_capped.accuracy);
+        for t in &row.trackers {
+            s.push_str(&format!(" {:+.3} |", t.score.accuracy - best));
         }
         s.push('\n');
     }

@@ -19,6 +19,7 @@ pub mod camera;
 pub mod demo;
 pub mod frontend;
 pub mod fwscenario;
+pub mod heldout;
 pub mod metric;
 pub mod scenario;
 pub mod synth;

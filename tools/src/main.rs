@@ -117,6 +117,11 @@ enum Command {
         /// tracker vs the RANSAC baseline; the first K; 0 leaves the section out).
         #[arg(long, default_value_t = 20)]
         robustness_clips: usize,
+        /// Labels of the held-out check (a second generator on the bundled held-out labels,
+        /// clutter × 1, 2, 4, 8 and segments, tracker vs the RANSAC baseline; the first K of
+        /// 40; 0 leaves it out).
+        #[arg(long, default_value_t = 40)]
+        heldout_clips: usize,
         /// Skip the PNG files.
         #[arg(long)]
         no_images: bool,
@@ -559,6 +564,7 @@ fn main() -> Result<()> {
             noise,
             frames_per_clip,
             robustness_clips,
+            heldout_clips,
             no_images,
             json,
         } => {
@@ -569,6 +575,7 @@ fn main() -> Result<()> {
                 levels: noise,
                 frames_per_clip,
                 robustness_clips,
+                heldout_clips,
                 images: !no_images,
                 ..demo::DemoOptions::default()
             };

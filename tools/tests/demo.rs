@@ -32,6 +32,7 @@ fn reduced_demo_scores_and_writes_its_files() {
         bev_clip: 1,
         score_run_time: false,
         robustness_clips: 2,
+        heldout_clips: 2,
         ..DemoOptions::default()
     };
     let mut calls = Vec::new();
@@ -39,8 +40,9 @@ fn reduced_demo_scores_and_writes_its_files() {
     println!("{}", demo::render_markdown(&r));
 
     // Progress: every stage announced, ending at total (2 levels × 2 couplings, the real frames
-    // twice, the robustness conditions: clutter × 1, 2, 4, 8 and distractors).
-    let total = 2 * 2 + 2 + 5;
+    // twice, the robustness conditions: clutter × 1, 2, 4, 8 and distractors, and the held-out
+    // check's: clutter × 1, 2, 4, 8 and segments).
+    let total = 2 * 2 + 2 + 5 + 5;
     assert_eq!(calls.len(), total + 1);
     assert_eq!(calls.last().unwrap().0, total);
 
@@ -167,6 +169,32 @@ fn reduced_demo_scores_and_writes_its_files() {
         }
     }
 
+    // Held-out check: 2 held-out labels (16 frames each), clutter × 1, 2, 4, 8 and segments;
+    // clutter grows with the density, segments only in the last row.
+    let h = r.heldout.as_ref().unwrap();
+    assert_eq!(h.clips, 2);
+    assert_eq!(h.rows.len(), 5);
+    for (x, m) in h.rows.iter().zip([1.0, 2.0, 4.0, 8.0, 1.0]) {
+        assert!((x.clutter_density - m * h.params.clutter_density).abs() < 1e-12);
+        assert_eq!(
+            x.segment_points_per_frame > 0.0,
+            x.condition.contains("segments")
+        );
+        assert_eq!((x.baseline.frames, x.baseline_capped.frames), (2, 2));
+        for t in &x.trackers {
+            assert_eq!(t.score.frames, 2);
+            assert!(
+                (t.accuracy_minus_baseline - (t.score.accuracy - x.baseline.accuracy)).abs()
+                    < 1e-12
+            );
+        }
+    }
+    let c: Vec<f64> = h.rows.iter().map(|x| x.clutter_per_frame).collect();
+    assert!(
+        c[0] > 5.0 && c[0] < c[1] && c[1] < c[2] && c[2] < c[3],
+        "{c:?}"
+    );
+
     // Per real frame: the mean of the frame scores is the total.
     assert_eq!(r.real_frames.len(), 10);
     let mean = r.real_frames.iter().map(|f| f.score.accuracy).sum::<f64>() / 10.0;
@@ -198,6 +226,9 @@ fn reduced_demo_scores_and_writes_its_files() {
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(js["rows"].as_array().unwrap().len(), 6);
     assert_eq!(js["robustness"]["rows"].as_array().unwrap().len(), 5);
+    assert_eq!(js["heldout"]["rows"].as_array().unwrap().len(), 5);
+    assert!(md.contains("Held-out check"), "{md}");
+    assert!(md.contains("| clutter ×1 + segments |"), "{md}");
     assert!(js["rows"][0]["id_switches_per_clip"].is_number());
 
     // The real-frame files reproduce the real-frame score through `eval --pixel-scale 2.5`
@@ -274,6 +305,8 @@ fn demo_cli_prints_the_table() {
             "3",
             "--no-images",
             "--robustness-clips",
+            "0",
+            "--heldout-clips",
             "0",
         ])
         .args(["--noise", "low,high", "--out"])
