@@ -231,6 +231,7 @@ fn reference_setup() -> (Model, refspatial::Config) {
         max_tentative: usize::from(c.max_tentative),
         confirm_hits: usize::from(c.confirm_hits),
         tentative_misses: usize::from(c.tentative_misses),
+        tentative_gap_misses: usize::from(c.tentative_gap_misses),
         max_misses: usize::from(c.max_misses),
         merge_distance: f64::from(c.merge_distance),
         merge_rows: usize::from(c.merge_rows),

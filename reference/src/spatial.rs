@@ -112,8 +112,11 @@ pub struct Config {
     pub max_tentative: usize,
     /// Hits that confirm a tentative track.
     pub confirm_hits: usize,
-    /// Consecutive misses that delete a tentative track.
+    /// Consecutive misses that delete a tentative track with no hit yet.
     pub tentative_misses: usize,
+    /// Consecutive misses that delete a tentative track with at least one hit (the longest dash
+    /// gap it bridges).
+    pub tentative_gap_misses: usize,
     /// Consecutive misses that end a confirmed track.
     pub max_misses: usize,
     /// Lateral distance (m) under which two adjacent tracks are near-duplicates.
@@ -141,6 +144,7 @@ impl Config {
             max_tentative: 3,
             confirm_hits: 6,
             tentative_misses: 8,
+            tentative_gap_misses: 8,
             max_misses: 12,
             merge_distance: 0.3,
             merge_rows: 3,
@@ -664,7 +668,12 @@ pub fn run_frame(
             } else {
                 t.misses += 1;
                 t.consecutive_misses += 1;
-                if t.status == Status::Tentative && t.consecutive_misses >= cfg.tentative_misses {
+                let limit = if t.hits > 0 {
+                    cfg.tentative_gap_misses
+                } else {
+                    cfg.tentative_misses
+                };
+                if t.status == Status::Tentative && t.consecutive_misses >= limit {
                     delete[i] = true;
                     counters.deleted += 1;
                 } else if t.status == Status::Confirmed && t.consecutive_misses >= cfg.max_misses {

@@ -78,6 +78,12 @@ pub struct PersistConfig {
     /// while this stage is on): a candidate starts with existence `p_birth`, and the frames
     /// that follow decide, so a dashed marking needs only a few hits in one frame.
     pub confirm_hits: u16,
+    /// Consecutive misses that delete a tentative spatial track with a hit (the spatial
+    /// filter's `tentative_gap_misses` while this stage is on): the rows of the longest dash gap
+    /// a new lane's track bridges within a frame. 11 rows of the reference tables (1.283 m
+    /// each) bridge 12 m, the longest gap of the common dash standards (docs/design.md §11.8);
+    /// with the spatial default 8 (10.3 m) no lane with 12 m gaps and short dashes could start.
+    pub gap_misses: u16,
     /// Frames of memory of the process-noise scale's adaptation (0: no adaptation).
     pub q_memory: f32,
     /// Probability that a lane that exists is visible in a frame (not occluded, not blurred
@@ -131,6 +137,7 @@ impl PersistConfig {
         p_delete: 0.01,
         explained: 0.5,
         confirm_hits: 3,
+        gap_misses: 11,
         q_memory: 2.0,
         p_visible: 0.9,
         min_spacing: 1.0,

@@ -333,6 +333,7 @@ impl_tracker! {
         let mut scfg = self.cfg.spatial;
         if self.cfg.persist.enabled {
             scfg.confirm_hits = self.cfg.persist.confirm_hits;
+            scfg.tentative_gap_misses = self.cfg.persist.gap_misses;
         }
         let (n_obs, srep) =
             self.spatial

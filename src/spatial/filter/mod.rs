@@ -63,8 +63,14 @@ pub struct Config {
     pub max_tentative: u8,
     /// Hits that confirm a tentative track.
     pub confirm_hits: u16,
-    /// Consecutive misses that delete a tentative track.
+    /// Consecutive misses that delete a tentative track with no hit since its initiation.
     pub tentative_misses: u16,
+    /// Consecutive misses that delete a tentative track with at least one hit since its
+    /// initiation (a dash behind it, the next one ahead): the rows of the longest dash gap it
+    /// bridges. The default keeps it at `tentative_misses` (8): while hits confirm a lane, a
+    /// longer tentative life lets clutter confirm one. The [`crate::tracker::Tracker`] sets
+    /// [`crate::persist::PersistConfig::gap_misses`] (11) here, where existence confirms.
+    pub tentative_gap_misses: u16,
     /// Consecutive misses that end a confirmed track.
     pub max_misses: u16,
     /// Lateral distance under which adjacent tracks are near-duplicates, metres.
@@ -88,6 +94,7 @@ impl Config {
         max_tentative: 3,
         confirm_hits: 6,
         tentative_misses: 8,
+        tentative_gap_misses: 8,
         max_misses: 12,
         merge_distance: 0.3,
         merge_rows: 3,

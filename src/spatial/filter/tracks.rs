@@ -240,7 +240,16 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 mt.misses = mt.misses.saturating_add(1);
                 mt.miss_run = mt.miss_run.saturating_add(1);
                 match mt.status {
-                    Status::Tentative if mt.miss_run >= cfg.tentative_misses => delete |= 1 << t,
+                    Status::Tentative
+                        if mt.miss_run
+                            >= if mt.hits > 0 {
+                                cfg.tentative_gap_misses
+                            } else {
+                                cfg.tentative_misses
+                            } =>
+                    {
+                        delete |= 1 << t;
+                    }
                     Status::Confirmed if mt.miss_run >= cfg.max_misses => {
                         mt.status = Status::Ended;
                         rep.ended += 1;
