@@ -1637,7 +1637,7 @@ fn render_heldout(r: &HeldoutReport) -> String {
         "\nHeld-out check: a second generator, written apart from the replay's \
          (`tools/src/heldout.rs`), on {} held-out labels (TuSimple sessions 0531 and 0601; \
          every threshold was chosen on 0313 and the replay), {} frames at {:.0} fps; vehicle \
-         pose an Ornstein–Uhlenbeck offset and a heading random walk, misses in bursts, dashes \
+         pose a lateral offset integrating an Ornstein–Uhlenbeck velocity and a heading random walk, misses in bursts, dashes \
          of {}–{} m paint and {}–{} m gap, Student-t (ν = {}) column noise of scale {} px, \
          uniform clutter over the road area ({} /m² at × 1) and, in the last row, {} short \
          segments fixed on the road per clip. The tracker against the same RANSAC baseline, \

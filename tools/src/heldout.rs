@@ -8,7 +8,7 @@
 //! |---|---|---|
 //! | frame rate, clip | 20 fps, 20 frames | 15 fps, 16 frames |
 //! | rows | every 2nd image row | every 3rd image row |
-//! | vehicle motion | drift + sine wobble, heading and curvature rates, lane changes | Ornstein–Uhlenbeck lateral offset, heading random walk, no lane change |
+//! | vehicle motion | drift + sine wobble, heading and curvature rates, lane changes | lateral offset integrating an Ornstein–Uhlenbeck velocity, heading random walk, no lane change |
 //! | misses | independent per row | bursts: a two-state (Gilbert–Elliott) chain along each lane's rows |
 //! | dashes | 3 m paint / 9 m gap | paint U(2, 4) m, gap U(6, 12) m per lane |
 //! | point noise | Gaussian in pixels | Student-t (ν = 3) in pixels, plus the marking's edge: ±half its width on the road, per lane and frame |
@@ -65,9 +65,9 @@ pub struct HeldoutParams {
     pub dash_gap: (f64, f64),
     /// Vehicle speed, m/s (uniform range).
     pub speed: (f64, f64),
-    /// Stationary standard deviation of the lateral offset, metres.
+    /// Stationary standard deviation of the lateral velocity, m/s (the offset is its integral).
     pub lateral_sd: f64,
-    /// Time constant of the lateral offset, seconds.
+    /// Time constant of the lateral velocity, seconds.
     pub lateral_tau: f64,
     /// Heading random walk, rad/√s.
     pub heading_rw: f64,
@@ -103,7 +103,7 @@ impl Default for HeldoutParams {
             dash_gap: (6.0, 12.0),
             speed: (15.0, 35.0),
             lateral_sd: 0.4,
-            lateral_tau: 2.0,
+            lateral_tau: 1.0,
             heading_rw: 0.01,
             clutter_density: 0.02,
             clutter_box: (5.0, 70.0, 15.0),
@@ -291,17 +291,20 @@ fn clip(
     let k = p.frames_per_clip;
     let speed = uniform(&mut rng, p.speed);
     // The pose relative to the road at τ = (k − 1 − f)·step before the last frame, simulated
-    // from the last frame backwards: an OU lateral offset and a heading random walk, both 0 at
-    // τ = 0.
+    // from the last frame backwards: the lateral offset integrates an Ornstein–Uhlenbeck lateral
+    // velocity (a vehicle's offset is smooth: an OU offset itself, with a white velocity, would
+    // jump ~10 cm a frame, ~4 g of lateral acceleration), the heading is a random walk (camera
+    // yaw jitter); both are 0 at τ = 0.
     let a = (-p.frame_step / p.lateral_tau).exp();
     let ou_sd = p.lateral_sd * (1.0 - a * a).sqrt();
     let rw_sd = p.heading_rw * p.frame_step.sqrt();
     let mut pose = vec![(0.0f64, 0.0f64); k];
-    let (mut e, mut psi) = (0.0f64, 0.0f64);
     let std = Normal::new(0.0, 1.0).ok();
     let gauss = |rng: &mut ChaCha8Rng| std.map_or(0.0, |d| d.sample(rng));
+    let (mut e, mut psi, mut v) = (0.0f64, 0.0f64, p.lateral_sd * gauss(&mut rng));
     for f in (0..k.saturating_sub(1)).rev() {
-        e = a * e + ou_sd * gauss(&mut rng);
+        e -= v * p.frame_step;
+        v = a * v + ou_sd * gauss(&mut rng);
         psi += rw_sd * gauss(&mut rng);
         pose[f] = (e, psi);
     }
