@@ -650,6 +650,38 @@ impl IdentityTally {
     }
 }
 
+/// Each tracker configuration of `variants` on `frames` (image space), scored on `gts` with
+/// [`score_on`], its accuracy against `baseline`'s.
+fn variant_scores(
+    frames: &[Frame],
+    gts: &[TuSimpleRecord],
+    tables: &'static ReferenceTables,
+    cam: &Camera,
+    variants: &[(&str, TrackerConfig)],
+    baseline: &Score,
+    timed: bool,
+) -> Result<Vec<VariantScore>> {
+    variants
+        .iter()
+        .map(|(name, config)| {
+            let (preds, _) = track::track_with(
+                frames,
+                tables,
+                cam,
+                Space::Image,
+                *config,
+                |_: FrameView<'_>| {},
+            )?;
+            let score = score_on(&preds, gts, timed)?;
+            Ok(VariantScore {
+                name: (*name).to_string(),
+                score,
+                accuracy_minus_baseline: score.accuracy - baseline.accuracy,
+            })
+        })
+        .collect()
+}
+
 /// The robustness section (see the module doc): the first `clips` of `labels` at the mid
 /// preset under each condition, each tracker configuration of `variants` (default tables) and
 /// the RANSAC baseline on the same frames; `progress(what)` before each condition.
@@ -699,23 +731,9 @@ pub fn robustness(
         let o = synth::synthesize(labels, &params, &cam, seed)?;
         let (bpreds, bstats) = baseline::track(&o.frames, tables, &cam, Space::Image, &bp, |_| {})?;
         let bscore = score_on(&bpreds, &o.gt_last, timed)?;
-        let mut trackers = Vec::new();
-        for (name, config) in variants {
-            let (preds, _) = track::track_with(
-                &o.frames,
-                tables,
-                &cam,
-                Space::Image,
-                *config,
-                |_: FrameView<'_>| {},
-            )?;
-            let score = score_on(&preds, &o.gt_last, timed)?;
-            trackers.push(VariantScore {
-                name: (*name).to_string(),
-                score,
-                accuracy_minus_baseline: score.accuracy - bscore.accuracy,
-            });
-        }
+        let trackers = variant_scores(
+            &o.frames, &o.gt_last, tables, &cam, variants, &bscore, timed,
+        )?;
         rows.push(RobustnessRow {
             condition,
             clutter_multiplier: m,
@@ -782,23 +800,9 @@ pub fn heldout_check(
         let baseline = score_on(&bpreds, &o.gt_last, timed)?;
         let (cpreds, _) = baseline::track(&o.frames, tables, &cam, Space::Image, &capped, |_| {})?;
         let baseline_capped = score_on(&cpreds, &o.gt_last, timed)?;
-        let mut trackers = Vec::new();
-        for (name, config) in variants {
-            let (preds, _) = track::track_with(
-                &o.frames,
-                tables,
-                &cam,
-                Space::Image,
-                *config,
-                |_: FrameView<'_>| {},
-            )?;
-            let score = score_on(&preds, &o.gt_last, timed)?;
-            trackers.push(VariantScore {
-                name: (*name).to_string(),
-                score,
-                accuracy_minus_baseline: score.accuracy - baseline.accuracy,
-            });
-        }
+        let trackers = variant_scores(
+            &o.frames, &o.gt_last, tables, &cam, variants, &baseline, timed,
+        )?;
         rows.push(HeldoutRow {
             condition,
             clutter_density: params.clutter_density,
