@@ -232,6 +232,7 @@ fn reference_setup() -> (Model, refspatial::Config) {
         confirm_hits: usize::from(c.confirm_hits),
         tentative_misses: usize::from(c.tentative_misses),
         tentative_gap_misses: usize::from(c.tentative_gap_misses),
+        row_noise_scale: f64::from(c.row_noise_scale),
         max_misses: usize::from(c.max_misses),
         merge_distance: f64::from(c.merge_distance),
         merge_rows: usize::from(c.merge_rows),

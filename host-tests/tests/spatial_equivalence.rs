@@ -66,6 +66,13 @@ fn reference() -> (Model, Config) {
 }
 
 fn run_core(points: &[(f64, f64)]) -> (Vec<LaneObservation<N>>, SpatialReport) {
+    run_core_with(points, &CoreConfig::default())
+}
+
+fn run_core_with(
+    points: &[(f64, f64)],
+    cfg: &CoreConfig,
+) -> (Vec<LaneObservation<N>>, SpatialReport) {
     let mut f = Box::new(Filter::new());
     let pts: Vec<[f32; 2]> = points.iter().map(|&(u, x)| [u as f32, x as f32]).collect();
     let mut out = [LaneObservation {
@@ -79,7 +86,7 @@ fn run_core(points: &[(f64, f64)]) -> (Vec<LaneObservation<N>>, SpatialReport) {
         rank: 0,
         llr: 0.0,
     }; 6];
-    let (n, rep) = f.run(&DEFAULT, &CoreConfig::default(), &pts, &mut out);
+    let (n, rep) = f.run(&DEFAULT, cfg, &pts, &mut out);
     (out[..n].to_vec(), rep)
 }
 
@@ -508,4 +515,44 @@ fn comparison_detects_the_old_reference() {
         let e = compare(&model, &core, &r).unwrap_err();
         println!("old reference: {e}");
     }
+}
+
+/// The within-frame row-noise scale the tracker sets (docs/design.md §11.12) is the same model
+/// in both: the core with the tracker's scale against the reference with it, and not against
+/// the reference without it.
+#[test]
+fn row_noise_scale_matches_reference() {
+    let (model, cfg) = reference();
+    let s = stjpdacf::persist::PersistConfig::DEFAULT.row_noise_scale;
+    let core_cfg = CoreConfig {
+        row_noise_scale: s,
+        ..CoreConfig::default()
+    };
+    let scaled = Config {
+        row_noise_scale: f64::from(s),
+        ..cfg.clone()
+    };
+    let mut compared = 0;
+    for seed in [8, 9, 10] {
+        let sc = Scenario::generate(
+            &ScenarioConfig {
+                shape: rbf(4.0, 35.0),
+                clutter_density: 0.05,
+                ..base()
+            },
+            seed,
+        );
+        let core = run_core_with(&sc.points, &core_cfg);
+        let r = run_frame(&model, &scaled, &sc.points, PER_ROW);
+        if !near_rows(&r).is_empty() {
+            continue;
+        }
+        compare(&model, &core, &r).unwrap();
+        compared += 1;
+        if compared == 1 {
+            let unscaled = run_frame(&model, &cfg, &sc.points, PER_ROW);
+            assert!(compare(&model, &core, &unscaled).is_err());
+        }
+    }
+    assert!(compared >= 2, "{compared} scenes compared");
 }

@@ -117,6 +117,8 @@ pub struct Config {
     /// Consecutive misses that delete a tentative track with at least one hit (the longest dash
     /// gap it bridges).
     pub tentative_gap_misses: usize,
+    /// Scale of the row-to-row process noise `Q_u` (1: the tables' model).
+    pub row_noise_scale: f64,
     /// Consecutive misses that end a confirmed track.
     pub max_misses: usize,
     /// Lateral distance (m) under which two adjacent tracks are near-duplicates.
@@ -145,6 +147,7 @@ impl Config {
             confirm_hits: 6,
             tentative_misses: 8,
             tentative_gap_misses: 8,
+            row_noise_scale: 1.0,
             max_misses: 12,
             merge_distance: 0.3,
             merge_rows: 3,
@@ -499,6 +502,7 @@ pub fn run_frame(
     let mut next_id = 0usize;
     let mut diags = Vec::with_capacity(model.rows);
     let hx = |e: &Estimate, i: usize| e.x[i * ns] + e.x[i * ns + 1];
+    let q_row = &model.q * cfg.row_noise_scale;
 
     for (r, zs) in rows.iter().enumerate() {
         let mut margins = Margins::default();
@@ -506,7 +510,7 @@ pub fn run_frame(
         if r > 0 && !tracks.is_empty() {
             let n = tracks.len();
             let bn = model.b.view((0, 0), (n, n)).into_owned();
-            state = jpda::predict(&state.x, &state.p, &model.f, &model.q, &bn);
+            state = jpda::predict(&state.x, &state.p, &model.f, &q_row, &bn);
         }
 
         // 2. Initiation: freedom once, against the predicted active tracks.

@@ -84,6 +84,14 @@ pub struct PersistConfig {
     /// each) bridge 12 m, the longest gap of the common dash standards (docs/design.md §11.8);
     /// with the spatial default 8 (10.3 m) no lane with 12 m gaps and short dashes could start.
     pub gap_misses: u16,
+    /// Scale of the spatial filter's row-to-row process noise while this stage is on (the
+    /// spatial filter's `row_noise_scale`, docs/design.md §11.12): the maximum of the
+    /// state-space likelihood of the bundled `0313` label lanes under the table's spatial model
+    /// (`stjpdacf train --row-noise`). Labelled lanes are about 25× smoother from row to row
+    /// than the `N_T = 2` approximation of the RBF; with the table's noise a new lane's track
+    /// bends so freely across a dash gap that the next dash's points do not count against
+    /// clutter.
+    pub row_noise_scale: f32,
     /// Frames of memory of the process-noise scale's adaptation (0: no adaptation).
     pub q_memory: f32,
     /// Probability that a lane that exists is visible in a frame (not occluded, not blurred
@@ -138,6 +146,7 @@ impl PersistConfig {
         explained: 0.5,
         confirm_hits: 3,
         gap_misses: 11,
+        row_noise_scale: 0.043,
         q_memory: 2.0,
         p_visible: 0.9,
         min_spacing: 1.0,

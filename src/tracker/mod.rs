@@ -334,6 +334,7 @@ impl_tracker! {
         if self.cfg.persist.enabled {
             scfg.confirm_hits = self.cfg.persist.confirm_hits;
             scfg.tentative_gap_misses = self.cfg.persist.gap_misses;
+            scfg.row_noise_scale = self.cfg.persist.row_noise_scale;
         }
         let (n_obs, srep) =
             self.spatial

@@ -21,6 +21,7 @@ pub mod frontend;
 pub mod fwscenario;
 pub mod heldout;
 pub mod metric;
+pub mod rownoise;
 pub mod scenario;
 pub mod synth;
 pub mod tablegen;

@@ -10,6 +10,7 @@ use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::demo;
 use stjpdacf_tools::frontend;
 use stjpdacf_tools::metric;
+use stjpdacf_tools::rownoise;
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
 use stjpdacf_tools::tablegen;
 use stjpdacf_tools::trainrun;
@@ -132,6 +133,22 @@ enum Command {
     /// Train the spatial kernel, B and the noise (and fit the temporal length-scale) from
     /// TuSimple labels; writes a complete hyperparameter file.
     Train(TrainArgs),
+    /// Fit the spatial filter's within-frame row-noise scale (PersistConfig::row_noise_scale)
+    /// to labelled lanes by maximum likelihood under the tables' spatial model.
+    RowNoise {
+        /// TuSimple labels (JSON lines).
+        #[arg(long, num_args = 1.., default_value = "data/tusimple/train_subset.json")]
+        labels: Vec<PathBuf>,
+        /// Hyperparameter file of the tables.
+        #[arg(long, default_value = tablegen::DEFAULT_HYPER)]
+        hyper: PathBuf,
+        /// Camera of the labels, a JSON file with the fields of `Camera` (default: TuSimple).
+        #[arg(long)]
+        camera: Option<PathBuf>,
+        /// Also write the fit (scale, log-likelihoods, profile) as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Real-geometry replay: animate TuSimple labels into 20-frame clips of noisy feature points,
     /// with ground truth for the last frame (and optionally every frame).
     Synth {
@@ -365,6 +382,42 @@ fn main() -> Result<()> {
                 println!("  Accuracy  {:.6}", s.accuracy);
                 println!("  FP        {:.6}", s.fp);
                 println!("  FN        {:.6}", s.fn_);
+            }
+        }
+        Command::RowNoise {
+            labels,
+            hyper,
+            camera,
+            json,
+        } => {
+            let camera = match camera {
+                Some(p) => Camera::from_spec(&p.to_string_lossy())?,
+                None => Camera::tusimple(),
+            };
+            let tables = stjpdacf_reference::model::ModelTables::from_hyper(
+                &stjpdacf_reference::hyper::HyperFile::load(&hyper)?,
+            )?;
+            let mut frames = Vec::new();
+            for p in &labels {
+                frames.extend(stjpdacf_tools::train::read_labels(p)?);
+            }
+            let lanes = rownoise::label_lanes(&frames, &camera, &tables);
+            let fit = rownoise::fit(&rownoise::RowModel::from_tables(&tables), &lanes)?;
+            for (s, ll) in &fit.profile {
+                println!("  s = {s:<10.4} log-likelihood {ll:.1}");
+            }
+            println!(
+                "row_noise_scale = {:.4} (log-likelihood {:.1}; {:.1} at s = 1): {} lanes, {} points of {} label frames",
+                fit.scale,
+                fit.log_likelihood,
+                fit.log_likelihood_unscaled,
+                fit.lanes,
+                fit.points,
+                frames.len()
+            );
+            if let Some(p) = json {
+                std::fs::write(&p, serde_json::to_string_pretty(&fit)? + "\n")
+                    .with_context(|| format!("writing {}", p.display()))?;
             }
         }
         Command::Train(a) => {

@@ -71,6 +71,12 @@ pub struct Config {
     /// longer tentative life lets clutter confirm one. The [`crate::tracker::Tracker`] sets
     /// [`crate::persist::PersistConfig::gap_misses`] (11) here, where existence confirms.
     pub tentative_gap_misses: u16,
+    /// Scale of the row-to-row process noise `Q_u` (docs/design.md §11.12): 1 is the table's
+    /// model, whose `N_T = 2` approximation of the RBF bends far more freely from row to row
+    /// than a painted lane does. The [`crate::tracker::Tracker`] sets
+    /// [`crate::persist::PersistConfig::row_noise_scale`] here. Finite and positive, else
+    /// `bad_config`.
+    pub row_noise_scale: f32,
     /// Consecutive misses that end a confirmed track.
     pub max_misses: u16,
     /// Lateral distance under which adjacent tracks are near-duplicates, metres.
@@ -95,6 +101,7 @@ impl Config {
         confirm_hits: 6,
         tentative_misses: 8,
         tentative_gap_misses: 8,
+        row_noise_scale: 1.0,
         max_misses: 12,
         merge_distance: 0.3,
         merge_rows: 3,
@@ -431,8 +438,13 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 _ => m.get((i - 1, j - 1)).copied().unwrap_or(0.0),
             })
         };
+        let s = cfg.row_noise_scale;
+        if !(s.is_finite() && s > 0.0) {
+            rep.bad_config = true;
+            return (0, rep);
+        }
         let F = embed(&fu, 1.0);
-        let Q = embed(&qu, 0.0);
+        let Q = embed(&(qu * s), 0.0);
         let hv = SVector::<f32, NS>::from_fn(|i, _| if i <= 1 { 1.0 } else { 0.0 });
         let params = RowParams {
             pd: cfg.pd,
