@@ -61,7 +61,7 @@ impl RowModel {
         for (k, (&u, &z)) in lane.u.iter().zip(&lane.x).enumerate() {
             if k > 0 {
                 let du = u - lane.u[k - 1];
-                if !(du > 0.0) {
+                if du.is_nan() || du <= 0.0 {
                     return None;
                 }
                 let (f, q) = discretize(&self.a, &self.p_inf, du);
@@ -75,7 +75,7 @@ impl RowModel {
             // h = [1, 1, 0, …]: the offset plus g.
             let ph = p.column(0) + p.column(1);
             let sv = ph[0] + ph[1] + self.noise;
-            if !(sv > 0.0) {
+            if sv.is_nan() || sv <= 0.0 {
                 return None;
             }
             let e = z - (x[0] + x[1]);
