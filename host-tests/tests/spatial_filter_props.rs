@@ -79,3 +79,31 @@ proptest! {
         prop_assert_eq!(&out[..n], &out2[..n2]);
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    /// Any finite positive row-noise scale is a valid model; zero, negative or non-finite is
+    /// `bad_config` with no lane, and the filter stays usable.
+    #[test]
+    fn row_noise_scale_is_validated(points in frame(), s in prop_oneof![
+        Just(0.0f32), Just(-1.0), Just(f32::NAN), Just(f32::INFINITY), 1e-6f32..100.0
+    ]) {
+        let mut f = Box::new(Filter::new());
+        let mut out = [EMPTY; 6];
+        let cfg = Config { row_noise_scale: s, ..Config::default() };
+        let (n, rep) = f.run(&DEFAULT, &cfg, &points, &mut out);
+        let valid = s.is_finite() && s > 0.0;
+        prop_assert_eq!(rep.bad_config, !valid);
+        if valid {
+            prop_assert!(n <= 6);
+            for lane in &out[..n] {
+                prop_assert!(lane.z.iter().chain(lane.cov.iter()).all(|v| v.is_finite()));
+            }
+        } else {
+            prop_assert_eq!(n, 0);
+        }
+        let (_, rep2) = f.run(&DEFAULT, &Config::default(), &points, &mut out);
+        prop_assert!(!rep2.bad_config);
+    }
+}
