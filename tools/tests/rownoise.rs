@@ -1,4 +1,9 @@
-//! The within-frame row-noise fit (`stjpdacf_tools::rownoise`, docs/design.md §11.12).
+//! The within-frame row-noise fit (`stjpdacf_tools::rownoise`, docs/design.md §11.12) and its
+//! command, `stjpdacf row-noise`.
+
+mod common;
+
+use common::{assert_failure_mentions, assert_success, stjpdacf};
 
 use nalgebra::{DMatrix, DVector};
 use rand::SeedableRng;
@@ -110,4 +115,43 @@ fn tracker_default_is_the_fit_on_the_bundled_labels() {
     );
     // The tables' own noise (s = 1) is far less likely.
     assert!(fit.log_likelihood - fit.log_likelihood_unscaled > 100.0);
+}
+
+/// The command fits the bundled labels by default, prints the scale and writes the JSON; a
+/// label file with no usable lane is refused.
+#[test]
+fn row_noise_command_fits_and_refuses_empty_labels() {
+    let dir = std::env::temp_dir().join(format!("stjpdacf-rownoise-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("fit.json");
+    let out = stjpdacf()
+        .current_dir(stjpdacf_tools::repo_root())
+        .args(["row-noise", "--json"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert_success(&out);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("row_noise_scale = 0.04"));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let s = v["scale"].as_f64().unwrap();
+    assert!(
+        (s - f64::from(PersistConfig::DEFAULT.row_noise_scale)).abs() < 1e-3,
+        "{s}"
+    );
+    assert_eq!(v["profile"].as_array().unwrap().len(), 21);
+    let empty = dir.join("empty.json");
+    std::fs::write(
+        &empty,
+        r#"{"raw_file": "a.jpg", "h_samples": [300, 310], "lanes": [[-2, -2]]}"#.to_string() + "\n",
+    )
+    .unwrap();
+    let out = stjpdacf()
+        .current_dir(stjpdacf_tools::repo_root())
+        .args(["row-noise", "--labels"])
+        .arg(&empty)
+        .output()
+        .unwrap();
+    assert_failure_mentions(&out, "no lanes");
+    std::fs::remove_dir_all(&dir).ok();
 }
