@@ -87,7 +87,7 @@ pub struct PersistConfig {
     /// Scale of the spatial filter's row-to-row process noise while this stage is on (the
     /// spatial filter's `row_noise_scale`, docs/design.md §11.12): the maximum of the
     /// state-space likelihood of the bundled `0313` label lanes under the table's spatial model
-    /// (`stjpdacf train --row-noise`). Labelled lanes are about 25× smoother from row to row
+    /// (`stjpdacf row-noise`, 0.0434). Labelled lanes are about 23× smoother from row to row
     /// than the `N_T = 2` approximation of the RBF; with the table's noise a new lane's track
     /// bends so freely across a dash gap that the next dash's points do not count against
     /// clutter.

@@ -117,6 +117,16 @@ fn tracker_default_is_the_fit_on_the_bundled_labels() {
     assert!(fit.log_likelihood - fit.log_likelihood_unscaled > 100.0);
 }
 
+/// `stjpdacf row-noise <args>` run from the repository root.
+fn row_noise(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    stjpdacf()
+        .current_dir(stjpdacf_tools::repo_root())
+        .arg("row-noise")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
 /// The command fits the bundled labels by default, prints the scale and writes the JSON; a
 /// label file with no usable lane is refused.
 #[test]
@@ -124,12 +134,7 @@ fn row_noise_command_fits_and_refuses_empty_labels() {
     let dir = std::env::temp_dir().join(format!("stjpdacf-rownoise-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let json = dir.join("fit.json");
-    let out = stjpdacf()
-        .current_dir(stjpdacf_tools::repo_root())
-        .args(["row-noise", "--json"])
-        .arg(&json)
-        .output()
-        .unwrap();
+    let out = row_noise(&["--json".as_ref(), json.as_os_str()]);
     assert_success(&out);
     assert!(String::from_utf8_lossy(&out.stdout).contains("row_noise_scale = 0.04"));
     let v: serde_json::Value =
@@ -146,12 +151,7 @@ fn row_noise_command_fits_and_refuses_empty_labels() {
         r#"{"raw_file": "a.jpg", "h_samples": [300, 310], "lanes": [[-2, -2]]}"#.to_string() + "\n",
     )
     .unwrap();
-    let out = stjpdacf()
-        .current_dir(stjpdacf_tools::repo_root())
-        .args(["row-noise", "--labels"])
-        .arg(&empty)
-        .output()
-        .unwrap();
+    let out = row_noise(&["--labels".as_ref(), empty.as_os_str()]);
     assert_failure_mentions(&out, "no lanes");
     std::fs::remove_dir_all(&dir).ok();
 }
