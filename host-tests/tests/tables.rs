@@ -36,6 +36,36 @@ fn committed_tables_are_regenerated_exactly() {
     assert_eq!(tablegen::FORMAT_VERSION, FORMAT_VERSION);
 }
 
+#[test]
+fn committed_uncoupled_tables_are_regenerated_exactly() {
+    let h = HyperFile::load(&repo_root().join(tablegen::UNCOUPLED_HYPER)).unwrap();
+    let t = ModelTables::from_hyper(&h).unwrap();
+    let want = tablegen::render(&t, "UNCOUPLED", tablegen::UNCOUPLED_HYPER).unwrap();
+    let have = std::fs::read_to_string(repo_root().join(tablegen::UNCOUPLED_TABLES)).unwrap();
+    assert!(
+        want == have,
+        "{} is stale: run `cargo run -p stjpdacf-tools -- tables --hyper {} --out {} --name UNCOUPLED`",
+        tablegen::UNCOUPLED_TABLES,
+        tablegen::UNCOUPLED_HYPER,
+        tablegen::UNCOUPLED_TABLES
+    );
+    // The uncoupled model is the default one with B's off-diagonal removed.
+    let (d, u) = (&stjpdacf::tables::DEFAULT, &stjpdacf::tables::UNCOUPLED);
+    assert_eq!(u.validate(), Ok(()));
+    assert_eq!(d.gram, u.gram);
+    assert_eq!(d.spatial.f, u.spatial.f);
+    assert_eq!(d.temporal.p_inf, u.temporal.p_inf);
+    for i in 0..6 {
+        for j in 0..6 {
+            let want = if i == j { d.coreg[(i, i)] } else { 0.0 };
+            assert!(
+                (u.coreg[(i, j)] - want).abs() <= 1e-5 * want.abs(),
+                "B[{i},{j}]"
+            );
+        }
+    }
+}
+
 /// How [`close`] bounds the error of an entry `w` of the reference.
 #[derive(Debug, Clone, Copy)]
 enum Tol {

@@ -9,7 +9,7 @@ use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use stjpdacf::spatial::filter::{LaneObservation, Status};
-use stjpdacf::tables::DEFAULT;
+use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::filter::{TemporalError, TemporalFilter};
 use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf_reference::hyper::HyperFile;
@@ -21,7 +21,12 @@ type Filter = TemporalFilter<6, 16, 7, 84>;
 const N: usize = 16;
 
 fn model() -> (ModelTables, CoupledTemporalModel) {
-    let h = HyperFile::load(&repo_root().join(tablegen::DEFAULT_HYPER)).unwrap();
+    model_of(tablegen::DEFAULT_HYPER)
+}
+
+/// The generated tables and the dense f64 model of a hyperparameter file.
+fn model_of(hyper: &str) -> (ModelTables, CoupledTemporalModel) {
+    let h = HyperFile::load(&repo_root().join(hyper)).unwrap();
     let t = ModelTables::from_hyper(&h).unwrap();
     let m = CoupledTemporalModel::from_tables(&t).unwrap();
     (t, m)
@@ -91,25 +96,25 @@ fn start_three_lanes(mut start: impl FnMut(usize, u8, &[u8; 6])) {
 
 /// The core's filter, alone or with its smoother window.
 trait Core {
-    fn predict(&mut self, dt: f32);
-    fn update(&mut self, lane: usize, obs: &LaneObservation<16>);
+    fn predict(&mut self, tables: &ReferenceTables, dt: f32);
+    fn update(&mut self, tables: &ReferenceTables, lane: usize, obs: &LaneObservation<16>);
 }
 
 impl Core for Filter {
-    fn predict(&mut self, dt: f32) {
-        Filter::predict(self, &DEFAULT, dt).unwrap();
+    fn predict(&mut self, tables: &ReferenceTables, dt: f32) {
+        Filter::predict(self, tables, dt).unwrap();
     }
-    fn update(&mut self, lane: usize, obs: &LaneObservation<16>) {
-        Filter::update(self, &DEFAULT, lane, obs).unwrap();
+    fn update(&mut self, tables: &ReferenceTables, lane: usize, obs: &LaneObservation<16>) {
+        Filter::update(self, tables, lane, obs).unwrap();
     }
 }
 
 impl<const LAG: usize> Core for Temporal<6, 16, 7, 84, 42, LAG> {
-    fn predict(&mut self, dt: f32) {
-        Temporal::predict(self, &DEFAULT, dt).unwrap();
+    fn predict(&mut self, tables: &ReferenceTables, dt: f32) {
+        Temporal::predict(self, tables, dt).unwrap();
     }
-    fn update(&mut self, lane: usize, obs: &LaneObservation<16>) {
-        Temporal::update(self, &DEFAULT, lane, obs).unwrap();
+    fn update(&mut self, tables: &ReferenceTables, lane: usize, obs: &LaneObservation<16>) {
+        Temporal::update(self, tables, lane, obs).unwrap();
     }
 }
 
@@ -119,6 +124,7 @@ impl<const LAG: usize> Core for Temporal<6, 16, 7, 84, 42, LAG> {
 #[allow(clippy::too_many_arguments)]
 fn frame_measurements(
     core: &mut impl Core,
+    tables: &ReferenceTables,
     rng: &mut ChaCha8Rng,
     index_u: &[f64],
     offsets: &[f64],
@@ -128,14 +134,14 @@ fn frame_measurements(
 ) -> Vec<Option<LaneMeasurement>> {
     *time += dt;
     if dt > 0.0 {
-        core.predict(dt as f32);
+        core.predict(tables, dt as f32);
     }
     let mut meas: Vec<Option<LaneMeasurement>> = Vec::new();
     for (d, &x0) in offsets.iter().enumerate() {
         let seen = !(d == 1 && (4..7).contains(&k));
         let (obs, m) = observation(rng, index_u, x0, *time);
         if seen {
-            core.update(d, &obs);
+            core.update(tables, d, &obs);
             meas.push(Some(m));
         } else {
             meas.push(None);
@@ -199,7 +205,9 @@ fn core_matches_dense_reference_with_truncation() {
     let mut time = 0.0;
     for (k, &dt) in steps.iter().enumerate() {
         let offsets = &offsets[..lanes];
-        let meas = frame_measurements(&mut *core, &mut rng, &index_u, offsets, k, dt, &mut time);
+        let meas = frame_measurements(
+            &mut *core, &DEFAULT, &mut rng, &index_u, offsets, k, dt, &mut time,
+        );
         let step = reference
             .step(&state, (dt > 0.0).then_some(dt), &meas)
             .unwrap();
@@ -257,16 +265,38 @@ fn bad_inputs_leave_the_state_untouched() {
 /// fixed-lag RTS on the dense model, L = 4, with dropped frames and a lane unseen for 3 frames.
 #[test]
 fn fixed_lag_smoother_matches_dense_rts() {
+    let max = fixed_lag_against_dense_rts(&DEFAULT, tablegen::DEFAULT_HYPER, 12);
+    println!(
+        "fixed-lag L = 4 core vs dense RTS: max |Δmean| = {:.2e} m, max rel |Δvar| = {:.2e}",
+        max.0, max.1
+    );
+}
+
+/// The uncoupled model (`B` diagonal, `tables::UNCOUPLED`): the filter stays
+/// [`uncoupled`](TemporalFilter::uncoupled) and runs its own-block loops (docs/design.md
+/// §4.2.6), and the filter and fixed-lag smoother still match the dense f64 model, which knows
+/// nothing of the block structure, within the same tolerances.
+#[test]
+fn uncoupled_model_runs_own_blocks_and_matches_dense_rts() {
+    let max = fixed_lag_against_dense_rts(&UNCOUPLED, tablegen::UNCOUPLED_HYPER, 12);
+    println!("uncoupled, fixed-lag L = 4 core vs dense RTS: max |Δmean| = {:.2e} m, max rel |Δvar| = {:.2e}", max.0, max.1);
+}
+
+/// The fixed-lag check on `tables` (generated from `hyper`): filtered and lagged lanes against
+/// the dense model's filter and RTS; returns the largest differences. The filter is
+/// [`uncoupled`](TemporalFilter::uncoupled) exactly when `B` is diagonal.
+fn fixed_lag_against_dense_rts(tables: &ReferenceTables, hyper: &str, seed: u64) -> (f64, f64) {
     use stjpdacf_reference::temporal::FixedLagSmoother;
     const LAG: usize = 4;
-    let (t, reference) = model();
+    let diagonal = (0..6).all(|i| (0..6).all(|j| i == j || tables.coreg[(i, j)] == 0.0));
+    let (t, reference) = model_of(hyper);
     let index_u: Vec<f64> = t.index_u.iter().copied().collect();
     let lanes = 3;
     let offsets = [-5.4, -1.8, 1.8];
-    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut core = Box::new(Temporal::<6, 16, 7, 84, 42, LAG>::new());
     start_three_lanes(|s, r, ranks| {
-        core.start_lane(&DEFAULT, s, r, ranks).unwrap();
+        core.start_lane(tables, s, r, ranks).unwrap();
     });
     let mut state = reference
         .prior(lanes, nalgebra::DVector::zeros(2 * lanes * N))
@@ -280,25 +310,30 @@ fn fixed_lag_smoother_matches_dense_rts() {
     let mut filtered_var: Vec<Vec<SVector<f32, 16>>> = Vec::new();
     for (k, &dt) in steps.iter().enumerate() {
         let offsets = &offsets[..lanes];
-        let meas = frame_measurements(&mut *core, &mut rng, &index_u, offsets, k, dt, &mut time);
+        let meas = frame_measurements(
+            &mut *core, tables, &mut rng, &index_u, offsets, k, dt, &mut time,
+        );
+        assert_eq!(core.filter().uncoupled(), diagonal, "frame {k}");
         filtered_var.push(
             (0..lanes)
-                .map(|d| core.filter().lane(&DEFAULT, d).unwrap().1)
+                .map(|d| core.filter().lane(tables, d).unwrap().1)
                 .collect(),
         );
         let step = reference
             .step(&state, (dt > 0.0).then_some(dt), &meas)
             .unwrap();
         state = Gaussian::new(step.filtered.mean.clone(), step.filtered.cov.clone()).unwrap();
+        let filter_lane = |d| core.filter().lane(tables, d).unwrap();
+        assert_lanes_match(k, lanes, "", &reference, &state, filter_lane, &mut max);
         let Some(lagged) = lagger.push(step).unwrap() else {
             assert!(
-                core.lagged(&DEFAULT, 0, LAG).is_none(),
+                core.lagged(tables, 0, LAG).is_none(),
                 "frame {k}: window not full yet"
             );
             continue;
         };
         assert_eq!(lagged.target_step + LAG, k);
-        let core_lane = |d| core.lagged(&DEFAULT, d, LAG).unwrap();
+        let core_lane = |d| core.lagged(tables, d, LAG).unwrap();
         let estimate = &lagged.estimate;
         assert_lanes_match(
             k,
@@ -312,7 +347,7 @@ fn fixed_lag_smoother_matches_dense_rts() {
         compared += 1;
         // Smoothing uses later data: the lagged variance is at most the filtered variance of then.
         for (d, then) in filtered_var[k - LAG].iter().enumerate() {
-            let (_, var) = core.lagged(&DEFAULT, d, LAG).unwrap();
+            let (_, var) = core.lagged(tables, d, LAG).unwrap();
             for i in 0..N {
                 assert!(
                     var[i] <= then[i] * (1.0 + 1e-3) + 1e-6,
@@ -324,7 +359,7 @@ fn fixed_lag_smoother_matches_dense_rts() {
         }
     }
     assert_eq!(compared, steps.len() - LAG);
-    println!("fixed-lag L = {LAG} core vs dense RTS: max |Δmean| = {:.2e} m, max rel |Δvar| = {:.2e} over {compared} frames", max.0, max.1);
+    max
 }
 
 /// The per-lane smoother (docs/design.md §5.1) against its dense f64 reference
@@ -354,7 +389,9 @@ fn per_lane_smoother_matches_dense_projected_window() {
     let (mut max, mut compared, mut negative) = ((0.0f64, 0.0f64), 0, 0);
     let mut time = 0.0;
     for (k, &dt) in steps.iter().enumerate() {
-        let meas = frame_measurements(&mut *core, &mut rng, &index_u, &offsets, k, dt, &mut time);
+        let meas = frame_measurements(
+            &mut *core, &DEFAULT, &mut rng, &index_u, &offsets, k, dt, &mut time,
+        );
         if dt > 0.0 {
             let f = reference.transition(lanes, dt).unwrap();
             let q = reference.process_noise(lanes, dt).unwrap();

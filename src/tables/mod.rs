@@ -22,6 +22,16 @@ use crate::kernel::{Matern32, RbfStateSpace};
 mod default;
 pub use default::DEFAULT;
 
+/// The uncoupled model: [`DEFAULT`] with `B` replaced by `diag(B)` (the same per-lane variance,
+/// no coupling between lanes; generated from `data/hyper/ablation_diag_b.json`). With it the
+/// temporal filter's covariance stays block-diagonal and every temporal and smoother loop runs
+/// on the lanes' own blocks (`TemporalFilter::uncoupled`, docs/design.md §4.2.6): the choice
+/// for a controller that cannot spend the coupled model's instructions, at the accuracy cost
+/// measured in docs/measurements.md ("The uncoupled model").
+#[rustfmt::skip]
+mod uncoupled;
+pub use uncoupled::UNCOUPLED;
+
 /// Version of the table layout; the generator writes it and [`Tables::validate`] checks it.
 pub const FORMAT_VERSION: u32 = 1;
 

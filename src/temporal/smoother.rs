@@ -162,6 +162,14 @@ impl<
         self.per_lane = per_lane;
     }
 
+    /// The window's loops run on each lane's own blocks: the per-lane smoother, or an
+    /// [`uncoupled`](TemporalFilter::uncoupled) filter, whose cross-covariances `C_j` are then
+    /// block-diagonal too (every lag was copied from a block-diagonal `P` and moved by gains
+    /// that vanish outside their lane), so the per-lane loops are the exact smoother.
+    fn own_blocks(&self) -> bool {
+        self.per_lane || self.filter.uncoupled()
+    }
+
     /// The filter (filtered lanes at the current frame).
     pub fn filter(&self) -> &TemporalFilter<LANES, POINTS, RANK, NX> {
         &self.filter
@@ -203,8 +211,9 @@ impl<
         let a = self.filter.start_lane(tables, s, rank, ranks)?;
         let r = TemporalFilter::<LANES, POINTS, RANK, NX>::r_used(tables);
         let base = |t: usize| TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, 0, 0);
-        if self.per_lane {
-            // Per lane: the new lane's state is not related to any lagged lane.
+        if self.own_blocks() {
+            // Per lane, or uncoupled (then `a = 0` and this is exact): the new lane's state is
+            // not related to any lagged lane.
             for lag in &mut self.window {
                 if let Some(cols) = lag
                     .cross
@@ -316,6 +325,7 @@ impl<
         let sp = self.filter.spans(r);
         // The oldest lag becomes lag 1 and takes the current lanes (x_k, P_k before predicting).
         self.head = (self.head + LAG - 1) % LAG;
+        let coupled = !self.own_blocks();
         let filter = &self.filter;
         if let Some(fresh) = self.window.get_mut(self.head) {
             let old = fresh.present;
@@ -347,7 +357,6 @@ impl<
                         };
                     }
                 }
-                let coupled = !self.per_lane;
                 for col in sp.indices() {
                     // Per lane: only lane s's own columns.
                     let keep = coupled || col / (2 * RANK) == s;
@@ -374,7 +383,7 @@ impl<
             }
         }
         for lag in &mut self.window {
-            times_transition(lag, &sp, &f, r, !self.per_lane);
+            times_transition(lag, &sp, &f, r, coupled);
         }
         probe.enter(Stage::Temporal);
         self.filter.predict_with(tables, &f, &q);
@@ -468,7 +477,7 @@ impl<
             }
         }
         let sp = self.filter.spans(g.r);
-        let only = self.per_lane.then_some(g.slot);
+        let only = self.own_blocks().then_some(g.slot);
         for lag in &mut self.window {
             lag_update(lag, g, &sp, a0, only);
         }
@@ -702,5 +711,138 @@ fn lag_update<const LANES: usize, const RANK: usize, const NA: usize, const NX: 
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::observation::Status;
+    use crate::tables::{DEFAULT, UNCOUPLED};
+
+    type T = Temporal<6, 16, 7, 84, 42, 4>;
+
+    /// A lane near `x0 + slope·u` seen at the index points `present(i)`, noise 0.05² m².
+    fn obs(x0: f32, slope: f32, present: impl Fn(usize) -> bool) -> LaneObservation<16> {
+        let mut o = LaneObservation::EMPTY;
+        o.status = Status::Confirmed;
+        for i in 0..16 {
+            if present(i) {
+                let u = DEFAULT.index_u[i];
+                o.present[i] = true;
+                o.z[i] = x0 + slope * u + 0.01 * (i as f32 * 1.7).sin();
+                o.cov[(i, i)] = 0.0025;
+                if i > 0 && o.present[i - 1] {
+                    o.cov[(i, i - 1)] = 0.001;
+                    o.cov[(i - 1, i)] = 0.001;
+                }
+            }
+        }
+        o
+    }
+
+    /// Starts, updates (point and information form), dropped frames, a removal and a restart
+    /// in the same slot, the per-frame repair, with `dense` forcing the coupled loops.
+    fn run(dense: bool) -> (T, [bool; 24]) {
+        let mut t = T::new();
+        let mut was_uncoupled = [false; 24];
+        let mut ranks = [0u8; 6];
+        for (s, r) in [(0usize, 0u8), (2, 1), (4, 2)] {
+            ranks[s] = r;
+            t.start_lane(&UNCOUPLED, s, r, &ranks).unwrap();
+        }
+        for (k, seen) in was_uncoupled.iter_mut().enumerate() {
+            if dense {
+                t.filter.force_coupled_loops();
+            }
+            let dt = if k % 7 == 3 { 0.15 } else { 0.05 };
+            t.predict(&UNCOUPLED, dt).unwrap();
+            for (n, s) in [0usize, 2, 4].into_iter().enumerate() {
+                if !t.filter().is_active(s) || (s == 2 && (5..8).contains(&k)) {
+                    continue;
+                }
+                let x0 = -3.6 + 3.6 * n as f32;
+                let o = obs(x0, 0.01, |i| (i + k + n) % 5 != 0 && i < 14 - n);
+                t.update(&UNCOUPLED, s, &o).unwrap();
+            }
+            if k == 10 {
+                let jm = SMatrix::<f32, 7, 7>::from_fn(|i, j| {
+                    if i == j {
+                        4.0 / (1.0 + i as f32)
+                    } else {
+                        0.0
+                    }
+                });
+                let iv = SVector::<f32, 7>::from_fn(|i, _| 0.3 / (1.0 + i as f32));
+                t.update_info_probed(&UNCOUPLED, 4, &jm, &iv, &mut NoProbe)
+                    .unwrap();
+            }
+            t.repair_covariance(&UNCOUPLED);
+            if k == 12 {
+                t.remove_lane(2);
+                t.set_ranks(&[0, 0, 0, 0, 1, 0]).unwrap();
+            }
+            if k == 15 {
+                t.start_lane(&UNCOUPLED, 2, 1, &[0, 0, 1, 0, 2, 0]).unwrap();
+            }
+            *seen = t.filter().uncoupled();
+        }
+        (t, was_uncoupled)
+    }
+
+    /// With `B` diagonal the own-block loops give exactly the numbers of the coupled loops: the
+    /// same filtered state and covariance, the same lagged lanes, bit for bit.
+    #[test]
+    fn own_block_loops_equal_the_coupled_loops_for_diagonal_b() {
+        let (fast, seen) = run(false);
+        let (dense, _) = run(true);
+        assert!(
+            seen.iter().all(|&u| u),
+            "B diagonal keeps the filter uncoupled"
+        );
+        assert_eq!(fast.filter().mean(), dense.filter().mean());
+        assert_eq!(fast.filter().covariance(), dense.filter().covariance());
+        for s in 0..6 {
+            for lag in 1..=4 {
+                assert_eq!(
+                    fast.lagged(&UNCOUPLED, s, lag),
+                    dense.lagged(&UNCOUPLED, s, lag)
+                );
+            }
+        }
+        assert!(fast.lagged(&UNCOUPLED, 4, 4).is_some());
+        // The sequence moved things: the cross-lane blocks are zero, the own ones are not.
+        let p = fast.filter().covariance();
+        assert!(p[(0, 0)] > 0.0 && p[(28, 28)] > 0.0);
+        assert_eq!(p[(0, 28)], 0.0);
+    }
+
+    /// The coupled model leaves the own-block loops at its first conditioned start or
+    /// cross-lane noise, and an emptied filter returns to them.
+    #[test]
+    fn coupling_switches_the_own_block_loops_off_and_emptiness_back_on() {
+        let mut t = T::new();
+        assert!(t.filter().uncoupled());
+        t.start_lane(&DEFAULT, 0, 0, &[0; 6]).unwrap();
+        assert!(
+            t.filter().uncoupled(),
+            "one lane has nothing to be coupled to"
+        );
+        t.predict(&DEFAULT, 0.05).unwrap();
+        assert!(t.filter().uncoupled());
+        t.start_lane(&DEFAULT, 1, 1, &[0, 1, 0, 0, 0, 0]).unwrap();
+        assert!(!t.filter().uncoupled(), "conditioned on lane 0");
+        t.remove_lane(0);
+        assert!(!t.filter().uncoupled());
+        t.remove_lane(1);
+        assert!(t.filter().uncoupled(), "empty");
+        // Two unconditioned starts under coupled B: the next prediction's noise couples them.
+        let mut u = T::new();
+        u.start_lane(&UNCOUPLED, 0, 0, &[0; 6]).unwrap();
+        u.start_lane(&UNCOUPLED, 1, 1, &[0, 1, 0, 0, 0, 0]).unwrap();
+        assert!(u.filter().uncoupled());
+        u.predict(&DEFAULT, 0.05).unwrap();
+        assert!(!u.filter().uncoupled(), "cross-lane process noise");
+        assert_ne!(u.filter().covariance()[(0, 14)], 0.0);
     }
 }

@@ -9,18 +9,21 @@
 //!    smoothed estimate (the demo's smoother table);
 //! 3. the known-lane rows' association (`PersistConfig::association`, docs/design.md §11.3):
 //!    exact enumeration (pruned over the budget), LBP over the budget, LBP on every row; the
-//!    labelled last frames, with the events enumerated and the rows pruned or weighed by LBP.
+//!    labelled last frames, with the events enumerated and the rows pruned or weighed by LBP;
+//! 4. the uncoupled model (`tables::UNCOUPLED`, docs/design.md §4.2.6) alone and with the
+//!    cheaper options of 1 and 3 on top: the labelled last frames.
 //!
 //! The instructions per frame of the same models on the Cortex-M4F come from
-//! `STJPDACF_FW_RANK=r` / `STJPDACF_FW_PER_LANE=1` / `STJPDACF_FW_ASSOC=lbp|hybrid cargo xtask
-//! firmware` (docs/measurements.md,
+//! `STJPDACF_FW_RANK=r` / `STJPDACF_FW_PER_LANE=1` / `STJPDACF_FW_ASSOC=lbp|hybrid` /
+//! `STJPDACF_FW_TABLES=uncoupled cargo xtask firmware` (docs/measurements.md,
 //! "Fitting the MCU").
 //!
 //! `cargo run --release -p stjpdacf-tools --example model_cost [rank ...]` (all sections; the
-//! ranks given, or 7 down to 3), `... --example model_cost assoc` (section 3 only).
+//! ranks given, or 7 down to 3), `... --example model_cost assoc` (section 3 only),
+//! `... --example model_cost uncoupled` (section 4 only).
 use stjpdacf::persist::PersistConfig;
 use stjpdacf::spatial::row::Association;
-use stjpdacf::tables::{ReferenceTables, DEFAULT};
+use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::demo::{self, Coupling, DemoOptions, Input};
@@ -28,8 +31,13 @@ use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
 
 /// The default tables truncated to `rank` Gram components, with the variance fraction they keep.
 fn truncated(rank: u32) -> ReferenceTables {
-    let mut t = DEFAULT;
-    t.gram_rank = rank.clamp(1, DEFAULT.gram_rank);
+    truncated_from(&DEFAULT, rank)
+}
+
+/// `base` truncated to `rank` Gram components (as [`truncated`]).
+fn truncated_from(base: &ReferenceTables, rank: u32) -> ReferenceTables {
+    let mut t = *base;
+    t.gram_rank = rank.clamp(1, base.gram_rank);
     let ev = t.gram_eigval.as_slice();
     let total: f32 = ev.iter().sum();
     let kept: f32 = ev.iter().take(t.gram_rank as usize).sum();
@@ -39,10 +47,11 @@ fn truncated(rank: u32) -> ReferenceTables {
 
 fn main() -> anyhow::Result<()> {
     let only_assoc = std::env::args().nth(1).as_deref() == Some("assoc");
+    let only_uncoupled = std::env::args().nth(1).as_deref() == Some("uncoupled");
     let ranks: Vec<u32> = {
         let a: Vec<u32> = std::env::args()
             .skip(1)
-            .filter(|s| s != "assoc")
+            .filter(|s| s != "assoc" && s != "uncoupled")
             .map(|s| s.parse())
             .collect::<Result<_, _>>()?;
         if a.is_empty() {
@@ -58,12 +67,47 @@ fn main() -> anyhow::Result<()> {
         .into_iter()
         .map(|l| synth::synthesize(&labels, &SynthParams::preset(l), &cam, 1).map(|o| (l, o)))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    if only_uncoupled {
+        return uncoupled(&replays);
+    }
     if !only_assoc {
         gram(&ranks, &replays)?;
     }
     association(&replays)?;
     if !only_assoc {
         smoother(&levels)?;
+        uncoupled(&replays)?;
+    }
+    Ok(())
+}
+
+/// Section 4.
+fn uncoupled(replays: &Replays) -> anyhow::Result<()> {
+    println!("\nThe uncoupled model and cheaper options on top (labelled last frames):\n");
+    println!("| model | noise | accuracy | FP | FN | host ms/frame |");
+    println!("|---|---|---|---|---|---|");
+    let lbp = TrackerConfig {
+        persist: PersistConfig {
+            association: Association::Lbp,
+            ..PersistConfig::DEFAULT
+        },
+        ..TrackerConfig::DEFAULT
+    };
+    let r5: &'static ReferenceTables = Box::leak(Box::new(truncated_from(&UNCOUPLED, 5)));
+    let models: [(&str, &'static ReferenceTables, TrackerConfig); 4] = [
+        ("coupled B (default)", &DEFAULT, TrackerConfig::DEFAULT),
+        ("uncoupled B", &UNCOUPLED, TrackerConfig::DEFAULT),
+        ("uncoupled B, LBP every row", &UNCOUPLED, lbp),
+        ("uncoupled B, LBP every row, rank 5", r5, lbp),
+    ];
+    for (name, tables, config) in models {
+        for (level, o) in replays {
+            let (s, st) = demo::score_replay_last(o, tables, config)?;
+            println!(
+                "| {name} | {level:?} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                s.accuracy, s.fp, s.fn_, st.step_mean_ms
+            );
+        }
     }
     Ok(())
 }

@@ -143,9 +143,11 @@ pub struct DemoOptions {
     /// Replay labels of the robustness section (the first K; default 20; 0 leaves the section
     /// out).
     pub robustness_clips: usize,
-    /// The tracker configurations the robustness section runs, by name (default: one,
-    /// `"tracker"`, [`TrackerConfig::DEFAULT`]).
-    pub robustness_variants: Vec<(String, TrackerConfig)>,
+    /// The tracker variants the robustness section and the held-out check run (default:
+    /// `"tracker"`, [`TrackerConfig::DEFAULT`] on the default tables; `"no temporal prior"`,
+    /// [`TrackerConfig::ROUND1`]; `"uncoupled B"`, the default configuration on
+    /// [`stjpdacf::tables::UNCOUPLED`], the cheaper model of docs/design.md §4.2.6).
+    pub robustness_variants: Vec<Variant>,
     /// Labels of the held-out check ([`heldout_check`]: the second generator on the held-out
     /// labels; the first K of [`crate::heldout::LABELS`]; default 40; 0 leaves it out). It runs
     /// the configurations of [`DemoOptions::robustness_variants`].
@@ -169,8 +171,12 @@ impl Default for DemoOptions {
             score_run_time: true,
             robustness_clips: 20,
             robustness_variants: vec![
-                ("tracker".to_string(), TrackerConfig::DEFAULT),
-                ("no temporal prior".to_string(), TrackerConfig::ROUND1),
+                Variant::new("tracker", TrackerConfig::DEFAULT),
+                Variant::new("no temporal prior", TrackerConfig::ROUND1),
+                Variant {
+                    tables: &stjpdacf::tables::UNCOUPLED,
+                    ..Variant::new("uncoupled B", TrackerConfig::DEFAULT)
+                },
             ],
             config: TrackerConfig::DEFAULT,
             heldout_clips: 40,
@@ -338,6 +344,29 @@ pub struct MergeSplitRow {
     pub score: Option<Score>,
     /// Their identity metrics (`None` without such clips).
     pub identity: Option<IdentityScore>,
+}
+
+/// A tracker variant of the robustness section and the held-out check: a configuration on a
+/// model's tables.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Variant {
+    /// Its name in the tables.
+    pub name: String,
+    /// The tracker's configuration.
+    pub config: TrackerConfig,
+    /// The model.
+    pub tables: &'static ReferenceTables,
+}
+
+impl Variant {
+    /// `config` on the default tables.
+    pub fn new(name: &str, config: TrackerConfig) -> Self {
+        Self {
+            name: name.to_string(),
+            config,
+            tables: &stjpdacf::tables::DEFAULT,
+        }
+    }
 }
 
 /// A tracker configuration's score in a robustness condition.
@@ -655,26 +684,25 @@ impl IdentityTally {
 fn variant_scores(
     frames: &[Frame],
     gts: &[TuSimpleRecord],
-    tables: &'static ReferenceTables,
     cam: &Camera,
-    variants: &[(&str, TrackerConfig)],
+    variants: &[Variant],
     baseline: &Score,
     timed: bool,
 ) -> Result<Vec<VariantScore>> {
     variants
         .iter()
-        .map(|(name, config)| {
+        .map(|v| {
             let (preds, _) = track::track_with(
                 frames,
-                tables,
+                v.tables,
                 cam,
                 Space::Image,
-                *config,
+                v.config,
                 |_: FrameView<'_>| {},
             )?;
             let score = score_on(&preds, gts, timed)?;
             Ok(VariantScore {
-                name: (*name).to_string(),
+                name: v.name.clone(),
                 score,
                 accuracy_minus_baseline: score.accuracy - baseline.accuracy,
             })
@@ -693,7 +721,7 @@ pub fn robustness(
     clips: usize,
     frames_per_clip: Option<usize>,
     seed: u64,
-    variants: &[(&str, TrackerConfig)],
+    variants: &[Variant],
     timed: bool,
     mut progress: impl FnMut(&str),
 ) -> Result<RobustnessReport> {
@@ -731,9 +759,7 @@ pub fn robustness(
         let o = synth::synthesize(labels, &params, &cam, seed)?;
         let (bpreds, bstats) = baseline::track(&o.frames, tables, &cam, Space::Image, &bp, |_| {})?;
         let bscore = score_on(&bpreds, &o.gt_last, timed)?;
-        let trackers = variant_scores(
-            &o.frames, &o.gt_last, tables, &cam, variants, &bscore, timed,
-        )?;
+        let trackers = variant_scores(&o.frames, &o.gt_last, &cam, variants, &bscore, timed)?;
         rows.push(RobustnessRow {
             condition,
             clutter_multiplier: m,
@@ -767,7 +793,7 @@ pub fn heldout_check(
     labels: &[TuSimpleRecord],
     clips: usize,
     seed: u64,
-    variants: &[(&str, TrackerConfig)],
+    variants: &[Variant],
     timed: bool,
     mut progress: impl FnMut(&str),
 ) -> Result<HeldoutReport> {
@@ -800,9 +826,7 @@ pub fn heldout_check(
         let baseline = score_on(&bpreds, &o.gt_last, timed)?;
         let (cpreds, _) = baseline::track(&o.frames, tables, &cam, Space::Image, &capped, |_| {})?;
         let baseline_capped = score_on(&cpreds, &o.gt_last, timed)?;
-        let trackers = variant_scores(
-            &o.frames, &o.gt_last, tables, &cam, variants, &baseline, timed,
-        )?;
+        let trackers = variant_scores(&o.frames, &o.gt_last, &cam, variants, &baseline, timed)?;
         rows.push(HeldoutRow {
             condition,
             clutter_density: params.clutter_density,
@@ -1285,17 +1309,12 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
 
     // Robustness: clutter × 1, 2, 4, 8 and distractors, tracker vs the RANSAC baseline.
     let robustness = if opts.robustness_clips > 0 {
-        let variants: Vec<(&str, TrackerConfig)> = opts
-            .robustness_variants
-            .iter()
-            .map(|(n, c)| (n.as_str(), *c))
-            .collect();
         Some(self::robustness(
             &labels,
             opts.robustness_clips,
             opts.frames_per_clip,
             opts.seed,
-            &variants,
+            &opts.robustness_variants,
             opts.score_run_time,
             |what| {
                 progress(done, total, what);
@@ -1309,16 +1328,11 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     // The held-out check: the second generator on the held-out labels.
     let heldout = if opts.heldout_clips > 0 {
         let hlabels = tusimple::read_labels(&opts.data.join(heldout::LABELS))?;
-        let variants: Vec<(&str, TrackerConfig)> = opts
-            .robustness_variants
-            .iter()
-            .map(|(n, c)| (n.as_str(), *c))
-            .collect();
         Some(heldout_check(
             &hlabels,
             opts.heldout_clips,
             opts.seed,
-            &variants,
+            &opts.robustness_variants,
             opts.score_run_time,
             |what| {
                 progress(done, total, what);

@@ -211,6 +211,10 @@ pub fn render(t: &ModelTables, name: &str, origin: &str) -> Result<String> {
 pub const DEFAULT_HYPER: &str = "data/hyper/default.json";
 /// The committed generated tables, relative to the repository root.
 pub const DEFAULT_TABLES: &str = "src/tables/default.rs";
+/// The hyperparameter file of the uncoupled model (`B` replaced by `diag(B)`).
+pub const UNCOUPLED_HYPER: &str = "data/hyper/ablation_diag_b.json";
+/// The committed generated tables of the uncoupled model (`stjpdacf::tables::UNCOUPLED`).
+pub const UNCOUPLED_TABLES: &str = "src/tables/uncoupled.rs";
 
 #[cfg(test)]
 mod tests {

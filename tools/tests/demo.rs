@@ -157,7 +157,7 @@ fn reduced_demo_scores_and_writes_its_files() {
         let want: Vec<&str> = opts
             .robustness_variants
             .iter()
-            .map(|(n, _)| n.as_str())
+            .map(|v| v.name.as_str())
             .collect();
         assert_eq!(names, want);
         assert!((0.0..=1.0).contains(&x.baseline.accuracy));

@@ -45,7 +45,7 @@ use stjpdacf::persist::PersistConfig;
 use stjpdacf::probe::{Probe, Stage};
 use stjpdacf::spatial::filter::{Config as SpatialConfig, LaneObservation, SpatialFilter};
 use stjpdacf::spatial::row::Association;
-use stjpdacf::tables::{ReferenceTables, DEFAULT};
+use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::{LaneEstimate, ReferenceTracker, StepOutput, TrackerConfig};
 use stjpdacf::wire::{self, frame_len, Receiver};
 
@@ -57,13 +57,29 @@ pub const MEAS: usize = 256;
 const SYST_MASK: u32 = 0x00FF_FFFF;
 const PAINT: u32 = 0xCCCC_CCCC;
 
-/// The tracker's tables: [`DEFAULT`], or with its Gram truncation lowered to the digit in the
+/// The tracker's tables: [`DEFAULT`] ([`UNCOUPLED`] when the build-time variable
+/// `STJPDACF_FW_TABLES` is `uncoupled`), with its Gram truncation lowered to the digit in the
 /// build-time variable `STJPDACF_FW_RANK` (a smaller model's cost, docs/measurements.md
-/// "Fitting the MCU"; the budget check builds without it).
-static TABLES: ReferenceTables = ReferenceTables {
-    gram_rank: rank_override(DEFAULT.gram_rank),
-    ..DEFAULT
+/// "Fitting the MCU"; the budget check builds without either).
+static TABLES: ReferenceTables = if uncoupled_override() {
+    ReferenceTables {
+        gram_rank: rank_override(UNCOUPLED.gram_rank),
+        ..UNCOUPLED
+    }
+} else {
+    ReferenceTables {
+        gram_rank: rank_override(DEFAULT.gram_rank),
+        ..DEFAULT
+    }
 };
+
+/// Whether `STJPDACF_FW_TABLES` is `uncoupled`.
+const fn uncoupled_override() -> bool {
+    match option_env!("STJPDACF_FW_TABLES") {
+        Some(s) => matches!(s.as_bytes(), b"uncoupled"),
+        None => false,
+    }
+}
 
 /// Whether `STJPDACF_FW_PER_LANE` is `1`.
 const fn per_lane_override() -> bool {

@@ -182,6 +182,9 @@ pub struct TemporalFilter<
     /// A lane was updated since the last repair: f32 rounding may have broken positive
     /// definiteness.
     repair_due: bool,
+    /// Some cross-lane block of `P` may be non-zero (`false`: all are exactly zero, see
+    /// [`TemporalFilter::uncoupled`]; `false` is the all-zero state of a `static` in `.bss`).
+    coupled: bool,
 }
 
 impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize> Default
@@ -220,6 +223,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             active: [false; LANES],
             rank: [0; LANES],
             repair_due: false,
+            coupled: false,
         }
     }
 
@@ -246,6 +250,47 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// Number of active lanes.
     pub fn lanes(&self) -> usize {
         self.active.iter().filter(|a| **a).count()
+    }
+
+    /// `true` while every cross-lane block of the covariance is exactly zero: no lane start
+    /// has been conditioned on another lane and no prediction has added cross-lane noise since
+    /// the filter was last empty. That is the case for every frame when `B` is diagonal (the
+    /// uncoupled model, [`crate::tables::UNCOUPLED`]): starts then condition on nothing
+    /// (`a_t = −Ω_{k,π(t)}/Ω_kk = 0`), the noise `(B_π ⊗ Λ_r) ⊗ Q_t` has no cross-lane block,
+    /// and an update's gain columns `G = P[:, a_s]` vanish outside lane `s`. The filter then
+    /// runs every loop on the lanes' own blocks (docs/design.md §4.2.6): the same numbers, at
+    /// `n·(2r)²` instead of `(2r·n)²` per covariance pass.
+    pub fn uncoupled(&self) -> bool {
+        !self.coupled
+    }
+
+    /// Runs the coupled loops from now on, whatever the covariance's structure (tests of the
+    /// own-block loops against them).
+    #[cfg(test)]
+    pub(crate) fn force_coupled_loops(&mut self) {
+        self.coupled = true;
+    }
+
+    /// The state range of slot `s` for `r` components, `[s·2·RANK, s·2·RANK + 2r)` (empty when
+    /// `s` is out of range).
+    pub(crate) fn own_span(&self, s: usize, r: usize) -> Spans<LANES> {
+        let mut sp = Spans::new();
+        if s < LANES {
+            let lo = Self::idx(s, 0, 0);
+            sp.push(lo, lo + 2 * r.min(RANK));
+        }
+        sp
+    }
+
+    /// The state ranges an update of slot `s` touches: every active slot's, or slot `s`'s own
+    /// while the filter is [`uncoupled`](TemporalFilter::uncoupled) (its gain columns are exactly
+    /// zero elsewhere).
+    pub(crate) fn update_spans(&self, s: usize, r: usize) -> Spans<LANES> {
+        if !self.coupled {
+            self.own_span(s, r)
+        } else {
+            self.spans(r)
+        }
     }
 
     /// The active slots' state ranges for `r` components: slot `s` holds
@@ -435,6 +480,10 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             (self.active, self.rank) = before;
             return Err(TemporalError::Numerical);
         }
+        // Conditioned on another lane: the new lane's cross blocks are no longer zero.
+        if a.iter().any(|&v| v != 0.0) {
+            self.coupled = true;
+        }
         Ok(a)
     }
 
@@ -464,6 +513,10 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         }
         set(&mut self.active, s, false);
         self.zero_slot(s);
+        if self.lanes() == 0 {
+            // Nothing left to be coupled to (free slots' rows and columns are zero).
+            self.coupled = false;
+        }
     }
 
     /// Prediction over a frame step `t` seconds (any `t > 0`: dropped frames are exact):
@@ -511,10 +564,18 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
-        // F B Fᵀ on every 2×2 block of the upper triangle (block rows ≤ block columns), mirrored.
+        // F B Fᵀ on every 2×2 block of the upper triangle (block rows ≤ block columns), mirrored;
+        // uncoupled, on the lanes' own blocks only (the cross blocks are zero and stay zero).
+        let own_only = !self.coupled;
         let ps = self.p.as_mut_slice();
         for c in sp.indices().step_by(2) {
-            for a in sp.indices().step_by(2).take_while(|&a| a <= c) {
+            let first = if own_only { c - c % (2 * RANK) } else { 0 };
+            for a in sp
+                .indices()
+                .step_by(2)
+                .skip_while(|&a| a < first)
+                .take_while(|&a| a <= c)
+            {
                 let g = |ps: &[f32], i: usize, j: usize| ps.get(i + NX * j).copied().unwrap_or(0.0);
                 let (b00, b01, b10, b11) = (
                     g(ps, a, c),
@@ -525,11 +586,14 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 // F B
                 let (m00, m01) = (f00 * b00 + f01 * b10, f00 * b01 + f01 * b11);
                 let (m10, m11) = (f10 * b00 + f11 * b10, f10 * b01 + f11 * b11);
-                // (F B) Fᵀ
+                // (F B) Fᵀ; a diagonal block takes its (1, 0) entry from its (0, 1) one, so that
+                // P stays exactly symmetric (the two products round differently).
+                let v01 = m00 * f10 + m01 * f11;
+                let v10 = if a == c { v01 } else { m10 * f00 + m11 * f01 };
                 let n = [
                     (a, c, m00 * f00 + m01 * f01),
-                    (a, c + 1, m00 * f10 + m01 * f11),
-                    (a + 1, c, m10 * f00 + m11 * f01),
+                    (a, c + 1, v01),
+                    (a + 1, c, v10),
                     (a + 1, c + 1, m10 * f10 + m11 * f11),
                 ];
                 for (i, j, v) in n {
@@ -544,6 +608,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 }
             }
         }
+        let mut cross_noise = false;
         for s in 0..LANES {
             if !get(&self.active, s) {
                 continue;
@@ -560,6 +625,12 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                     ))
                     .copied()
                     .unwrap_or(0.0);
+                if s != s2 {
+                    if bij == 0.0 {
+                        continue;
+                    }
+                    cross_noise = true;
+                }
                 for j in 0..r {
                     let lam = tables.gram_eigval.get(j).copied().unwrap_or(0.0);
                     let qq: Matrix2<f32> = q * (bij * lam);
@@ -574,6 +645,9 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                     }
                 }
             }
+        }
+        if cross_noise {
+            self.coupled = true;
         }
     }
 

@@ -318,7 +318,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// A bound on `|G|` over the active rows (`sqrt` of the sum of squares; not finite when some
     /// entry is not).
     pub(crate) fn g_max(&self, g: &UpdateParts<RANK, NX>) -> f32 {
-        let sp = self.spans(g.r);
+        let sp = self.update_spans(g.slot, g.r);
         let ss: f32 = sp
             .indices()
             .filter_map(|i| g.g.get(i))
@@ -332,7 +332,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     // Not inlined: its stack frame must not add to its caller's (stack budget).
     #[inline(never)]
     pub(crate) fn apply_update(&mut self, g: &UpdateParts<RANK, NX>) {
-        let sp = self.spans(g.r);
+        // Uncoupled, G is exactly zero outside the lane's own block (`update_spans`).
+        let sp = self.update_spans(g.slot, g.r);
         let w: [f32; RANK] = core::array::from_fn(|k| g.w.get(k).copied().unwrap_or(0.0));
         // x += G w.
         for i in sp.indices() {
