@@ -40,7 +40,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::DVector;
 use stjpdacf::probe::NoProbe;
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
-use stjpdacf::tables::DEFAULT;
+use stjpdacf::tables::{DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf::tracker::ReferenceTracker;
 use stjpdacf_bench::cputime::{self, ThreadCpuTime};
@@ -295,6 +295,13 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         let mut g = c.benchmark_group(&group_name);
         g.bench_function("core_f32", |b| {
             b.iter(|| black_box(core.step(frames, &mut NoProbe)))
+        });
+        // The uncoupled model (B diagonal: the temporal stage on each lane's own block, design
+        // §4.2.6) on the same frames.
+        let mut uncoupled = Driver::new(Box::new(ReferenceTracker::new(&UNCOUPLED)));
+        uncoupled.warm_up(frames, WARM);
+        g.bench_function("core_f32_uncoupled", |b| {
+            b.iter(|| black_box(uncoupled.step(frames, &mut NoProbe)))
         });
         if name == "typical" {
             g.bench_function("core_f32_count_probe", |b| {
