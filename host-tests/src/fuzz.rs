@@ -28,7 +28,7 @@
 use arbitrary::Unstructured;
 use nalgebra::SMatrix;
 use stjpdacf::spatial::filter::{Config as SpatialConfig, LaneObservation, SpatialFilter, Status};
-use stjpdacf::tables::{ReferenceTables, DEFAULT};
+use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf::tracker::{Instant, ReferenceTracker, StepError};
 
@@ -298,7 +298,7 @@ pub enum Op {
 }
 
 impl Op {
-    /// Applies the operation; returns a description and the result.
+    /// Applies the operation with the default tables; returns a description and the result.
     pub fn apply(
         &self,
         t: &mut Temporal<LANES, POINTS, RANK, NX, 42, 4>,
@@ -306,11 +306,23 @@ impl Op {
         String,
         Result<(), stjpdacf::temporal::filter::TemporalError>,
     ) {
+        self.apply_with(t, &DEFAULT)
+    }
+
+    /// Applies the operation with `tables`; returns a description and the result.
+    pub fn apply_with(
+        &self,
+        t: &mut Temporal<LANES, POINTS, RANK, NX, 42, 4>,
+        tables: &ReferenceTables,
+    ) -> (
+        String,
+        Result<(), stjpdacf::temporal::filter::TemporalError>,
+    ) {
         match self {
-            Op::Predict(dt) => (format!("predict {dt:e} s"), t.predict(&DEFAULT, *dt)),
+            Op::Predict(dt) => (format!("predict {dt:e} s"), t.predict(tables, *dt)),
             Op::Start(s, rank, ranks) => (
                 format!("start slot {s} rank {rank} ranks {ranks:?}"),
-                t.start_lane(&DEFAULT, *s, *rank, ranks).map(|_| ()),
+                t.start_lane(tables, *s, *rank, ranks).map(|_| ()),
             ),
             Op::Update(s, obs) => {
                 let n = obs.present.iter().filter(|p| **p).count();
@@ -325,9 +337,9 @@ impl Op {
                     });
                 // As the tracker does after its lane updates (here: a frame with one update,
                 // the strictest schedule).
-                let res = t.update(&DEFAULT, *s, obs).map(|_| ());
+                let res = t.update(tables, *s, obs).map(|_| ());
                 let raised = if res.is_ok() {
-                    t.repair_covariance(&DEFAULT)
+                    t.repair_covariance(tables)
                 } else {
                     0
                 };
@@ -379,17 +391,42 @@ pub fn decode_temporal_input(data: &[u8]) -> Vec<Op> {
 /// # Errors
 /// A description of the first invariant violated.
 pub fn temporal_ops(data: &[u8]) -> Result<(), String> {
+    // The same operations on the coupled default model and on the uncoupled one, whose
+    // filter runs its own-block loops (docs/design.md §4.2.6).
+    for (name, tables) in [("default", &DEFAULT), ("uncoupled", &UNCOUPLED)] {
+        temporal_ops_with(data, tables).map_err(|e| format!("{name} tables: {e}"))?;
+    }
+    Ok(())
+}
+
+/// [`temporal_ops`] on one model; while the filter says it is uncoupled, every cross-lane entry
+/// of its covariance must be exactly zero (the own-block loops rely on it).
+fn temporal_ops_with(data: &[u8], tables: &ReferenceTables) -> Result<(), String> {
     let mut t: Box<Temporal<LANES, POINTS, RANK, NX, 42, 4>> = Box::new(Temporal::new());
     for (k, op) in decode_temporal_input(data).iter().enumerate() {
         let before = t.clone();
-        let (what, res) = op.apply(&mut t);
+        let (what, res) = op.apply_with(&mut t, tables);
         if res.is_err() && *t != *before {
             return Err(format!(
                 "op {k} ({what}) failed with {res:?} and changed the state"
             ));
         }
-        check_temporal(&t, &DEFAULT, PsdCheck::Cholesky)
+        check_temporal(&t, tables, PsdCheck::Cholesky)
             .map_err(|e| format!("op {k} ({what}, {res:?}): {e}"))?;
+        if t.filter().uncoupled() {
+            let p = t.filter().covariance();
+            let lane = |i: usize| i / (2 * RANK);
+            for j in 0..NX {
+                for i in 0..NX {
+                    if lane(i) != lane(j) && p[(i, j)] != 0.0 {
+                        return Err(format!(
+                            "op {k} ({what}): uncoupled, but P[{i}, {j}] = {:e}",
+                            p[(i, j)]
+                        ));
+                    }
+                }
+            }
+        }
     }
     Ok(())
 }
