@@ -42,6 +42,9 @@ struct Args {
     /// Full eigen-decomposition of the covariance every this many frames.
     #[arg(long, default_value_t = 10)]
     health_every: u64,
+    /// Track with the uncoupled tables (`tables::UNCOUPLED`, docs/design.md §4.2.6).
+    #[arg(long)]
+    uncoupled: bool,
     /// Write the JSON summary here.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -59,6 +62,7 @@ fn main() -> Result<()> {
         compare_every: a.compare_every,
         smooth_every: a.smooth_every,
         health_every: a.health_every,
+        uncoupled: a.uncoupled,
     };
     let bar = ProgressBar::new(cfg.frames);
     bar.set_style(ProgressStyle::with_template(

@@ -40,14 +40,14 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal, Poisson};
 use serde::Serialize;
-use stjpdacf::tables::DEFAULT;
+use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, TrackerConfig};
 
 use crate::invariants::{self, active_indices, PsdCheck, POINTS};
 use stjpdacf_reference::hyper::HyperFile;
 use stjpdacf_reference::model::ModelTables;
 use stjpdacf_reference::pipeline::{PipelineConfig, RefLane, ReferencePipeline};
-use stjpdacf_tools::tablegen::DEFAULT_HYPER;
+use stjpdacf_tools::tablegen::{DEFAULT_HYPER, UNCOUPLED_HYPER};
 
 /// Nominal frame step, µs (30 fps).
 pub const FRAME_US: i64 = 33_333;
@@ -78,6 +78,9 @@ pub struct SoakConfig {
     pub smooth_every: u64,
     /// Full eigen-decomposition of tracker A's covariance every this many frames.
     pub health_every: u64,
+    /// Track with the uncoupled tables (`tables::UNCOUPLED`, docs/design.md §4.2.6) instead of
+    /// the default ones (the reference, when it runs, on the same model).
+    pub uncoupled: bool,
 }
 
 impl Default for SoakConfig {
@@ -92,6 +95,18 @@ impl Default for SoakConfig {
             compare_every: 1,
             smooth_every: 30,
             health_every: 10,
+            uncoupled: false,
+        }
+    }
+}
+
+impl SoakConfig {
+    /// The core's tables: [`UNCOUPLED`] or [`DEFAULT`].
+    pub fn tables(&self) -> &'static ReferenceTables {
+        if self.uncoupled {
+            &UNCOUPLED
+        } else {
+            &DEFAULT
         }
     }
 }
@@ -501,7 +516,15 @@ impl SoakSummary {
 /// # Errors
 /// When the default hyperparameter file cannot be read or the tables not built.
 pub fn truncated_tables() -> Result<ModelTables> {
-    let h = HyperFile::load(&stjpdacf_tools::repo_root().join(DEFAULT_HYPER))?;
+    truncated_tables_of(DEFAULT_HYPER)
+}
+
+/// [`truncated_tables`] of the hyperparameter file `hyper` (relative to the repository).
+///
+/// # Errors
+/// When the file cannot be read or the tables not built.
+pub fn truncated_tables_of(hyper: &str) -> Result<ModelTables> {
+    let h = HyperFile::load(&stjpdacf_tools::repo_root().join(hyper))?;
     let mut t = ModelTables::from_hyper(&h)?;
     let r = t.gram_rank;
     let v = t.gram_eigvec.columns(0, r).into_owned();
@@ -657,7 +680,7 @@ pub fn run_drive(
     progress: &AtomicU64,
 ) -> Result<SoakSummary> {
     let mut road = Road::new(cfg.seed.wrapping_add(shard as u64));
-    let mut a = Box::new(ReferenceTracker::new(&DEFAULT));
+    let mut a = Box::new(ReferenceTracker::new(cfg.tables()));
     let mut s = SoakSummary {
         min_eig_corr: f64::INFINITY,
         min_eig_rel: f64::INFINITY,
@@ -771,7 +794,7 @@ pub fn run_drive(
                         // §1–§4.3): compared on that configuration; the known-lane stage
                         // has its own reference (tests/persist_reference.rs).
                         core: Box::new(ReferenceTracker::with_config(
-                            &DEFAULT,
+                            cfg.tables(),
                             TrackerConfig::ROUND1,
                         )),
                         reference: ReferencePipeline::new(
@@ -830,7 +853,12 @@ pub fn run_drive(
 /// When the reference tables cannot be built or a drive fails to start its reference.
 pub fn run(cfg: &SoakConfig, on_progress: &(dyn Fn(u64) + Sync)) -> Result<SoakSummary> {
     let tables = if cfg.reference {
-        Some(truncated_tables().context("reference tables")?)
+        let hyper = if cfg.uncoupled {
+            UNCOUPLED_HYPER
+        } else {
+            DEFAULT_HYPER
+        };
+        Some(truncated_tables_of(hyper).context("reference tables")?)
     } else {
         None
     };

@@ -38,6 +38,30 @@ fn short_soak_core() {
     assert!(s.reference.is_none());
 }
 
+/// The uncoupled tables (design §4.2.6: the filter and smoother on each lane's own block): the
+/// same output and covariance invariants on the same drive.
+#[test]
+fn short_soak_core_uncoupled() {
+    let cfg = SoakConfig {
+        frames: 150,
+        seed: 7,
+        shards: 1,
+        threads: 1,
+        reference: false,
+        health_every: 15,
+        uncoupled: true,
+        ..SoakConfig::default()
+    };
+    let s = run(&cfg, &|_| {}).expect("soak runs");
+    assert_eq!(s.refused, 0);
+    assert_eq!(s.temporal_failures, 0);
+    assert_eq!(s.output_violations, 0, "{:?}", s.violations);
+    assert_eq!(s.covariance_violations, 0, "{:?}", s.violations);
+    assert_eq!(s.negative_variance_frames, 0);
+    assert!(s.health_checks >= 9);
+    assert!(s.line_frames_matched as f64 >= 0.9 * s.line_frames as f64);
+}
+
 #[test]
 #[ignore = "release only: .ci/run runs it with `cargo test --release -p stjpdacf-test-support --test soak -- --ignored`"]
 fn short_soak_against_the_f64_reference() {
@@ -51,6 +75,7 @@ fn short_soak_against_the_f64_reference() {
         compare_every: 1,
         smooth_every: 10,
         health_every: 5,
+        uncoupled: false,
     };
     let s = run(&cfg, &|_| {}).expect("soak runs");
     println!("{}", serde_json::to_string_pretty(&s).expect("json"));
