@@ -120,6 +120,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             let b = usize::from(get(lanes.ranks, t));
             tables.coreg.get((a, b)).copied().unwrap_or(0.0)
         };
+        let uncoupled = filter.uncoupled();
         let mut unexplained = [0.0f32; POINTS];
         let mut band_rows = [0.0f32; POINTS];
         let mut counts = PassCounts::default();
@@ -176,7 +177,14 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 &pred.sdiag,
                 |a, bb| {
                     let (s, t) = (get(&pred.idx, a), get(&pred.idx, bb));
-                    quad(filter, s, t, &c, r_used) + rho * bss(s, t)
+                    // While the filter is uncoupled (docs/design.md §4.2.6) the lanes'
+                    // cross-covariance blocks are exactly zero, and so is their quadratic form.
+                    let prior = if uncoupled {
+                        0.0
+                    } else {
+                        quad(filter, s, t, &c, r_used)
+                    };
+                    prior + rho * bss(s, t)
                 },
                 pred.n,
                 pts,
@@ -296,15 +304,21 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 }
             }
             if let Some((om, zt)) = equivalent_measurement(pts, &brow, (zh, st, w), at.params.r) {
-                for j in 0..at.r_used {
-                    let cj = get(&at.c, j);
-                    if let Some(iv) = e.i.get_mut(j) {
-                        *iv += om * zt * cj;
-                    }
-                    for k in 0..at.r_used {
-                        if let Some(jv) = e.j.get_mut((j, k)) {
-                            *jv += om * cj * get(&at.c, k);
-                        }
+                let ru = at.r_used.min(RANK);
+                let mut oc = [0.0f32; RANK];
+                for ((o, iv), cj) in oc.iter_mut().zip(e.i.iter_mut()).zip(at.c.iter()).take(ru) {
+                    *iv += om * zt * cj;
+                    *o = om * cj;
+                }
+                // J is column-major: column k holds (om c_j) c_k down j.
+                for (col, ck) in
+                    e.j.as_mut_slice()
+                        .chunks_exact_mut(RANK)
+                        .zip(at.c.iter())
+                        .take(ru)
+                {
+                    for (jv, o) in col.iter_mut().zip(oc.iter()).take(ru) {
+                        *jv += o * ck;
                     }
                 }
                 e.weight += w;

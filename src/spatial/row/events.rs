@@ -223,6 +223,10 @@ pub(super) struct Ctx<'a, const L: usize> {
     pub(super) active: f32,
     /// The tracks that can be missed (bit `t`): the first `n`, not masked.
     pub(super) active_set: u32,
+    /// `true`: the pass also sums the moments `y` and `C` of the state update; `false`: only
+    /// the association probabilities (`β`, `β_miss`, `Σ w`), which need neither `r = S_δ⁻¹ ν`
+    /// nor the `S_δ⁻¹` terms (the known-lane stage).
+    pub(super) moments: bool,
 }
 
 impl<const L: usize> Ctx<'_, L> {
@@ -237,7 +241,8 @@ impl<const L: usize> Ctx<'_, L> {
 
     /// Appends eligible track `pos` to the pattern `mems[..k]` as member `k` and computes its
     /// factor row (`f_b = S_tb − Σ_{c<b} l_bc f_c`, `l_kb = f_b / d_b`,
-    /// `d_k = S_tt − Σ_b l_kb f_b`) and its row of `L⁻¹` (`e_t − Σ_b l_kb (L⁻¹)_b`). `false` when
+    /// `d_k = S_tt − Σ_b l_kb f_b`) and, when the pass sums moments, its row of `L⁻¹`
+    /// (`e_t − Σ_b l_kb (L⁻¹)_b`). `false` when
     /// `d_k` is not positive and finite (`S_δ` not positive definite).
     fn push(&self, mems: &mut [Member<L>; L], k: usize, pos: usize) -> bool {
         let t = usize::from(get(&self.elig, pos));
@@ -264,13 +269,15 @@ impl<const L: usize> Ctx<'_, L> {
             return false;
         }
         let mut li = [0.0f32; L];
-        for (lkb, mb) in l.iter().zip(done.iter()) {
-            let hi = usize::from(mb.tr) + 1;
-            for (v, w) in li.iter_mut().zip(mb.li.iter()).take(hi) {
-                *v -= lkb * w;
+        if self.moments {
+            for (lkb, mb) in l.iter().zip(done.iter()) {
+                let hi = usize::from(mb.tr) + 1;
+                for (v, w) in li.iter_mut().zip(mb.li.iter()).take(hi) {
+                    *v -= lkb * w;
+                }
             }
+            set(&mut li, t, 1.0);
         }
-        set(&mut li, t, 1.0);
         *new = Member {
             tr: t as u8,
             pos: pos as u8,
@@ -362,11 +369,13 @@ impl<const L: usize> Ctx<'_, L> {
                     let lw = base - 0.5 * q;
                     acc.lwmax = acc.lwmax.max(lw);
                     let w = math::exp(lw - reference);
-                    for ((v, pv), li) in lv.r.iter_mut().zip(r0.iter()).zip(mb.li.iter()) {
-                        *v = pv + ea * li;
-                    }
                     acc.pick(mb, j, w);
-                    acc.event(&lv.r, hi, w);
+                    if self.moments {
+                        for ((v, pv), li) in lv.r.iter_mut().zip(r0.iter()).zip(mb.li.iter()) {
+                            *v = pv + ea * li;
+                        }
+                        acc.event(&lv.r, hi, w);
+                    }
                     wsum += w;
                 }
                 match prev.last_mut() {
@@ -388,14 +397,18 @@ impl<const L: usize> Ctx<'_, L> {
             match prev.last() {
                 Some(p) => {
                     lv.q = p.q + ua * ea;
-                    for ((v, pv), w) in lv.r.iter_mut().zip(p.r.iter()).zip(mb.li.iter()) {
-                        *v = pv + ea * w;
+                    if self.moments {
+                        for ((v, pv), w) in lv.r.iter_mut().zip(p.r.iter()).zip(mb.li.iter()) {
+                            *v = pv + ea * w;
+                        }
                     }
                 }
                 None => {
                     lv.q = ua * ea;
-                    for (v, w) in lv.r.iter_mut().zip(mb.li.iter()) {
-                        *v = ea * w;
+                    if self.moments {
+                        for (v, w) in lv.r.iter_mut().zip(mb.li.iter()) {
+                            *v = ea * w;
+                        }
                     }
                 }
             }
@@ -439,7 +452,9 @@ impl<const L: usize> Ctx<'_, L> {
                 let Some(last) = tail.first() else {
                     break;
                 };
-                acc.inverse_term(last, last.wsub);
+                if self.moments {
+                    acc.inverse_term(last, last.wsub);
+                }
                 if let Some(parent) = head.last_mut() {
                     parent.wsub += last.wsub;
                 }

@@ -282,6 +282,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         &out.valid,
         points,
         (n, n_skipped, skip),
+        true,
     );
     let mut acc = Acc::<LANES>::new();
     if !weigh(&ctx, &mut acc) {
@@ -321,9 +322,18 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
 /// the rows over the budget. `out.beta`, `out.beta_miss` and the counters are filled,
 /// `out.failed` set on a numerical failure (every track then missed).
 ///
+/// Tracks that share a candidate or have `cross ≠ 0` form clusters, and each cluster is
+/// enumerated on its own (docs/design.md §11.3): between clusters the events and their weights
+/// factor, so the marginals are exact, at `Σ_c Π_{t∈c} (1 + n_t)` events instead of
+/// `Π_t (1 + n_t)`; `out.events` counts the clusters' sum and the budget applies to it. A row
+/// over the budget as one enumeration is tried as clusters only when its clusters by shared
+/// candidates fit and the first two are uncorrelated. Only the weights are summed: neither the
+/// moments of the state update nor the rows of `L⁻¹`.
+///
 /// # Complexity
-/// Enumerated: as [`update_probed`] without the state update, `n(n−1)/2` calls of `cross` at
-/// most, `2^n` patterns and `max_events` events at most. LBP: no call of `cross`, at most
+/// Enumerated: as [`update_probed`] without the state update, `n(n−1)/2 + 1` calls of `cross`
+/// at most, `O(n³)` comparisons for the clusters, `2^n` patterns and `max_events` events at
+/// most. LBP: no call of `cross`, at most
 /// [`LBP_MAX_ITERATIONS`] × `2 n m` multiply-adds and divisions.
 #[allow(clippy::too_many_arguments)]
 pub fn associate<const LANES: usize>(
@@ -354,8 +364,30 @@ pub fn associate<const LANES: usize>(
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
     let lg = Logs::of(params);
-    // The event count is checked once: an over-budget row is weighed by LBP or pruned.
-    out.approximated = mode != Association::Lbp && over_budget(&out.valid, n, max_events);
+    // The event count is checked once: an over-budget row is weighed by LBP or pruned. A row
+    // whose tracks fall into independent clusters (below) is enumerated cluster by cluster, so
+    // its count is the clusters' sum: over the budget as one enumeration, it may fit as several.
+    // Over the budget as one, the row is split only if its clusters by shared candidates fit
+    // and the first two of them are uncorrelated (otherwise the cross terms, `n(n−1)/2` calls
+    // of `cross`, are not asked for: a coupled model's rows stay one enumeration).
+    let mut sbar_known = false;
+    let mut over = mode != Association::Lbp && over_budget(&out.valid, n, max_events);
+    if over
+        && cluster_bound(&out.valid, n, skip, |_, _| false, max_events) <= max_events as u64
+        && first_clusters_uncorrelated(&out.valid, n, skip, &cross)
+    {
+        let (elig, na) = eligible(&out.valid, n, skip);
+        fill_cross(&mut sbar, (&elig, na), &cross);
+        sbar_known = true;
+        over = cluster_bound(
+            &out.valid,
+            n,
+            skip,
+            |a, b| at(&sbar, a, b) != 0.0,
+            max_events,
+        ) > max_events as u64;
+    }
+    out.approximated = over;
     if mode == Association::Lbp || (mode == Association::ExactOrLbp && out.approximated) {
         return match lbp::marginals(&mut out, zhat, sdiag, points, n, &lg, skip) {
             Some(it) => {
@@ -375,40 +407,188 @@ pub fn associate<const LANES: usize>(
             &lg,
         );
     }
+    let (elig, na) = eligible(&out.valid, n, skip);
+    if !sbar_known {
+        fill_cross(&mut sbar, (&elig, na), &cross);
+    }
+    // Clusters: tracks that share a candidate or whose innovations are correlated
+    // (`S̄_st ≠ 0`) are enumerated together. Between clusters the joint events are the product
+    // of the clusters' events and their weights the product of the clusters' weights, so each
+    // cluster's marginals are exact on their own. A cluster's miss factors of the other
+    // tracks are common to all its events and cancel.
+    let (label, clusters) = clusters(&out.valid, (&elig, na), |a, b| at(&sbar, a, b) != 0.0);
+    for c in 0..clusters.max(1) {
+        let mut members = [0u8; LANES];
+        let mut k = 0usize;
+        let mut set_c = 0u32;
+        for (&t, _) in elig
+            .iter()
+            .zip(label.iter())
+            .take(na)
+            .filter(|(_, l)| usize::from(**l) == c)
+        {
+            set(&mut members, k, t);
+            k += 1;
+            set_c |= 1 << t;
+        }
+        let mut ctx = lg.ctx(
+            (members, k),
+            &sbar,
+            zhat,
+            &out.valid,
+            points,
+            (n, n_skipped, skip),
+            false,
+        );
+        if clusters > 1 {
+            ctx.active_set = set_c;
+        }
+        let mut acc = Acc::<LANES>::new();
+        if !(weigh(&ctx, &mut acc) && acc.wtot.is_finite() && acc.wtot > 0.0) {
+            return failed(out);
+        }
+        out.events += acc.events;
+        out.patterns += acc.patterns;
+        let inv = 1.0 / acc.wtot;
+        if clusters <= 1 {
+            normalise(&mut out, &acc.beta, &acc.bmiss, inv, n, m, skip);
+            break;
+        }
+        // This cluster's tracks only; the others keep their own (or the default: missed).
+        for &t in members.iter().take(k) {
+            let t = usize::from(t);
+            set(&mut out.beta_miss, t, get(&acc.bmiss, t) * inv);
+            if let (Some(dst), Some(src)) = (out.beta.get_mut(t), acc.beta.get(t)) {
+                for (v, w) in dst.iter_mut().zip(src.iter()).take(m) {
+                    *v = w * inv;
+                }
+            }
+        }
+    }
+    exclusive_density(&mut out, zhat, sdiag, points, n);
+    out
+}
+
+/// The eligible tracks among the first `n` (not masked by `skip`, at least one candidate).
+fn eligible<const LANES: usize>(valid: &[u32; LANES], n: usize, skip: u32) -> ([u8; LANES], usize) {
     let mut elig = [0u8; LANES];
     let mut na = 0usize;
-    for (t, v) in out.valid.iter().enumerate().take(n) {
+    for (t, v) in valid.iter().enumerate().take(n) {
         if skip & (1 << t) == 0 && *v != 0 {
             set(&mut elig, na, t as u8);
             na += 1;
         }
     }
+    (elig, na)
+}
+
+/// Whether the first eligible track and the first one that shares no candidate with it are
+/// uncorrelated (`cross = 0`); `true` when there is no such pair.
+fn first_clusters_uncorrelated<const LANES: usize>(
+    valid: &[u32; LANES],
+    n: usize,
+    skip: u32,
+    cross: impl Fn(usize, usize) -> f32,
+) -> bool {
+    let (elig, na) = eligible(valid, n, skip);
+    let Some(&first) = elig.get(..na).and_then(|e| e.first()) else {
+        return true;
+    };
+    let (t1, m1) = (usize::from(first), get(valid, usize::from(first)));
+    elig.iter()
+        .take(na)
+        .map(|&t| usize::from(t))
+        .find(|&t| t != t1 && get(valid, t) & m1 == 0)
+        .is_none_or(|t2| cross(t1.min(t2), t1.max(t2)) == 0.0)
+}
+
+/// `S̄_st = cross(s, t)` into `sbar` (both halves) for every pair of the eligible tracks.
+fn fill_cross<const LANES: usize>(
+    sbar: &mut [[f32; LANES]; LANES],
+    (elig, na): (&[u8; LANES], usize),
+    cross: impl Fn(usize, usize) -> f32,
+) {
     for (a, &t1) in elig.iter().enumerate().take(na) {
         for &t2 in elig.iter().take(na).skip(a + 1) {
             let (t1, t2) = (usize::from(t1), usize::from(t2));
             let v = cross(t1.min(t2), t1.max(t2));
-            put(&mut sbar, t1, t2, v);
-            put(&mut sbar, t2, t1, v);
+            put(sbar, t1, t2, v);
+            put(sbar, t2, t1, v);
         }
     }
-    let ctx = lg.ctx(
-        (elig, na),
-        &sbar,
-        zhat,
-        &out.valid,
-        points,
-        (n, n_skipped, skip),
-    );
-    let mut acc = Acc::<LANES>::new();
-    if !(weigh(&ctx, &mut acc) && acc.wtot.is_finite() && acc.wtot > 0.0) {
-        return failed(out);
+}
+
+/// The clusters of the eligible tracks `elig[..na]`: the connected components of "share a
+/// candidate or `linked(s, t)`". Returns each eligible track's cluster (by position) and the
+/// number of clusters, numbered in order of their first track. `O(na²)`.
+fn clusters<const LANES: usize>(
+    valid: &[u32; LANES],
+    (elig, na): (&[u8; LANES], usize),
+    linked: impl Fn(usize, usize) -> bool,
+) -> ([u8; LANES], usize) {
+    let mut label = [u8::MAX; LANES];
+    let mut count = 0usize;
+    for a in 0..na {
+        if get(&label, a) != u8::MAX {
+            continue;
+        }
+        // Flood from `a`: every track joined to a member of the cluster joins it.
+        set(&mut label, a, count as u8);
+        let mut grew = true;
+        while grew {
+            grew = false;
+            for b in 0..na {
+                if get(&label, b) != u8::MAX {
+                    continue;
+                }
+                let tb = usize::from(get(elig, b));
+                let joined = (0..na).any(|c| {
+                    let tc = usize::from(get(elig, c));
+                    get(&label, c) == count as u8
+                        && (get(valid, tb) & get(valid, tc) != 0 || linked(tb, tc))
+                });
+                if joined {
+                    set(&mut label, b, count as u8);
+                    grew = true;
+                }
+            }
+        }
+        count += 1;
     }
-    out.events = acc.events;
-    out.patterns = acc.patterns;
-    let inv = 1.0 / acc.wtot;
-    normalise(&mut out, &acc.beta, &acc.bmiss, inv, n, m, skip);
-    exclusive_density(&mut out, zhat, sdiag, points, n);
-    out
+    (label, count)
+}
+
+/// The joint events of a row enumerated cluster by cluster ([`clusters`] with `linked`),
+/// counted up to `limit + 1`: `Σ_c` (events of cluster `c`).
+fn cluster_bound<const LANES: usize>(
+    valid: &[u32; LANES],
+    n: usize,
+    skip: u32,
+    linked: impl Fn(usize, usize) -> bool,
+    limit: usize,
+) -> u64 {
+    let limit = limit.max(1) as u64;
+    let (elig, na) = eligible(valid, n, skip);
+    let (label, count) = clusters(valid, (&elig, na), linked);
+    let mut total = 0u64;
+    for c in 0..count {
+        let mut masks = [0u32; LANES];
+        let mut k = 0usize;
+        for (&t, _) in elig
+            .iter()
+            .zip(label.iter())
+            .take(na)
+            .filter(|(_, l)| usize::from(**l) == c)
+        {
+            set(&mut masks, k, get(valid, usize::from(t)));
+            k += 1;
+        }
+        total += count_events(&masks, k, limit);
+        if total > limit {
+            return limit + 1;
+        }
+    }
+    total.max(1)
 }
 
 /// Gating (step 2) on each track's marginal: `ẑ_t = h·x_t` and `S̄_tt = hᵀ P_tt h + r`, the
@@ -506,7 +686,9 @@ struct Logs {
 
 impl Logs {
     /// The event pass's context: the eligible tracks `(elig, na)`, `S̄`, `ẑ`, the gates, the
-    /// row's points, and `(n, n_skipped, skip)`: tracks, masked tracks, and their mask.
+    /// row's points, `(n, n_skipped, skip)`: tracks, masked tracks, and their mask, and
+    /// whether the pass sums the update's moments.
+    #[allow(clippy::too_many_arguments)]
     fn ctx<'a, const LANES: usize>(
         &self,
         (elig, na): ([u8; LANES], usize),
@@ -515,6 +697,7 @@ impl Logs {
         valid: &'a [u32; LANES],
         points: &'a [f32],
         (n, n_skipped, skip): (usize, usize, u32),
+        moments: bool,
     ) -> Ctx<'a, LANES> {
         Ctx {
             elig,
@@ -528,6 +711,7 @@ impl Logs {
             ln_miss: self.ln_miss,
             active: (n - n_skipped) as f32,
             active_set: !skip & (u32::MAX >> (32 - n.clamp(1, 32))),
+            moments,
         }
     }
 

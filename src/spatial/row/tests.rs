@@ -245,3 +245,67 @@ fn row_step_matches_brute_force_oracle() {
         }
     }
 }
+
+/// Six lanes 3.5 m apart with their points and clutter around them, `S̄_st = link` between
+/// neighbours: association by [`associate`] with `(max_events, mode)`.
+fn six_lane_row(link: f32, max_events: usize, mode: Association) -> RowOutcome<6> {
+    let zhat: [f32; 6] = core::array::from_fn(|t| -8.75 + 3.5 * t as f32);
+    let sdiag = [0.09f32, 0.12, 0.1, 0.15, 0.11, 0.2];
+    let mut pts = [0.0f32; 18];
+    for (t, z) in zhat.iter().enumerate() {
+        pts[3 * t] = z + 0.05 * (t as f32 - 2.0);
+        pts[3 * t + 1] = z - 0.31 + 0.02 * t as f32;
+        pts[3 * t + 2] = z + 0.42;
+    }
+    let params = RowParams {
+        clutter_density: 0.2,
+        pd: 0.8,
+        ..RowParams::default()
+    };
+    associate::<6>(
+        &zhat,
+        &sdiag,
+        |s, t| if t == s + 1 { link } else { 0.0 },
+        6,
+        &pts,
+        &params,
+        (max_events, mode),
+        0,
+    )
+}
+
+#[test]
+fn uncorrelated_lanes_are_enumerated_cluster_by_cluster_exactly() {
+    // Every lane has 3 candidates of its own: 4⁶ = 4096 events as one enumeration, 6 × 4 = 24
+    // cluster by cluster. A link of 1e-30 (numerically nothing, but not zero) keeps one
+    // enumeration: the marginals must agree.
+    let split = six_lane_row(0.0, 100_000, Association::Exact);
+    let joint = six_lane_row(1e-30, 100_000, Association::Exact);
+    assert!(!split.failed && !joint.failed);
+    assert_eq!(split.events, 24);
+    assert_eq!(joint.events, 4096);
+    for t in 0..6 {
+        assert!(
+            (split.beta_miss[t] - joint.beta_miss[t]).abs() < 1e-6,
+            "{t}"
+        );
+        for j in 0..18 {
+            assert!(
+                (split.beta[t][j] - joint.beta[t][j]).abs() < 1e-6,
+                "{t} {j}"
+            );
+        }
+        let total: f32 = split.beta_miss[t] + split.beta[t].iter().sum::<f32>();
+        assert!((total - 1.0).abs() < 1e-5, "{t}");
+    }
+    // Within the budget only as clusters: exact, not approximated, under both modes.
+    for mode in [Association::Exact, Association::ExactOrLbp] {
+        let small = six_lane_row(0.0, 512, mode);
+        assert!(!small.approximated && small.lbp_iterations == 0, "{mode:?}");
+        assert_eq!(small.events, 24);
+        assert_eq!(small.beta, split.beta);
+        // Correlated lanes stay one enumeration, over the budget.
+        let coupled = six_lane_row(0.01, 512, mode);
+        assert!(coupled.approximated, "{mode:?}");
+    }
+}
