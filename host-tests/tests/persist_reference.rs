@@ -10,7 +10,8 @@
 //!     on a seeded scene (3 curved lanes, one point per lane per row, uniform clutter) against the
 //!     exact reference pass (`reference::persist::known_lane_pass`) on the same inputs: each
 //!     lane's information `J`, `i`, its row weight and existence log-likelihood ratio, and the
-//!     explained-points masks.
+//!     explained-points masks; on the default tables and on the uncoupled ones (where the core
+//!     enumerates each row's uncorrelated clusters on their own, the reference the whole row).
 //!
 //! The tolerances are stated with each comparison; the measured maxima are printed
 //! (`cargo test -p stjpdacf-test-support --test persist_reference -- --nocapture`).
@@ -22,7 +23,7 @@ use rand_distr::{Distribution, Normal};
 use stjpdacf::persist::{self, Evidence, Explained, Lanes, Pass, Persist, RowBasis};
 use stjpdacf::probe::NoProbe;
 use stjpdacf::spatial::row::{MissModel, RowParams};
-use stjpdacf::tables::DEFAULT;
+use stjpdacf::tables::{Tables, DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::filter::TemporalFilter;
 use stjpdacf::temporal::smoother::Temporal;
 use stjpdacf::tracker::{Instant, ReferenceTracker, TrackerConfig};
@@ -30,7 +31,7 @@ use stjpdacf_reference::hyper::HyperFile;
 use stjpdacf_reference::jpda::MissConvention;
 use stjpdacf_reference::persist as refp;
 use stjpdacf_tools::repo_root;
-use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER};
+use stjpdacf_tools::tablegen::{ModelTables, DEFAULT_HYPER, UNCOUPLED_HYPER};
 
 const LANES: usize = 6;
 const POINTS: usize = 16;
@@ -42,8 +43,12 @@ type Core = Temporal<LANES, POINTS, RANK, NX, 42, 4>;
 type Filter = TemporalFilter<LANES, POINTS, RANK, NX>;
 
 fn model() -> ModelTables {
-    let h = HyperFile::load(&repo_root().join(DEFAULT_HYPER))
-        .unwrap_or_else(|e| panic!("loading {DEFAULT_HYPER}: {e:#}"));
+    model_of(DEFAULT_HYPER)
+}
+
+fn model_of(hyper: &str) -> ModelTables {
+    let h = HyperFile::load(&repo_root().join(hyper))
+        .unwrap_or_else(|e| panic!("loading {hyper}: {e:#}"));
     ModelTables::from_hyper(&h).unwrap_or_else(|e| panic!("model tables: {e:#}"))
 }
 
@@ -487,11 +492,15 @@ struct PassDev {
 /// Runs the tracker for `warmup` frames, then compares the known-lane pass of the next frame;
 /// with `restrict`, the first live lane looks only at rows 8..=45 (as the pass over a new lane's
 /// observed extent does).
-fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mut PassDev) {
-    let m = model();
+fn compare_pass(
+    (tables, hyper): (&'static Tables<2, LANES, POINTS>, &str),
+    (seed, warmup, clutter, restrict): (u64, usize, f64, bool),
+    dev: &mut PassDev,
+) {
+    let m = model_of(hyper);
     let r = rank_used(&m);
     let cfg = TrackerConfig::DEFAULT;
-    let mut tracker = Box::new(ReferenceTracker::new(&DEFAULT));
+    let mut tracker = Box::new(ReferenceTracker::new(tables));
     let dt_us = 50_000i64;
     for k in 0..warmup {
         tracker
@@ -518,7 +527,7 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
     let mut temporal = Box::new(*tracker.temporal());
     let mut ps: Box<Persist<LANES, POINTS, ROWS>> = Box::new(*tracker.persist());
     temporal
-        .predict_scaled_probed(&DEFAULT, 0.05, ps.q_scale(), &mut NoProbe)
+        .predict_scaled_probed(tables, 0.05, ps.q_scale(), &mut NoProbe)
         .unwrap_or_else(|e| panic!("predict: {e:?}"));
     let f = temporal.filter();
     let slots: Vec<usize> = (0..LANES).filter(|&s| f.is_active(s)).collect();
@@ -529,7 +538,7 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
     );
     // Ranks from the left by (predicted) position at index point 0, ties by slot (§4.3).
     let mut ranks = [0u8; LANES];
-    let pos = |s: usize| f.position(&DEFAULT, s, 0).unwrap_or(f32::NAN);
+    let pos = |s: usize| f.position(tables, s, 0).unwrap_or(f32::NAN);
     for &s in &slots {
         ranks[s] = slots
             .iter()
@@ -558,7 +567,7 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
             pg: cfg.spatial.pg,
             gamma: cfg.spatial.gamma,
             clutter_density: cfg.spatial.clutter_density,
-            r: DEFAULT.hyper.meas_noise,
+            r: tables.hyper.meas_noise,
             miss: cfg.spatial.miss,
         },
         max_events: cfg.spatial.max_events,
@@ -574,8 +583,8 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
     // The core's basis at every row, as its pass computes it.
     let core_basis: Vec<DVector<f64>> = (0..n_rows)
         .map(|k| {
-            let u = DEFAULT.hyper.u_min + k as f32 * pass.du;
-            let (c, _) = persist::row_basis::<2, LANES, POINTS, RANK>(&DEFAULT, u, r);
+            let u = tables.hyper.u_min + k as f32 * pass.du;
+            let (c, _) = persist::row_basis::<2, LANES, POINTS, RANK>(tables, u, r);
             DVector::from_fn(r, |j, _| f64::from(c[j]))
         })
         .collect();
@@ -645,10 +654,10 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
     let mut ev = [Evidence::<RANK>::NONE; LANES];
     let mut explained: Explained<ROWS> = [0; ROWS];
     let mut basis = RowBasis::<RANK, ROWS>::NEW;
-    basis.ensure(&DEFAULT, &pass);
+    basis.ensure(tables, &pass);
     let failed = ps
         .associate(
-            &DEFAULT,
+            tables,
             &basis,
             temporal.filter(),
             &lanes,
@@ -785,13 +794,17 @@ fn compare_pass(seed: u64, warmup: usize, clutter: f64, restrict: bool, dev: &mu
 #[test]
 fn known_lane_pass_matches_the_reference() {
     let mut dev = PassDev::default();
-    for (seed, warmup, clutter, restrict) in [
-        (1u64, 6usize, 0.01, false),
-        (2, 4, 0.01, false),
-        (3, 8, 0.05, false),
-        (4, 5, 0.05, true),
-    ] {
-        compare_pass(seed, warmup, clutter, restrict, &mut dev);
+    // The uncoupled tables (B diagonal, docs/design.md §4.2.6): the core enumerates each row's
+    // uncorrelated clusters on their own, the reference every row as one.
+    for model in [(&DEFAULT, DEFAULT_HYPER), (&UNCOUPLED, UNCOUPLED_HYPER)] {
+        for case in [
+            (1u64, 6usize, 0.01, false),
+            (2, 4, 0.01, false),
+            (3, 8, 0.05, false),
+            (4, 5, 0.05, true),
+        ] {
+            compare_pass(model, case, &mut dev);
+        }
     }
     assert!(
         dev.explained > 0 && dev.explained < dev.points,
