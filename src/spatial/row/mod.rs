@@ -267,7 +267,31 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
 
     probe.enter(Stage::Events);
     let lg = Logs::of(params);
-    fit_budget(&mut out, &sbar, &zhat, points, n, max_events, &lg);
+    // The budget counts the events of the row's clusters (tracks that share a candidate or are
+    // correlated, `S̄_st ≠ 0`; see [`associate`]): a row over it as one enumeration is tried as
+    // clusters when its clusters by shared candidates fit and the first two are uncorrelated.
+    let cross = |s: usize, t: usize| {
+        ps.get(s)
+            .and_then(|r| r.get(t))
+            .map_or(0.0, |pst| dot(&hv, &mat_vec(pst, &hv)))
+    };
+    if over_budget(&out.valid, n, max_events) {
+        let fits = cluster_bound(&out.valid, n, skip, |_, _| false, max_events)
+            <= max_events as u64
+            && first_clusters_uncorrelated(&out.valid, n, skip, cross)
+            && cluster_bound(&out.valid, n, skip, |a, b| cross(a, b) != 0.0, max_events)
+                <= max_events as u64;
+        if !fits {
+            out.approximated = true;
+            prune(
+                &mut out,
+                (&sbar, &zhat, points),
+                n,
+                max_events.max(1) as u64,
+                &lg,
+            );
+        }
+    }
 
     // Event weights (step 3) and the mixture moments (step 4), in one pass over the detection
     // patterns and their events (`Ctx::pass`), redone once if the weights' scale was off.
@@ -275,6 +299,23 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     let mut g = [[[0.0f32; NS]; LANES]; LANES];
     let na = eligible_gains(&out.valid, skip, ps, n, hv, &mut sbar, &mut elig, &mut g);
     let el = elig.get(..na).unwrap_or(&[]);
+    let (label, clusters) =
+        if first_clusters_uncorrelated(&out.valid, n, skip, |a, b| at(&sbar, a, b)) {
+            clusters(&out.valid, (&elig, na), |a, b| at(&sbar, a, b) != 0.0)
+        } else {
+            ([0; LANES], 1)
+        };
+    if clusters > 1 {
+        return update_clusters(
+            (xs, ps, n),
+            (&elig, na, &label, clusters),
+            (&sbar, &zhat, &g),
+            points,
+            (&lg, n_skipped, skip),
+            out,
+            probe,
+        );
+    }
     let ctx = lg.ctx(
         (elig, na),
         &sbar,
@@ -309,6 +350,94 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     normalise(&mut out, &beta, &bmiss, inv, n, m, skip);
     let sdiag: [f32; LANES] = core::array::from_fn(|t| at(&sbar, t, t));
     exclusive_density(&mut out, &zhat, &sdiag, points, n);
+    out
+}
+
+/// The row step of [`update_probed`] for a row whose eligible tracks fall into `clusters > 1`
+/// uncorrelated clusters (`label` by position in `elig`): each cluster's events are weighed on
+/// their own (its `β` and normalised moments `y_c`, `C_c` are exact, the events and weights
+/// factor over clusters), and the mixture's second moment `C + y yᵀ` has no block between
+/// clusters (`E[r_c r_dᵀ] = y_c y_dᵀ`, `S_δ⁻¹` block-diagonal), which the one state update gets
+/// by `C_cd = −y_c y_dᵀ`.
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn update_clusters<const NS: usize, const LANES: usize, P: Probe>(
+    (xs, ps, n): (&mut Means<NS, LANES>, &mut Blocks<NS, LANES>, usize),
+    (elig, na, label, clusters): (&[u8; LANES], usize, &[u8; LANES], usize),
+    (sbar, zhat, g): (
+        &[[f32; LANES]; LANES],
+        &[f32; LANES],
+        &[[[f32; NS]; LANES]; LANES],
+    ),
+    points: &[f32],
+    (lg, n_skipped, skip): (&Logs, usize, u32),
+    mut out: RowOutcome<LANES>,
+    probe: &mut P,
+) -> RowOutcome<LANES> {
+    let m = points.len();
+    let mut y = [0.0f32; LANES];
+    let mut c = [[0.0f32; LANES]; LANES];
+    let mut beta_miss = [1.0f32; LANES];
+    let mut beta = [[0.0f32; MAX_ROW_POINTS]; LANES];
+    for cl in 0..clusters {
+        let (mem, k, set_c) = members((elig, na), label, cl);
+        let mut ctx = lg.ctx(
+            (mem, k),
+            sbar,
+            zhat,
+            &out.valid,
+            points,
+            (n, n_skipped, skip),
+            true,
+        );
+        ctx.active_set = set_c;
+        let mut acc = Acc::<LANES>::new();
+        if !(weigh(&ctx, &mut acc) && acc.wtot.is_finite() && acc.wtot > 0.0) {
+            return failed(out);
+        }
+        out.events += acc.events;
+        out.patterns += acc.patterns;
+        let inv = 1.0 / acc.wtot;
+        for &t in mem.iter().take(k) {
+            let t = usize::from(t);
+            set(&mut y, t, get(&acc.y, t) * inv);
+            set(&mut beta_miss, t, get(&acc.bmiss, t) * inv);
+            if let (Some(dst), Some(src)) = (beta.get_mut(t), acc.beta.get(t)) {
+                for (v, w) in dst.iter_mut().zip(src.iter()).take(m) {
+                    *v = w * inv;
+                }
+            }
+            for &t2 in mem.iter().take(k).filter(|&&t2| usize::from(t2) <= t) {
+                let t2 = usize::from(t2);
+                put(&mut c, t, t2, at(&acc.c, t, t2) * inv);
+            }
+        }
+    }
+    // Between clusters C' = C + y yᵀ vanishes: C = −y yᵀ there (lower triangle, as the pass).
+    for (a, &t1) in elig.iter().enumerate().take(na) {
+        for (b, &t2) in elig.iter().enumerate().take(a) {
+            if get(label, a) != get(label, b) {
+                let (t1, t2) = (usize::from(t1), usize::from(t2));
+                put(&mut c, t1, t2, -(get(&y, t1) * get(&y, t2)));
+            }
+        }
+    }
+    probe.enter(Stage::Update);
+    let el = elig.get(..na).unwrap_or(&[]);
+    if !apply_mixture(xs, ps, n, el, g, &y, &c, 1.0) {
+        return failed(out);
+    }
+    for (t, (bm, brow)) in out
+        .beta_miss
+        .iter_mut()
+        .zip(out.beta.iter_mut())
+        .enumerate()
+        .take(n)
+    {
+        *bm = get(&beta_miss, t);
+        *brow = beta.get(t).copied().unwrap_or([0.0; MAX_ROW_POINTS]);
+    }
+    let sdiag: [f32; LANES] = core::array::from_fn(|t| at(sbar, t, t));
+    exclusive_density(&mut out, zhat, &sdiag, points, n);
     out
 }
 
@@ -418,19 +547,7 @@ pub fn associate<const LANES: usize>(
     // tracks are common to all its events and cancel.
     let (label, clusters) = clusters(&out.valid, (&elig, na), |a, b| at(&sbar, a, b) != 0.0);
     for c in 0..clusters.max(1) {
-        let mut members = [0u8; LANES];
-        let mut k = 0usize;
-        let mut set_c = 0u32;
-        for (&t, _) in elig
-            .iter()
-            .zip(label.iter())
-            .take(na)
-            .filter(|(_, l)| usize::from(**l) == c)
-        {
-            set(&mut members, k, t);
-            k += 1;
-            set_c |= 1 << t;
-        }
+        let (members, k, set_c) = members((&elig, na), &label, c);
         let mut ctx = lg.ctx(
             (members, k),
             &sbar,
@@ -520,42 +637,68 @@ fn fill_cross<const LANES: usize>(
 
 /// The clusters of the eligible tracks `elig[..na]`: the connected components of "share a
 /// candidate or `linked(s, t)`". Returns each eligible track's cluster (by position) and the
-/// number of clusters, numbered in order of their first track. `O(na²)`.
+/// number of clusters, numbered in order of their first track. `na(na−1)/2` pair checks
+/// (`linked` only for pairs not yet joined) and `O(na)` per join.
 fn clusters<const LANES: usize>(
     valid: &[u32; LANES],
     (elig, na): (&[u8; LANES], usize),
     linked: impl Fn(usize, usize) -> bool,
 ) -> ([u8; LANES], usize) {
-    let mut label = [u8::MAX; LANES];
-    let mut count = 0usize;
+    // Each cluster is labelled by its first position while joining.
+    let mut label: [u8; LANES] = core::array::from_fn(|a| a as u8);
     for a in 0..na {
-        if get(&label, a) != u8::MAX {
-            continue;
-        }
-        // Flood from `a`: every track joined to a member of the cluster joins it.
-        set(&mut label, a, count as u8);
-        let mut grew = true;
-        while grew {
-            grew = false;
-            for b in 0..na {
-                if get(&label, b) != u8::MAX {
-                    continue;
-                }
-                let tb = usize::from(get(elig, b));
-                let joined = (0..na).any(|c| {
-                    let tc = usize::from(get(elig, c));
-                    get(&label, c) == count as u8
-                        && (get(valid, tb) & get(valid, tc) != 0 || linked(tb, tc))
-                });
-                if joined {
-                    set(&mut label, b, count as u8);
-                    grew = true;
+        for b in a + 1..na {
+            let (la, lb) = (get(&label, a), get(&label, b));
+            if la == lb {
+                continue;
+            }
+            let (ta, tb) = (usize::from(get(elig, a)), usize::from(get(elig, b)));
+            if get(valid, ta) & get(valid, tb) != 0 || linked(ta, tb) {
+                let (keep, gone) = (la.min(lb), la.max(lb));
+                for l in label.iter_mut().take(na) {
+                    if *l == gone {
+                        *l = keep;
+                    }
                 }
             }
         }
-        count += 1;
+    }
+    let mut number = [u8::MAX; LANES];
+    let mut count = 0usize;
+    for l in label.iter_mut().take(na) {
+        let first = usize::from(*l);
+        *l = match number.get(first) {
+            Some(&c) if c != u8::MAX => c,
+            _ => {
+                set(&mut number, first, count as u8);
+                count += 1;
+                (count - 1) as u8
+            }
+        };
     }
     (label, count)
+}
+
+/// The members of cluster `c` (tracks, in increasing order), their number and their set.
+fn members<const LANES: usize>(
+    (elig, na): (&[u8; LANES], usize),
+    label: &[u8; LANES],
+    c: usize,
+) -> ([u8; LANES], usize, u32) {
+    let mut members = [0u8; LANES];
+    let mut k = 0usize;
+    let mut set_c = 0u32;
+    for (&t, _) in elig
+        .iter()
+        .zip(label.iter())
+        .take(na)
+        .filter(|(_, l)| usize::from(**l) == c)
+    {
+        set(&mut members, k, t);
+        k += 1;
+        set_c |= 1 << t;
+    }
+    (members, k, set_c)
 }
 
 /// The joint events of a row enumerated cluster by cluster ([`clusters`] with `linked`),
@@ -572,17 +715,9 @@ fn cluster_bound<const LANES: usize>(
     let (label, count) = clusters(valid, (&elig, na), linked);
     let mut total = 0u64;
     for c in 0..count {
-        let mut masks = [0u32; LANES];
-        let mut k = 0usize;
-        for (&t, _) in elig
-            .iter()
-            .zip(label.iter())
-            .take(na)
-            .filter(|(_, l)| usize::from(**l) == c)
-        {
-            set(&mut masks, k, get(valid, usize::from(t)));
-            k += 1;
-        }
+        let (members, k, _) = members((&elig, na), &label, c);
+        let masks: [u32; LANES] =
+            core::array::from_fn(|a| get(valid, usize::from(get(&members, a))));
         total += count_events(&masks, k, limit);
         if total > limit {
             return limit + 1;
@@ -725,29 +860,6 @@ impl Logs {
             ln_miss: math::ln(missf),
             ln_2pi: math::ln(2.0 * core::f32::consts::PI),
         }
-    }
-}
-
-/// Bounded enumeration (step 5): when the events do not fit `max_events`, drop candidates in
-/// order of their single-track PDA probability `p_tj = L_tj / (1 − P_D P_G + Σ_j' L_tj')`,
-/// `L_tj = P_D N(z_j; ẑ_t, S_t) / λ_c` — the least likely first, whatever track they belong to,
-/// so a track keeps its plausible points — until the bound Π (1 + n_t) fits the budget
-/// (`out.approximated` set). The bound is an upper bound of the event count, so the exact count
-/// is only needed when it exceeds the budget.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn fit_budget<const LANES: usize>(
-    out: &mut RowOutcome<LANES>,
-    sbar: &[[f32; LANES]; LANES],
-    zhat: &[f32; LANES],
-    points: &[f32],
-    n: usize,
-    max_events: usize,
-    lg: &Logs,
-) {
-    if over_budget(&out.valid, n, max_events) {
-        out.approximated = true;
-        prune(out, (sbar, zhat, points), n, max_events.max(1) as u64, lg);
     }
 }
 

@@ -309,3 +309,74 @@ fn uncorrelated_lanes_are_enumerated_cluster_by_cluster_exactly() {
         assert!(coupled.approximated, "{mode:?}");
     }
 }
+
+/// Four uncorrelated tracks 3.5 m apart, three candidates each, `link` on the neighbours'
+/// cross-covariances: one row step with `(max_events, skip)`.
+fn four_track_step(link: f32, max_events: usize, skip: u32) -> (Stacked<2, 4>, RowOutcome<4>) {
+    let mut s: Stacked<2, 4> = Stacked::new();
+    for i in 0..4 {
+        let p0 = SMatrix::<f32, 2, 2>::new(0.3 + 0.05 * i as f32, 0.05, 0.05, 0.1);
+        s.push(SVector::from([-5.25 + 3.5 * i as f32, 0.02]), &p0)
+            .unwrap();
+    }
+    for i in 0..3 {
+        s.set_cross(i, i + 1, &(SMatrix::<f32, 2, 2>::identity() * link));
+    }
+    let mut pts = [0.0f32; 12];
+    for i in 0..4 {
+        let z = -5.25 + 3.5 * i as f32;
+        pts[3 * i] = z + 0.1 * (i as f32 - 1.5);
+        pts[3 * i + 1] = z - 0.45 + 0.03 * i as f32;
+        pts[3 * i + 2] = z + 0.5;
+    }
+    let params = RowParams {
+        clutter_density: 0.2,
+        pd: 0.8,
+        ..RowParams::default()
+    };
+    let h = SVector::from([1.0f32, 1.0]);
+    let mut st = s;
+    let out = update_masked(&mut st, &h, &pts, &params, max_events, skip);
+    (st, out)
+}
+
+#[test]
+fn uncorrelated_tracks_update_cluster_by_cluster_exactly() {
+    // 4⁴ = 256 events as one enumeration, 4 × 4 = 16 as clusters; a link of 1e-30 keeps one.
+    for skip in [0u32, 0b0100] {
+        let (split, so) = four_track_step(0.0, 100_000, skip);
+        let (joint, jo) = four_track_step(1e-30, 100_000, skip);
+        assert!(!so.failed && !jo.failed);
+        let active = 4 - skip.count_ones();
+        assert_eq!(so.events, 4 * active);
+        assert_eq!(jo.events, 4u32.pow(active));
+        for t in 0..4 {
+            assert!((so.beta_miss[t] - jo.beta_miss[t]).abs() < 1e-6, "{t}");
+            for j in 0..12 {
+                assert!((so.beta[t][j] - jo.beta[t][j]).abs() < 1e-6, "{t} {j}");
+            }
+            let dx = split.mean(t).unwrap() - joint.mean(t).unwrap();
+            assert!(dx.amax() < 1e-5, "{t}: {dx}");
+            for u in 0..4 {
+                let dp = split.cov(t, u).unwrap() - joint.cov(t, u).unwrap();
+                assert!(dp.amax() < 1e-5, "{t} {u}: {dp}");
+            }
+            // The posterior moved (the step did something) and stayed uncorrelated.
+            if skip & (1 << t) == 0 {
+                assert!(so.beta_miss[t] < 0.9, "{t}");
+            }
+            for u in (0..4).filter(|&u| u != t) {
+                assert_eq!(split.cov(t, u).unwrap().amax(), 0.0, "{t} {u}");
+            }
+        }
+        // Within a budget of 64 only as clusters: not approximated, the same numbers.
+        let (small, sm) = four_track_step(0.0, 64, skip);
+        assert!(!sm.approximated);
+        assert_eq!(sm.beta, so.beta);
+        for t in 0..4 {
+            assert_eq!(small.mean(t), split.mean(t));
+        }
+        let (_, coupled) = four_track_step(0.01, 64, skip);
+        assert_eq!(coupled.approximated, skip == 0, "{skip}");
+    }
+}
