@@ -276,10 +276,10 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
             .map_or(0.0, |pst| dot(&hv, &mat_vec(pst, &hv)))
     };
     if over_budget(&out.valid, n, max_events) {
-        let fits = cluster_bound(&out.valid, n, skip, |_, _| false, max_events)
+        let fits = cluster_bound(&out.valid, n, skip, &|_, _| false, max_events)
             <= max_events as u64
-            && first_clusters_uncorrelated(&out.valid, n, skip, cross)
-            && cluster_bound(&out.valid, n, skip, |a, b| cross(a, b) != 0.0, max_events)
+            && first_clusters_uncorrelated(&out.valid, n, skip, &cross)
+            && cluster_bound(&out.valid, n, skip, &|a, b| cross(a, b) != 0.0, max_events)
                 <= max_events as u64;
         if !fits {
             out.approximated = true;
@@ -300,145 +300,123 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     let na = eligible_gains(&out.valid, skip, ps, n, hv, &mut sbar, &mut elig, &mut g);
     let el = elig.get(..na).unwrap_or(&[]);
     let (label, clusters) =
-        if first_clusters_uncorrelated(&out.valid, n, skip, |a, b| at(&sbar, a, b)) {
-            clusters(&out.valid, (&elig, na), |a, b| at(&sbar, a, b) != 0.0)
+        if first_clusters_uncorrelated(&out.valid, n, skip, &|a, b| at(&sbar, a, b)) {
+            clusters(&out.valid, (&elig, na), &|a, b| at(&sbar, a, b) != 0.0)
         } else {
             ([0; LANES], 1)
         };
-    if clusters > 1 {
-        return update_clusters(
-            (xs, ps, n),
-            (&elig, na, &label, clusters),
-            (&sbar, &zhat, &g),
-            points,
-            (&lg, n_skipped, skip),
-            out,
-            probe,
-        );
-    }
-    let ctx = lg.ctx(
-        (elig, na),
-        &sbar,
-        &zhat,
-        &out.valid,
-        points,
-        (n, n_skipped, skip),
-        true,
-    );
     let mut acc = Acc::<LANES>::new();
-    if !weigh(&ctx, &mut acc) {
-        return failed(out);
-    }
+    let inv = if clusters > 1 {
+        if !weigh_clusters(
+            &lg,
+            (&elig, na, &label, clusters),
+            (&sbar, &zhat, &out.valid),
+            points,
+            (n, n_skipped, skip),
+            true,
+            &mut acc,
+        ) {
+            return failed(out);
+        }
+        1.0
+    } else {
+        let ctx = lg.ctx(
+            (elig, na),
+            &sbar,
+            &zhat,
+            &out.valid,
+            points,
+            (n, n_skipped, skip),
+            true,
+        );
+        if !weigh(&ctx, &mut acc) {
+            return failed(out);
+        }
+        1.0 / acc.wtot
+    };
     out.events = acc.events;
     out.patterns = acc.patterns;
-    let Acc {
-        wtot,
-        y,
-        c,
-        bmiss,
-        beta,
-        ..
-    } = acc;
     probe.enter(Stage::Update);
-    if !(wtot.is_finite() && wtot > 0.0) {
+    if !(acc.wtot.is_finite() && acc.wtot > 0.0) {
         return failed(out);
     }
-    let inv = 1.0 / wtot;
-    if !apply_mixture(xs, ps, n, el, &g, &y, &c, inv) {
+    if !apply_mixture(xs, ps, n, el, &g, &acc.y, &acc.c, inv) {
         return failed(out);
     }
-    normalise(&mut out, &beta, &bmiss, inv, n, m, skip);
+    normalise(&mut out, &acc.beta, &acc.bmiss, inv, n, m, skip);
     let sdiag: [f32; LANES] = core::array::from_fn(|t| at(&sbar, t, t));
     exclusive_density(&mut out, &zhat, &sdiag, points, n);
     out
 }
 
-/// The row step of [`update_probed`] for a row whose eligible tracks fall into `clusters > 1`
-/// uncorrelated clusters (`label` by position in `elig`): each cluster's events are weighed on
-/// their own (its `β` and normalised moments `y_c`, `C_c` are exact, the events and weights
-/// factor over clusters), and the mixture's second moment `C + y yᵀ` has no block between
-/// clusters (`E[r_c r_dᵀ] = y_c y_dᵀ`, `S_δ⁻¹` block-diagonal), which the one state update gets
-/// by `C_cd = −y_c y_dᵀ`.
+/// The event weights of a row whose eligible tracks fall into `clusters > 1` uncorrelated
+/// clusters (`label` by position in `elig`), each cluster weighed on its own, into `acc`
+/// *normalised* (`Σ w = 1`): `β`, `β_miss` (1 for the tracks in no cluster) and, with
+/// `moments`, `y` and `C`. Each cluster's are exact: its events and their weights factor from
+/// the others'. Between clusters the mixture's second moment `C + y yᵀ` has no block
+/// (`E[r_c r_dᵀ] = y_c y_dᵀ`, `S_δ⁻¹` block-diagonal), so `C_cd = −y_c y_dᵀ` there, and the one
+/// state update of [`apply_mixture`] with `inv = 1` is the product of the clusters' updates.
+/// `false` on a numerical failure.
+#[inline(never)]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
-fn update_clusters<const NS: usize, const LANES: usize, P: Probe>(
-    (xs, ps, n): (&mut Means<NS, LANES>, &mut Blocks<NS, LANES>, usize),
+fn weigh_clusters<const LANES: usize>(
+    lg: &Logs,
     (elig, na, label, clusters): (&[u8; LANES], usize, &[u8; LANES], usize),
-    (sbar, zhat, g): (
-        &[[f32; LANES]; LANES],
-        &[f32; LANES],
-        &[[[f32; NS]; LANES]; LANES],
-    ),
+    (sbar, zhat, valid): (&[[f32; LANES]; LANES], &[f32; LANES], &[u32; LANES]),
     points: &[f32],
-    (lg, n_skipped, skip): (&Logs, usize, u32),
-    mut out: RowOutcome<LANES>,
-    probe: &mut P,
-) -> RowOutcome<LANES> {
+    (n, n_skipped, skip): (usize, usize, u32),
+    moments: bool,
+    acc: &mut Acc<LANES>,
+) -> bool {
     let m = points.len();
-    let mut y = [0.0f32; LANES];
-    let mut c = [[0.0f32; LANES]; LANES];
-    let mut beta_miss = [1.0f32; LANES];
-    let mut beta = [[0.0f32; MAX_ROW_POINTS]; LANES];
+    acc.bmiss = [1.0; LANES];
     for cl in 0..clusters {
         let (mem, k, set_c) = members((elig, na), label, cl);
         let mut ctx = lg.ctx(
             (mem, k),
             sbar,
             zhat,
-            &out.valid,
+            valid,
             points,
             (n, n_skipped, skip),
-            true,
+            moments,
         );
         ctx.active_set = set_c;
-        let mut acc = Acc::<LANES>::new();
-        if !(weigh(&ctx, &mut acc) && acc.wtot.is_finite() && acc.wtot > 0.0) {
-            return failed(out);
+        let mut part = Acc::<LANES>::new();
+        if !(weigh(&ctx, &mut part) && part.wtot.is_finite() && part.wtot > 0.0) {
+            return false;
         }
-        out.events += acc.events;
-        out.patterns += acc.patterns;
-        let inv = 1.0 / acc.wtot;
+        acc.events += part.events;
+        acc.patterns += part.patterns;
+        let inv = 1.0 / part.wtot;
         for &t in mem.iter().take(k) {
             let t = usize::from(t);
-            set(&mut y, t, get(&acc.y, t) * inv);
-            set(&mut beta_miss, t, get(&acc.bmiss, t) * inv);
-            if let (Some(dst), Some(src)) = (beta.get_mut(t), acc.beta.get(t)) {
+            set(&mut acc.y, t, get(&part.y, t) * inv);
+            set(&mut acc.bmiss, t, get(&part.bmiss, t) * inv);
+            if let (Some(dst), Some(src)) = (acc.beta.get_mut(t), part.beta.get(t)) {
                 for (v, w) in dst.iter_mut().zip(src.iter()).take(m) {
                     *v = w * inv;
                 }
             }
             for &t2 in mem.iter().take(k).filter(|&&t2| usize::from(t2) <= t) {
                 let t2 = usize::from(t2);
-                put(&mut c, t, t2, at(&acc.c, t, t2) * inv);
+                put(&mut acc.c, t, t2, at(&part.c, t, t2) * inv);
             }
         }
     }
-    // Between clusters C' = C + y yᵀ vanishes: C = −y yᵀ there (lower triangle, as the pass).
-    for (a, &t1) in elig.iter().enumerate().take(na) {
-        for (b, &t2) in elig.iter().enumerate().take(a) {
-            if get(label, a) != get(label, b) {
-                let (t1, t2) = (usize::from(t1), usize::from(t2));
-                put(&mut c, t1, t2, -(get(&y, t1) * get(&y, t2)));
+    if moments {
+        // Between clusters C' = C + y yᵀ vanishes: C = −y yᵀ there (lower triangle, as the pass).
+        for (a, &t1) in elig.iter().enumerate().take(na) {
+            for (b, &t2) in elig.iter().enumerate().take(a) {
+                if get(label, a) != get(label, b) {
+                    let (t1, t2) = (usize::from(t1), usize::from(t2));
+                    put(&mut acc.c, t1, t2, -(get(&acc.y, t1) * get(&acc.y, t2)));
+                }
             }
         }
     }
-    probe.enter(Stage::Update);
-    let el = elig.get(..na).unwrap_or(&[]);
-    if !apply_mixture(xs, ps, n, el, g, &y, &c, 1.0) {
-        return failed(out);
-    }
-    for (t, (bm, brow)) in out
-        .beta_miss
-        .iter_mut()
-        .zip(out.beta.iter_mut())
-        .enumerate()
-        .take(n)
-    {
-        *bm = get(&beta_miss, t);
-        *brow = beta.get(t).copied().unwrap_or([0.0; MAX_ROW_POINTS]);
-    }
-    let sdiag: [f32; LANES] = core::array::from_fn(|t| at(sbar, t, t));
-    exclusive_density(&mut out, zhat, &sdiag, points, n);
-    out
+    acc.wtot = 1.0;
+    true
 }
 
 /// The event weights of one row given each track's predicted measurement, without a state to
@@ -502,7 +480,7 @@ pub fn associate<const LANES: usize>(
     let mut sbar_known = false;
     let mut over = mode != Association::Lbp && over_budget(&out.valid, n, max_events);
     if over
-        && cluster_bound(&out.valid, n, skip, |_, _| false, max_events) <= max_events as u64
+        && cluster_bound(&out.valid, n, skip, &|_, _| false, max_events) <= max_events as u64
         && first_clusters_uncorrelated(&out.valid, n, skip, &cross)
     {
         let (elig, na) = eligible(&out.valid, n, skip);
@@ -512,7 +490,7 @@ pub fn associate<const LANES: usize>(
             &out.valid,
             n,
             skip,
-            |a, b| at(&sbar, a, b) != 0.0,
+            &|a, b| at(&sbar, a, b) != 0.0,
             max_events,
         ) > max_events as u64;
     }
@@ -545,11 +523,24 @@ pub fn associate<const LANES: usize>(
     // of the clusters' events and their weights the product of the clusters' weights, so each
     // cluster's marginals are exact on their own. A cluster's miss factors of the other
     // tracks are common to all its events and cancel.
-    let (label, clusters) = clusters(&out.valid, (&elig, na), |a, b| at(&sbar, a, b) != 0.0);
-    for c in 0..clusters.max(1) {
-        let (members, k, set_c) = members((&elig, na), &label, c);
-        let mut ctx = lg.ctx(
-            (members, k),
+    let (label, clusters) = clusters(&out.valid, (&elig, na), &|a, b| at(&sbar, a, b) != 0.0);
+    let mut acc = Acc::<LANES>::new();
+    let inv = if clusters > 1 {
+        if !weigh_clusters(
+            &lg,
+            (&elig, na, &label, clusters),
+            (&sbar, zhat, &out.valid),
+            points,
+            (n, n_skipped, skip),
+            false,
+            &mut acc,
+        ) {
+            return failed(out);
+        }
+        1.0
+    } else {
+        let ctx = lg.ctx(
+            (elig, na),
             &sbar,
             zhat,
             &out.valid,
@@ -557,31 +548,14 @@ pub fn associate<const LANES: usize>(
             (n, n_skipped, skip),
             false,
         );
-        if clusters > 1 {
-            ctx.active_set = set_c;
-        }
-        let mut acc = Acc::<LANES>::new();
         if !(weigh(&ctx, &mut acc) && acc.wtot.is_finite() && acc.wtot > 0.0) {
             return failed(out);
         }
-        out.events += acc.events;
-        out.patterns += acc.patterns;
-        let inv = 1.0 / acc.wtot;
-        if clusters <= 1 {
-            normalise(&mut out, &acc.beta, &acc.bmiss, inv, n, m, skip);
-            break;
-        }
-        // This cluster's tracks only; the others keep their own (or the default: missed).
-        for &t in members.iter().take(k) {
-            let t = usize::from(t);
-            set(&mut out.beta_miss, t, get(&acc.bmiss, t) * inv);
-            if let (Some(dst), Some(src)) = (out.beta.get_mut(t), acc.beta.get(t)) {
-                for (v, w) in dst.iter_mut().zip(src.iter()).take(m) {
-                    *v = w * inv;
-                }
-            }
-        }
-    }
+        1.0 / acc.wtot
+    };
+    out.events = acc.events;
+    out.patterns = acc.patterns;
+    normalise(&mut out, &acc.beta, &acc.bmiss, inv, n, m, skip);
     exclusive_density(&mut out, zhat, sdiag, points, n);
     out
 }
@@ -601,11 +575,12 @@ fn eligible<const LANES: usize>(valid: &[u32; LANES], n: usize, skip: u32) -> ([
 
 /// Whether the first eligible track and the first one that shares no candidate with it are
 /// uncorrelated (`cross = 0`); `true` when there is no such pair.
+#[inline(never)]
 fn first_clusters_uncorrelated<const LANES: usize>(
     valid: &[u32; LANES],
     n: usize,
     skip: u32,
-    cross: impl Fn(usize, usize) -> f32,
+    cross: &dyn Fn(usize, usize) -> f32,
 ) -> bool {
     let (elig, na) = eligible(valid, n, skip);
     let Some(&first) = elig.get(..na).and_then(|e| e.first()) else {
@@ -620,10 +595,11 @@ fn first_clusters_uncorrelated<const LANES: usize>(
 }
 
 /// `S̄_st = cross(s, t)` into `sbar` (both halves) for every pair of the eligible tracks.
+#[inline(never)]
 fn fill_cross<const LANES: usize>(
     sbar: &mut [[f32; LANES]; LANES],
     (elig, na): (&[u8; LANES], usize),
-    cross: impl Fn(usize, usize) -> f32,
+    cross: &dyn Fn(usize, usize) -> f32,
 ) {
     for (a, &t1) in elig.iter().enumerate().take(na) {
         for &t2 in elig.iter().take(na).skip(a + 1) {
@@ -639,10 +615,11 @@ fn fill_cross<const LANES: usize>(
 /// candidate or `linked(s, t)`". Returns each eligible track's cluster (by position) and the
 /// number of clusters, numbered in order of their first track. `na(na−1)/2` pair checks
 /// (`linked` only for pairs not yet joined) and `O(na)` per join.
+#[inline(never)]
 fn clusters<const LANES: usize>(
     valid: &[u32; LANES],
     (elig, na): (&[u8; LANES], usize),
-    linked: impl Fn(usize, usize) -> bool,
+    linked: &dyn Fn(usize, usize) -> bool,
 ) -> ([u8; LANES], usize) {
     // Each cluster is labelled by its first position while joining.
     let mut label: [u8; LANES] = core::array::from_fn(|a| a as u8);
@@ -703,11 +680,12 @@ fn members<const LANES: usize>(
 
 /// The joint events of a row enumerated cluster by cluster ([`clusters`] with `linked`),
 /// counted up to `limit + 1`: `Σ_c` (events of cluster `c`).
+#[inline(never)]
 fn cluster_bound<const LANES: usize>(
     valid: &[u32; LANES],
     n: usize,
     skip: u32,
-    linked: impl Fn(usize, usize) -> bool,
+    linked: &dyn Fn(usize, usize) -> bool,
     limit: usize,
 ) -> u64 {
     let limit = limit.max(1) as u64;
