@@ -9,7 +9,9 @@
 //! (c) LBP against the exact enumeration with the coupled likelihood (neighbouring lanes'
 //!     innovations correlated, as `B` makes them): LBP's error plus the cross-covariances it
 //!     leaves out. Printed, not bounded: it is the modelling cost the replay measures
-//!     (docs/measurements.md, "Cheaper joint events").
+//!     (docs/measurements.md, "Cheaper joint events");
+//! (d) the core's exact enumeration of uncorrelated tracks, which splits a row into clusters of
+//!     tracks that share candidates, against the reference's enumeration of the whole row.
 //!
 //! `cargo test -p stjpdacf-test-support --test lbp -- --nocapture` prints the measured maxima.
 
@@ -256,4 +258,52 @@ fn lbp_equals_enumeration_when_no_point_is_shared() {
     let (ex, _) = core(&row, Association::Exact);
     assert_eq!(it, 1);
     assert!(max_diff(&lbp, &ex) <= 1e-6, "{}", max_diff(&lbp, &ex));
+}
+
+/// Exact enumeration of uncorrelated tracks (`ρ = 0`): the core splits each row into clusters
+/// of tracks that share a candidate (docs/design.md §4.1 step 5) and enumerates them one by
+/// one; the f64 reference enumerates the whole row. The marginals agree to f32 rounding.
+#[test]
+fn clusters_equal_the_whole_row_enumeration() {
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let (mut diff, mut split) = (Stat::default(), 0usize);
+    for k in 0..400 {
+        let d = 2 + k % 5;
+        let row = crowded_row(&mut rng, d, 0.0);
+        let (ex, gating) = exact(&row, false);
+        let mut zhat = [0.0f32; LANES];
+        let mut sdiag = [0.0f32; LANES];
+        for t in 0..d {
+            zhat[t] = row.zhat[t] as f32;
+            sdiag[t] = row.sbar[(t, t)] as f32;
+        }
+        let pts: Vec<f32> = row.points.iter().map(|&z| z as f32).collect();
+        let out = associate::<LANES>(
+            &zhat,
+            &sdiag,
+            |_, _| 0.0,
+            d,
+            &pts,
+            &params(),
+            (1 << 20, Association::Exact),
+            0,
+        );
+        assert!(!out.failed && !out.approximated);
+        let whole: usize = gating
+            .valid
+            .iter()
+            .map(|v| 1 + v.iter().filter(|&&b| b).count())
+            .product();
+        split += usize::from((out.events as usize) < whole);
+        let (core, _) = core(&row, Association::Exact);
+        diff.add(max_diff(&core, &ex));
+    }
+    println!(
+        "{split} of 400 rows split into clusters; max |Δβ| core vs f64 whole-row enumeration \
+         {:.2e} (mean {:.2e})",
+        diff.max,
+        diff.mean()
+    );
+    assert!(split > 100, "rows split: {split}");
+    assert!(diff.max <= 1e-4, "clusters vs whole row {:e}", diff.max);
 }

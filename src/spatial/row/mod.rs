@@ -37,8 +37,14 @@
 //!   single-track PDA probability (each track's candidates and its miss normalised among
 //!   themselves, so no track loses its plausible points first), until `Π_t (1 + n_t) ≤
 //!   max_events`, and the row is flagged `approximated` (docs/design.md §4.1 step 5: "drop the least
-//!   likely candidates until it fits"). The coupled likelihood does not factor over clusters, so
-//!   all tracks stay in one enumeration; the sort (a stable insertion sort, no panic branch) costs O(C²) compares for C ≤ D·m candidates;
+//!   likely candidates until it fits"); the sort (a stable insertion sort, no panic branch) costs
+//!   O(C²) compares for C ≤ D·m candidates;
+//! * **clusters** (docs/design.md §4.1 step 5): tracks that share a candidate or are correlated
+//!   (`S̄_st ≠ 0`) are enumerated together, each cluster on its own, exactly (events and weights
+//!   factor between clusters; the mixture's `C + y yᵀ` has no block between them). The coupled
+//!   likelihood correlates every pair, so with coupled tables a row is one enumeration; with a
+//!   diagonal B a row costs `Σ_c Π_{t∈c} (1 + n_t)` events instead of `Π_t (1 + n_t)`, and the
+//!   budget counts that sum. `O(D²)` pair checks a row find the clusters;
 //! * at most `2^D` detection patterns, `O(D²)` each; at most `max_events` events, `O(D²)` each;
 //!   the covariance update `n(n+1)/2 · k_e · NS²` multiply-adds for `n` tracks of which `k_e`
 //!   are eligible; no recursion (explicit stacks of depth ≤ D), no allocation. A second pass
