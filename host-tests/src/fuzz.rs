@@ -182,13 +182,24 @@ pub fn decode_tracker_input(data: &[u8]) -> Vec<(i64, Vec<[f32; 2]>)> {
     frames
 }
 
-/// `ReferenceTracker::step` on up to [`MAX_STEPS`] decoded frames; checks every output, the
-/// state after every step, and that refused steps (non-increasing time) change nothing.
+/// `ReferenceTracker::step` on up to [`MAX_STEPS`] decoded frames, on the default and on the
+/// uncoupled tables; checks every output, the state after every step, and that refused steps
+/// (non-increasing time) change nothing.
 ///
 /// # Errors
 /// A description of the first invariant violated.
 pub fn tracker_step(data: &[u8]) -> Result<(), String> {
-    let mut t = Box::new(ReferenceTracker::new(&DEFAULT));
+    tracker_step_with(data, &DEFAULT).map_err(|e| format!("default tables: {e}"))?;
+    // The uncoupled tables (B diagonal): own-block temporal loops and rows split into clusters.
+    tracker_step_with(data, &UNCOUPLED).map_err(|e| format!("uncoupled tables: {e}"))
+}
+
+/// [`tracker_step`] on one set of tables.
+///
+/// # Errors
+/// A description of the first invariant violated.
+pub fn tracker_step_with(data: &[u8], tables: &'static ReferenceTables) -> Result<(), String> {
+    let mut t = Box::new(ReferenceTracker::new(tables));
     let mut last: Option<i64> = None;
     for (k, (at, pts)) in decode_tracker_input(data).into_iter().enumerate() {
         let refuse = last.is_some_and(|l| at <= l);
