@@ -32,8 +32,9 @@ use stjpdacf::spatial::row::{self, Association, MissModel, RowOutcome, RowParams
 /// Tracks (lanes) in the scans.
 pub const TRACKS: usize = 4;
 
-/// Event budget of the core's enumeration: far above the densest scan (144 joint events), so
-/// the association is exact on every scan (checked: [`Replay::approximated`] is 0).
+/// Event budget of the core's enumeration: far above the densest scan (144 joint events as one
+/// enumeration, 14 as the clusters the core enumerates), so the association is exact on every
+/// scan (checked: [`Replay::approximated`] is 0).
 pub const MAX_EVENTS: usize = 4096;
 
 /// `bench/data/stonesoup/`, where the scans, Stone Soup's states and the scripts are.
