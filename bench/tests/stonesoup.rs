@@ -10,7 +10,7 @@
 //! m/scan (RMS 4.5e-8), covariance entries 2.1e-7 (RMS 6.9e-9), β 1.8e-6 (RMS 7.2e-8); as one
 //! enumeration (before) 2.3e-6, 1.9e-7, 6.9e-7 and 2.1e-6; identical gates on all
 //! 800 (scan, track) pairs. The positions reach |x| ≈ 7.3 m where one f32 ulp is 4.8e-7 m,
-//! so the position error is ≈ 5 ulp after 200 recursive steps. The bounds below are about 10×
+//! so the position error is ≈ 2 ulp after 200 recursive steps. The bounds below are about 10×
 //! the measured maxima (room for another libm or FMA contraction), and far below what a
 //! modelling difference gives: the textbook miss factor `1 − P_D` instead of Stone Soup's
 //! `1 − P_D P_G` (a 10 % change of one weight) moves the positions by up to 1.9e-2 m, 1000× the
