@@ -19,7 +19,7 @@ use nalgebra::{DMatrix, DVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use stjpdacf::spatial::row::{
-    associate, Association, MissModel, RowParams, LBP_MAX_ITERATIONS, LBP_TOLERANCE,
+    associate, Association, MissModel, RowOutcome, RowParams, LBP_MAX_ITERATIONS, LBP_TOLERANCE,
 };
 use stjpdacf_reference::jpda::{self as rj, MissConvention};
 
@@ -84,8 +84,14 @@ fn crowded_row(rng: &mut ChaCha8Rng, d: usize, rho: f64) -> Row {
     Row { zhat, sbar, points }
 }
 
-/// The core's association of `row` (f32), exact or LBP.
+/// The core's association of `row` (f32), exact or LBP: β (missed first) and LBP's iterations.
 fn core(row: &Row, mode: Association) -> (Vec<Vec<f64>>, u32) {
+    let (beta, out) = core_out(row, mode);
+    (beta, out.lbp_iterations)
+}
+
+/// [`core`] with the whole outcome.
+fn core_out(row: &Row, mode: Association) -> (Vec<Vec<f64>>, RowOutcome<LANES>) {
     let d = row.zhat.len();
     let mut zhat = [0.0f32; LANES];
     let mut sdiag = [0.0f32; LANES];
@@ -116,7 +122,7 @@ fn core(row: &Row, mode: Association) -> (Vec<Vec<f64>>, u32) {
                 .collect()
         })
         .collect();
-    (beta, out.lbp_iterations)
+    (beta, out)
 }
 
 /// The reference's exact enumeration with `sbar` (coupled) or its diagonal (uncoupled).
@@ -271,23 +277,8 @@ fn clusters_equal_the_whole_row_enumeration() {
         let d = 2 + k % 5;
         let row = crowded_row(&mut rng, d, 0.0);
         let (ex, gating) = exact(&row, false);
-        let mut zhat = [0.0f32; LANES];
-        let mut sdiag = [0.0f32; LANES];
-        for t in 0..d {
-            zhat[t] = row.zhat[t] as f32;
-            sdiag[t] = row.sbar[(t, t)] as f32;
-        }
-        let pts: Vec<f32> = row.points.iter().map(|&z| z as f32).collect();
-        let out = associate::<LANES>(
-            &zhat,
-            &sdiag,
-            |_, _| 0.0,
-            d,
-            &pts,
-            &params(),
-            (1 << 20, Association::Exact),
-            0,
-        );
+        // ρ = 0: every S̄_st is exactly 0, so the core splits the row wherever no point is shared.
+        let (core, out) = core_out(&row, Association::Exact);
         assert!(!out.failed && !out.approximated);
         let whole: usize = gating
             .valid
@@ -295,7 +286,6 @@ fn clusters_equal_the_whole_row_enumeration() {
             .map(|v| 1 + v.iter().filter(|&&b| b).count())
             .product();
         split += usize::from((out.events as usize) < whole);
-        let (core, _) = core(&row, Association::Exact);
         diff.add(max_diff(&core, &ex));
     }
     println!(

@@ -312,40 +312,20 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
             ([0; LANES], 1)
         };
     let mut acc = Acc::<LANES>::new();
-    let inv = if clusters > 1 {
-        if !weigh_clusters(
-            &lg,
-            (&elig, na, &label, clusters),
-            (&sbar, &zhat, &out.valid),
-            points,
-            (n, n_skipped, skip),
-            true,
-            &mut acc,
-        ) {
-            return failed(out);
-        }
-        1.0
-    } else {
-        let ctx = lg.ctx(
-            (elig, na),
-            &sbar,
-            &zhat,
-            &out.valid,
-            points,
-            (n, n_skipped, skip),
-            true,
-        );
-        if !weigh(&ctx, &mut acc) {
-            return failed(out);
-        }
-        1.0 / acc.wtot
+    let Some(inv) = weigh_row(
+        &lg,
+        (&elig, na, &label, clusters),
+        (&sbar, &zhat, &out.valid),
+        points,
+        (n, n_skipped, skip),
+        true,
+        &mut acc,
+    ) else {
+        return failed(out);
     };
     out.events = acc.events;
     out.patterns = acc.patterns;
     probe.enter(Stage::Update);
-    if !(acc.wtot.is_finite() && acc.wtot > 0.0) {
-        return failed(out);
-    }
     if !apply_mixture(xs, ps, n, el, &g, &acc.y, &acc.c, inv) {
         return failed(out);
     }
@@ -355,17 +335,18 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     out
 }
 
-/// The event weights of a row whose eligible tracks fall into `clusters > 1` uncorrelated
-/// clusters (`label` by position in `elig`), each cluster weighed on its own, into `acc`
-/// *normalised* (`Σ w = 1`): `β`, `β_miss` (1 for the tracks in no cluster) and, with
-/// `moments`, `y` and `C`. Each cluster's are exact: its events and their weights factor from
-/// the others'. Between clusters the mixture's second moment `C + y yᵀ` has no block
-/// (`E[r_c r_dᵀ] = y_c y_dᵀ`, `S_δ⁻¹` block-diagonal), so `C_cd = −y_c y_dᵀ` there, and the one
-/// state update of [`apply_mixture`] with `inv = 1` is the product of the clusters' updates.
-/// `false` on a numerical failure.
+/// The event weights of a row's eligible tracks `elig[..na]` into `acc`, and the factor `inv`
+/// that normalises them (`Σ w · inv = 1`); `None` on a numerical failure. With one cluster (or
+/// none) the row is one enumeration: `acc` holds the raw sums, `inv = 1 / Σ w`. With
+/// `clusters > 1` uncorrelated clusters (`label` by position in `elig`) each cluster is weighed
+/// on its own and `acc` holds the sums already normalised (`inv = 1`): `β`, `β_miss` (1 for the
+/// tracks in no cluster) and, with `moments`, `y` and `C`. Each cluster's are exact: its events
+/// and their weights factor from the others'. Between clusters the mixture's second moment
+/// `C + y yᵀ` has no block (`E[r_c r_dᵀ] = y_c y_dᵀ`, `S_δ⁻¹` block-diagonal), so `C_cd = −y_c y_dᵀ`
+/// there, and the one state update of [`apply_mixture`] is the product of the clusters' updates.
 #[inline(never)]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
-fn weigh_clusters<const LANES: usize>(
+fn weigh_row<const LANES: usize>(
     lg: &Logs,
     (elig, na, label, clusters): (&[u8; LANES], usize, &[u8; LANES], usize),
     (sbar, zhat, valid): (&[[f32; LANES]; LANES], &[f32; LANES], &[u32; LANES]),
@@ -373,7 +354,20 @@ fn weigh_clusters<const LANES: usize>(
     (n, n_skipped, skip): (usize, usize, u32),
     moments: bool,
     acc: &mut Acc<LANES>,
-) -> bool {
+) -> Option<f32> {
+    if clusters <= 1 {
+        let ctx = lg.ctx(
+            (*elig, na),
+            sbar,
+            zhat,
+            valid,
+            points,
+            (n, n_skipped, skip),
+            moments,
+        );
+        let ok = weigh(&ctx, acc) && acc.wtot.is_finite() && acc.wtot > 0.0;
+        return ok.then(|| 1.0 / acc.wtot);
+    }
     let m = points.len();
     acc.bmiss = [1.0; LANES];
     for cl in 0..clusters {
@@ -390,7 +384,7 @@ fn weigh_clusters<const LANES: usize>(
         ctx.active_set = set_c;
         let mut part = Acc::<LANES>::new();
         if !(weigh(&ctx, &mut part) && part.wtot.is_finite() && part.wtot > 0.0) {
-            return false;
+            return None;
         }
         acc.events += part.events;
         acc.patterns += part.patterns;
@@ -422,7 +416,7 @@ fn weigh_clusters<const LANES: usize>(
         }
     }
     acc.wtot = 1.0;
-    true
+    Some(1.0)
 }
 
 /// The event weights of one row given each track's predicted measurement, without a state to
@@ -531,33 +525,16 @@ pub fn associate<const LANES: usize>(
     // tracks are common to all its events and cancel.
     let (label, clusters) = clusters(&out.valid, (&elig, na), &|a, b| at(&sbar, a, b) != 0.0);
     let mut acc = Acc::<LANES>::new();
-    let inv = if clusters > 1 {
-        if !weigh_clusters(
-            &lg,
-            (&elig, na, &label, clusters),
-            (&sbar, zhat, &out.valid),
-            points,
-            (n, n_skipped, skip),
-            false,
-            &mut acc,
-        ) {
-            return failed(out);
-        }
-        1.0
-    } else {
-        let ctx = lg.ctx(
-            (elig, na),
-            &sbar,
-            zhat,
-            &out.valid,
-            points,
-            (n, n_skipped, skip),
-            false,
-        );
-        if !(weigh(&ctx, &mut acc) && acc.wtot.is_finite() && acc.wtot > 0.0) {
-            return failed(out);
-        }
-        1.0 / acc.wtot
+    let Some(inv) = weigh_row(
+        &lg,
+        (&elig, na, &label, clusters),
+        (&sbar, zhat, &out.valid),
+        points,
+        (n, n_skipped, skip),
+        false,
+        &mut acc,
+    ) else {
+        return failed(out);
     };
     out.events = acc.events;
     out.patterns = acc.patterns;

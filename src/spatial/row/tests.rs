@@ -246,6 +246,15 @@ fn row_step_matches_brute_force_oracle() {
     }
 }
 
+/// The row parameters of the cluster tests: clutter 0.2 /m, `P_D` = 0.8.
+fn cluster_params() -> RowParams {
+    RowParams {
+        clutter_density: 0.2,
+        pd: 0.8,
+        ..RowParams::default()
+    }
+}
+
 /// Six lanes 3.5 m apart with their points and clutter around them, `S̄_st = link` between
 /// neighbours: association by [`associate`] with `(max_events, mode)`.
 fn six_lane_row(link: f32, max_events: usize, mode: Association) -> RowOutcome<6> {
@@ -257,11 +266,7 @@ fn six_lane_row(link: f32, max_events: usize, mode: Association) -> RowOutcome<6
         pts[3 * t + 1] = z - 0.31 + 0.02 * t as f32;
         pts[3 * t + 2] = z + 0.42;
     }
-    let params = RowParams {
-        clutter_density: 0.2,
-        pd: 0.8,
-        ..RowParams::default()
-    };
+    let params = cluster_params();
     associate::<6>(
         &zhat,
         &sdiag,
@@ -329,11 +334,7 @@ fn four_track_step(link: f32, max_events: usize, skip: u32) -> (Stacked<2, 4>, R
         pts[3 * i + 1] = z - 0.45 + 0.03 * i as f32;
         pts[3 * i + 2] = z + 0.5;
     }
-    let params = RowParams {
-        clutter_density: 0.2,
-        pd: 0.8,
-        ..RowParams::default()
-    };
+    let params = cluster_params();
     let h = SVector::from([1.0f32, 1.0]);
     let mut st = s;
     let out = update_masked(&mut st, &h, &pts, &params, max_events, skip);
