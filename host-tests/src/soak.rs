@@ -397,6 +397,11 @@ pub struct RefSummary {
     pub frames_not_compared: u64,
     /// Episodes ended by a discrete disagreement.
     pub discrete_disagreements: u64,
+    /// Episodes whose comparison ended at a spatial row over the event budget `E`: the core
+    /// approximates such a row (docs/design.md §4.1 step 5) and the reference enumerates it
+    /// exactly, so from that frame on they may differ by more than f32 rounding. Not counted in
+    /// `discrete_disagreements`; the frame is not compared.
+    pub episodes_ended_over_budget: u64,
     /// The first few disagreements.
     pub disagreements: Vec<String>,
     /// Lane-frames compared (filtered).
@@ -445,6 +450,7 @@ impl RefSummary {
         self.frames_compared += o.frames_compared;
         self.frames_not_compared += o.frames_not_compared;
         self.discrete_disagreements += o.discrete_disagreements;
+        self.episodes_ended_over_budget += o.episodes_ended_over_budget;
         for d in o.disagreements {
             if self.disagreements.len() < 20 {
                 self.disagreements.push(d);
@@ -553,14 +559,29 @@ fn lane_diff(c: &LaneEstimate<POINTS>, r: &RefLane) -> (f64, f64) {
     (dz, dv)
 }
 
-/// Compares one frame of tracker B with the reference; `Err` for a discrete disagreement.
+/// Why a frame ends its episode's comparison.
+enum Stop {
+    /// The reference reports a spatial row over the event budget: the core approximated it.
+    OverBudget,
+    /// A discrete disagreement (lane slots, ids, misses) or a refused step.
+    Disagreement(String),
+}
+
+impl From<String> for Stop {
+    fn from(s: String) -> Self {
+        Self::Disagreement(s)
+    }
+}
+
+/// Compares one frame of tracker B with the reference; `Err` when the episode's comparison
+/// ends there.
 fn compare_frame(
     ep: &mut Episode,
     frame: &RoadFrame,
     k: u64,
     smooth: bool,
     out: &mut RefSummary,
-) -> Result<(), String> {
+) -> Result<(), Stop> {
     let co = ep
         .core
         .step(Instant::from_micros(frame.t_us), &frame.points)
@@ -574,21 +595,21 @@ fn compare_frame(
         .reference
         .step(frame.t_us as f64 * 1e-6, &pts64)
         .map_err(|e| format!("reference: {e:#}"))?;
+    if ro.spatial.counters.over_budget_rows > 0 {
+        return Err(Stop::OverBudget);
+    }
     let cs: Vec<usize> = co.filtered.iter().map(|l| usize::from(l.slot)).collect();
     let rs: Vec<usize> = ro.filtered.iter().map(|l| l.slot).collect();
     if cs != rs {
-        return Err(format!("lane slots {cs:?} vs {rs:?}"));
+        return Err(format!("lane slots {cs:?} vs {rs:?}").into());
     }
     for (c, r) in co.filtered.iter().zip(&ro.filtered) {
         let (ci, ri) = (c.id.0, r.id);
         if *ep.c2r.entry(ci).or_insert(ri) != ri || *ep.r2c.entry(ri).or_insert(ci) != ci {
-            return Err(format!("id {ci} ↔ {ri} breaks the bijection"));
+            return Err(format!("id {ci} ↔ {ri} breaks the bijection").into());
         }
         if usize::from(c.misses) != r.misses {
-            return Err(format!(
-                "slot {}: misses {} vs {}",
-                r.slot, c.misses, r.misses
-            ));
+            return Err(format!("slot {}: misses {} vs {}", r.slot, c.misses, r.misses).into());
         }
         let (dz, dv) = lane_diff(c, r);
         out.dz.push(dz);
@@ -607,7 +628,7 @@ fn compare_frame(
             let cs: Vec<usize> = co.smoothed.iter().map(|l| usize::from(l.slot)).collect();
             let rs: Vec<usize> = sm.iter().map(|l| l.slot).collect();
             if cs != rs {
-                return Err(format!("smoothed slots {cs:?} vs {rs:?}"));
+                return Err(format!("smoothed slots {cs:?} vs {rs:?}").into());
             }
             for (c, r) in co.smoothed.iter().zip(&sm) {
                 let (dz, _) = lane_diff(c, r);
@@ -817,7 +838,12 @@ pub fn run_drive(
                     let smooth = cfg.smooth_every > 0 && k % cfg.smooth_every == 0;
                     match compare_frame(e, &f, k, smooth, &mut rs) {
                         Ok(()) => rs.frames_compared += 1,
-                        Err(msg) => {
+                        Err(Stop::OverBudget) => {
+                            e.broken = true;
+                            rs.episodes_ended_over_budget += 1;
+                            rs.frames_not_compared += 1;
+                        }
+                        Err(Stop::Disagreement(msg)) => {
                             e.broken = true;
                             rs.discrete_disagreements += 1;
                             rs.frames_not_compared += 1;
