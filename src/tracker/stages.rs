@@ -18,6 +18,9 @@ use crate::temporal::identity::SlotFate;
 
 use super::{LaneEstimate, StepReport, Tracker, NO_INFO};
 
+/// A lane's means and variances at the index points ([`TemporalFilter::lane`]).
+type View<const POINTS: usize> = (SVector<f32, POINTS>, SVector<f32, POINTS>);
+
 impl_tracker! {
     /// Step 3 (docs/design.md §11): the live lanes' row evidence against their prediction, the
     /// temporal update with it, their existence; the points they explain leave the rows.
@@ -207,6 +210,10 @@ impl_tracker! {
             return 0;
         };
         let mut any = 0u32;
+        // Each lane's positions and variances, projected once when a pair first needs them
+        // (removing a lane zeroes only its own rows and columns: the others' stay valid).
+        let mut views: [Option<View<POINTS>>; LANES] = [None; LANES];
+        let mut projected = 0u32;
         for s in 0..LANES {
             for t in s + 1..LANES {
                 let (Some(ls), Some(lt)) = (self.ids.lane(s), self.ids.lane(t)) else {
@@ -217,12 +224,19 @@ impl_tracker! {
                 if !(get(&self.info, s).seen && get(&self.info, t).seen) {
                     continue;
                 }
-                let (Some((zs, vs)), Some((zt, vt))) = (
-                    self.temporal.filter().lane(tables, s),
-                    self.temporal.filter().lane(tables, t),
-                ) else {
+                for l in [s, t] {
+                    if projected & (1 << l) == 0 {
+                        projected |= 1 << l;
+                        if let Some(v) = views.get_mut(l) {
+                            *v = self.temporal.filter().lane(tables, l);
+                        }
+                    }
+                }
+                let (Some(Some((zs, vs))), Some(Some((zt, vt)))) = (views.get(s), views.get(t))
+                else {
                     continue;
                 };
+                let (zs, vs, zt, vt) = (*zs, *vs, *zt, *vt);
                 // A lane started this frame has no extent history yet: it is compared over
                 // this frame's extents, and a duplicate is held back from publication (not
                 // removed: the next frame's joint association decides between the two, then
@@ -501,6 +515,10 @@ impl_tracker! {
         let Some(tables) = self.tables else {
             return 0.0;
         };
+        if s != t && self.temporal.filter().uncoupled() {
+            // Every cross-lane block is exactly zero (`TemporalFilter::uncoupled`).
+            return 0.0;
+        }
         let r = (tables.gram_rank as usize).min(RANK).min(POINTS);
         let v = &tables.gram_eigvec;
         let coef = |x: &[f32; POINTS]| -> [f32; RANK] {
@@ -528,7 +546,12 @@ impl_tracker! {
         cq: &[f32; RANK],
         r: usize,
     ) -> f32 {
-        let cov = self.temporal.filter().covariance();
+        let filter = self.temporal.filter();
+        if s != t && filter.uncoupled() {
+            // Every cross-lane block is exactly zero (`TemporalFilter::uncoupled`).
+            return 0.0;
+        }
+        let cov = filter.covariance();
         let mut acc = 0.0f32;
         for j in 0..r {
             let row = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
