@@ -18,6 +18,7 @@ mod ci;
 mod deps;
 mod firmware;
 mod fuzz_smoke;
+mod profile;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -33,6 +34,8 @@ struct Cli {
 enum Cmd {
     /// Build the firmware, run every binary under QEMU, write the JSON summary, check budgets.
     Firmware(firmware::RunArgs),
+    /// Where a firmware binary's instructions go, per function (QEMU's block log).
+    FirmwareProfile(profile::ProfileArgs),
     /// Regenerate the scenario files in bench/firmware/scenarios.
     FirmwareScenarios,
     /// The no-panic proof (on failure: the call chains that reach a panic).
@@ -52,6 +55,7 @@ enum Cmd {
 fn main() -> Result<()> {
     match Cli::parse().cmd {
         Cmd::Firmware(a) => firmware::run(a),
+        Cmd::FirmwareProfile(a) => profile::run(&a),
         Cmd::FirmwareScenarios => firmware::scenarios(),
         Cmd::Nopanic => firmware::nopanic(),
         Cmd::FuzzSmoke(a) => fuzz_smoke::run(&a),

@@ -1,0 +1,316 @@
+//! `cargo xtask firmware-profile`: where a firmware binary's instructions go, per function, on
+//! the Cortex-M4F under QEMU.
+//!
+//! QEMU runs the binary as `cargo xtask firmware` does (same runner line, same `-icount`), with
+//! `-d in_asm,exec,nochain`: every translated block is printed once with its instructions
+//! (`in_asm`), and every execution of a block is logged (`exec`; `nochain` makes QEMU return to
+//! its loop after each block, so that no execution goes unlogged). The log streams through a
+//! named pipe (a whole run logs several GB) into a parser that counts executions per block and
+//! weighs each by its instruction count: a block translated with an instruction limit (QEMU does
+//! so to stop exactly at a timer deadline under `-icount`; the limit is in the low 9 bits of its
+//! `cflags`) counts `min(limit, size)`. Blocks are attributed to the ELF symbol QEMU names in the
+//! log, demangled without its hash. Inlined code counts in the function it was inlined into.
+//!
+//! The total is checked against the SysTick counts the firmware prints (`FRAME … total=`): the
+//! profile covers the whole run (start-up, decoding, every frame), so it is at least their sum.
+//!
+//! ```sh
+//! cargo xtask firmware-profile --bin tracker_typical --top 40
+//! STJPDACF_FW_TABLES=uncoupled cargo xtask firmware-profile --bin tracker_worst_patterns
+//! ```
+//!
+//! Needs what `cargo xtask firmware` needs, and `mkfifo` (coreutils). About 1–2 min for a binary
+//! of ~200 M instructions.
+
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Duration;
+
+use anyhow::{ensure, Context, Result};
+use clap::Args;
+
+use crate::firmware::{cargo, fw_dir, run_with_timeout, runner};
+
+/// `cargo xtask firmware-profile`.
+#[derive(Args, Debug)]
+pub struct ProfileArgs {
+    /// The firmware binary (`bench/firmware/src/bin/<name>.rs`).
+    #[arg(long, default_value = "tracker_typical")]
+    pub bin: String,
+    /// Functions to print.
+    #[arg(long, default_value_t = 40)]
+    pub top: usize,
+    /// Skip `cargo build` (use the binary already built).
+    #[arg(long)]
+    pub no_build: bool,
+    /// Kill the QEMU run after this many seconds.
+    #[arg(long, default_value_t = 900)]
+    pub timeout: u64,
+}
+
+/// Helpers whose instructions are also charged to their caller (the block executed just before
+/// the helper was entered): memory clears and copies, and the float functions the Cortex-M4F
+/// has no instruction for.
+const HELPERS: [&str; 6] = [
+    "__aeabi_mem",
+    "compiler_builtins",
+    "fmaxf",
+    "fminf",
+    "sqrtf",
+    "memcpy",
+];
+
+fn is_helper(name: &str) -> bool {
+    HELPERS.iter().any(|h| name.contains(h))
+}
+
+/// Counts from one QEMU log.
+#[derive(Debug, Default)]
+struct Counts {
+    /// Instructions per translated block start (largest translation seen).
+    size: HashMap<u32, u32>,
+    /// Instructions per symbol as QEMU names it.
+    per: HashMap<String, u64>,
+    /// Instructions of helpers per (caller, helper).
+    helpers: HashMap<(String, String), u64>,
+}
+
+impl Counts {
+    /// Parses a QEMU `-d in_asm,exec,nochain` log.
+    fn parse(r: impl BufRead) -> Result<Self> {
+        let mut c = Self::default();
+        // The block being disassembled: (start, instructions so far).
+        let mut block: Option<(u32, u32)> = None;
+        // The last block's symbol outside the helpers, and whether the last block was a helper.
+        let mut caller = String::new();
+        for line in r.lines() {
+            let line = line.context("reading the QEMU log")?;
+            if let Some(rest) = line.strip_prefix("Trace ") {
+                c.close(&mut block);
+                // "Trace 0: 0x7f… [00800408/00000400/00000110/ff020200] name"
+                let Some((fields, name)) =
+                    rest.split_once('[').and_then(|(_, r)| r.split_once(']'))
+                else {
+                    continue;
+                };
+                let f: Vec<&str> = fields.split('/').collect();
+                let (Some(pc), Some(cflags)) = (
+                    f.get(1).and_then(|v| u32::from_str_radix(v, 16).ok()),
+                    f.get(3).and_then(|v| u32::from_str_radix(v, 16).ok()),
+                ) else {
+                    continue;
+                };
+                let size = u64::from(c.size.get(&pc).copied().unwrap_or(1));
+                // A block translated with an instruction limit (low 9 bits of cflags).
+                let limit = u64::from(cflags & 0x1ff);
+                let w = if limit > 0 { size.min(limit) } else { size };
+                let name = name.trim();
+                *c.per.entry(name.to_string()).or_default() += w;
+                if is_helper(name) {
+                    *c.helpers
+                        .entry((caller.clone(), name.to_string()))
+                        .or_default() += w;
+                } else if name != caller {
+                    caller = name.to_string();
+                }
+            } else if let Some(addr) = line.strip_prefix("0x").and_then(|l| l.split_once(':')) {
+                if let Ok(a) = u32::from_str_radix(addr.0, 16) {
+                    match block.as_mut() {
+                        Some((_, n)) => *n += 1,
+                        None => block = Some((a, 1)),
+                    }
+                }
+            } else {
+                // "IN: name", "----------------", blank lines: a block ends.
+                c.close(&mut block);
+            }
+        }
+        c.close(&mut block);
+        Ok(c)
+    }
+
+    fn close(&mut self, block: &mut Option<(u32, u32)>) {
+        if let Some((pc, n)) = block.take() {
+            let e = self.size.entry(pc).or_default();
+            *e = (*e).max(n);
+        }
+    }
+
+    /// Instructions per symbol (demangled, no hash), largest first, and the total.
+    fn by_function(&self) -> (Vec<(String, u64)>, u64) {
+        let mut per: HashMap<String, u64> = HashMap::new();
+        for (name, n) in &self.per {
+            *per.entry(demangle(name)).or_default() += n;
+        }
+        let total = per.values().sum();
+        (sorted(per), total)
+    }
+
+    /// Helper instructions per `caller → helper`, largest first.
+    fn helpers_by_caller(&self) -> Vec<(String, u64)> {
+        let mut per: HashMap<String, u64> = HashMap::new();
+        for ((caller, helper), n) in &self.helpers {
+            *per.entry(format!("{} → {}", demangle(caller), demangle(helper)))
+                .or_default() += n;
+        }
+        sorted(per)
+    }
+}
+
+fn demangle(name: &str) -> String {
+    if name.is_empty() {
+        "?".to_string()
+    } else {
+        format!("{:#}", rustc_demangle::demangle(name))
+    }
+}
+
+fn sorted(m: HashMap<String, u64>) -> Vec<(String, u64)> {
+    let mut v: Vec<(String, u64)> = m.into_iter().collect();
+    v.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    v
+}
+
+/// Runs the profile.
+pub fn run(a: &ProfileArgs) -> Result<()> {
+    let target = fw_dir().join("target");
+    if !a.no_build {
+        let mut c = cargo();
+        c.args(["build", "--release", "--bin", &a.bin]);
+        c.env("CARGO_TARGET_DIR", &target);
+        let st = c.status().context("cargo build (firmware)")?;
+        ensure!(st.success(), "the firmware build failed");
+    }
+    let elf = target.join("thumbv7em-none-eabihf/release").join(&a.bin);
+    ensure!(elf.exists(), "no firmware binary {}", elf.display());
+    let fifo: PathBuf = target.join(format!("profile-{}.fifo", std::process::id()));
+    let _ = std::fs::remove_file(&fifo);
+    let st = Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .context("mkfifo")?;
+    ensure!(st.success(), "mkfifo {} failed", fifo.display());
+    // The reader opens the pipe (blocking until QEMU opens it for writing) and parses as it
+    // streams.
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || -> Result<Counts> {
+            let f = std::fs::File::open(&fifo).context("opening the log pipe")?;
+            Counts::parse(BufReader::with_capacity(1 << 20, f))
+        })
+    };
+    // The runner line of `cargo xtask firmware`, the log options before its `-kernel`.
+    let r = runner()?;
+    let mut args: Vec<std::ffi::OsString> = r.iter().skip(1).map(Into::into).collect();
+    let at = args
+        .iter()
+        .position(|s| s == "-kernel")
+        .unwrap_or(args.len());
+    let log: [std::ffi::OsString; 4] = [
+        "-d".into(),
+        "in_asm,exec,nochain".into(),
+        "-D".into(),
+        fifo.clone().into_os_string(),
+    ];
+    args.splice(at..at, log);
+    args.push(elf.clone().into_os_string());
+    let mut cmd = Command::new(r.first().context("empty runner line")?);
+    cmd.args(&args);
+    eprintln!("profiling {} under QEMU (every block logged)...", a.bin);
+    let (code, stdout, stderr) = run_with_timeout(cmd, Duration::from_secs(a.timeout))?;
+    let counts = reader
+        .join()
+        .map_err(|_| anyhow::anyhow!("the log reader panicked"))??;
+    let _ = std::fs::remove_file(&fifo);
+    ensure!(
+        code == Some(0) && stdout.contains("DONE ok"),
+        "the firmware run failed (exit {code:?}): {}",
+        stderr.lines().next().unwrap_or("")
+    );
+    let frames: Vec<u64> = stdout
+        .lines()
+        .filter(|l| l.starts_with("FRAME "))
+        .filter_map(|l| {
+            l.split_whitespace()
+                .find_map(|w| w.strip_prefix("total="))
+                .and_then(|v| v.parse().ok())
+        })
+        .collect();
+    let systick: u64 = frames.iter().sum();
+    let (funcs, total) = counts.by_function();
+    println!(
+        "{}: {} instructions in the whole run (SysTick: {} in {} frames, {:.1} % of the run); \
+         per frame below = run / frames",
+        a.bin,
+        total,
+        systick,
+        frames.len(),
+        100.0 * systick as f64 / total.max(1) as f64
+    );
+    let nf = frames.len().max(1) as u64;
+    println!("{:>12} {:>6}  function", "per frame", "%");
+    for (name, n) in funcs.iter().take(a.top) {
+        println!(
+            "{:>12} {:>5.1}%  {}",
+            n / nf,
+            100.0 * *n as f64 / total.max(1) as f64,
+            name
+        );
+    }
+    println!("\nhelpers by caller (the helper's instructions, charged to the block before it):");
+    println!("{:>12} {:>6}  caller → helper", "per frame", "%");
+    for (name, n) in counts.helpers_by_caller().iter().take(a.top) {
+        println!(
+            "{:>12} {:>5.1}%  {}",
+            n / nf,
+            100.0 * *n as f64 / total.max(1) as f64,
+            name
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Blocks weigh by their instructions, one translated with an instruction limit of 1 by its
+    /// limit; a helper's instructions are charged to the block before it.
+    #[test]
+    fn blocks_weigh_by_their_instructions() {
+        let log = "\
+----------------
+IN: _ZN3foo3bar17h0123456789abcdefE
+0x00000400:  b580       push     {r7, lr}
+0x00000402:  af00       add      r7, sp, #0
+0x00000404:  e7fe       b        #0x404
+
+Trace 0: 0x7f00 [00800408/00000400/00000110/ff020200] _ZN3foo3bar17h0123456789abcdefE
+Trace 0: 0x7f00 [00800408/00000400/00000110/ff020200] _ZN3foo3bar17h0123456789abcdefE
+----------------
+IN: baz
+0x00000500:  4770       bx       lr
+
+Trace 0: 0x7f40 [00800408/00000500/00000110/ff020200] baz
+Trace 0: 0x7f80 [00800408/00000400/00000110/ff020201] _ZN3foo3bar17h0123456789abcdefE
+----------------
+IN: __aeabi_memclr4
+0x00000600:  2200       movs     r2, #0
+0x00000602:  4770       bx       lr
+
+Trace 0: 0x7fc0 [00800408/00000600/00000110/ff020200] __aeabi_memclr4
+";
+        let c = Counts::parse(log.as_bytes()).expect("parses");
+        let (f, total) = c.by_function();
+        assert_eq!(total, 3 + 3 + 1 + 1 + 2);
+        assert_eq!(f[0], ("foo::bar".to_string(), 7));
+        assert_eq!(f[1], ("__aeabi_memclr4".to_string(), 2));
+        assert_eq!(f[2], ("baz".to_string(), 1));
+        assert_eq!(
+            c.helpers_by_caller(),
+            vec![("foo::bar → __aeabi_memclr4".to_string(), 2)]
+        );
+    }
+}
