@@ -124,6 +124,8 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         let mut unexplained = [0.0f32; POINTS];
         let mut band_rows = [0.0f32; POINTS];
         let mut counts = PassCounts::default();
+        // One outcome for every row (reset by each row's association).
+        let mut out = RowOutcome::<LANES>::default();
         for r in 0..pass.rows.min(ROWS) {
             let pts = row_points(r);
             let m = pts.len().min(MAX_ROW_POINTS);
@@ -172,7 +174,8 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                     ..pass.params
                 },
             };
-            let out = row::associate(
+            row::associate_into(
+                &mut out,
                 &pred.zhat,
                 &pred.sdiag,
                 |a, bb| {
@@ -272,7 +275,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     ) {
         let (r, b, m) = (at.r, at.b, pts.len());
         let w = (1.0 - get(&out.beta_miss, a)).clamp(0.0, 1.0);
-        let brow = out.beta.get(a).copied().unwrap_or([0.0; MAX_ROW_POINTS]);
+        let brow = out.beta.get(a).unwrap_or(&[0.0; MAX_ROW_POINTS]);
         let st = get(&pred.sdiag, a);
         let zh = get(&pred.zhat, a);
         // In view: inside the band's span of points this frame.
@@ -297,13 +300,13 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 / w;
             // For the noise estimate: the row's dominant point, when it holds ≥ 90 % of the
             // lane's weight (a mixture with clutter would count clutter as noise).
-            let (jd, bd) = dominant(&brow, m);
+            let (jd, bd) = dominant(brow, m);
             if bd >= 0.9 * w {
                 if let Some(rw) = self.rows.get_mut(s).and_then(|rs| rs.get_mut(r)) {
                     *rw = [pts.get(jd).copied().unwrap_or(zbar), bd];
                 }
             }
-            if let Some((om, zt)) = equivalent_measurement(pts, &brow, (zh, st, w), at.params.r) {
+            if let Some((om, zt)) = equivalent_measurement(pts, brow, (zh, st, w), at.params.r) {
                 let ru = at.r_used.min(RANK);
                 let mut oc = [0.0f32; RANK];
                 for ((o, iv), cj) in oc.iter_mut().zip(e.i.iter_mut()).zip(at.c.iter()).take(ru) {

@@ -455,6 +455,8 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             miss: cfg.miss,
         };
 
+        // One row outcome for every row (reset by each row's update).
+        let mut o = row::RowOutcome::<LANES>::default();
         for r in 0..rows {
             if r > 0 {
                 probe.enter(Stage::RowPredict);
@@ -489,13 +491,13 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                             acc
                         }
                     });
-            let o = row::update_probed(
+            row::update_into(
+                &mut o,
                 &mut self.state,
                 &hv,
                 rest.get(..nr).unwrap_or(&[]),
                 &params,
-                cfg.max_events,
-                skip,
+                (cfg.max_events, skip),
                 probe,
             );
             probe.enter(Stage::Management);

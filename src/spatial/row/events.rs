@@ -156,6 +156,39 @@ impl<const L: usize> Acc<L> {
         }
     }
 
+    /// Back to [`Acc::new`] after a pass over the tracks of `set` (bit `t`): a pass writes only
+    /// its members' rows and columns (`y`, `C`, `β_miss`, `β`; a non-member's entries stay
+    /// `+0.0`), so only those are cleared: the `LANES × MAX_ROW_POINTS` clear of `new` per
+    /// cluster is a memclr of about 1 KiB on the Cortex-M4F.
+    pub(super) fn clear_tracks(&mut self, set: u32) {
+        self.wtot = 0.0;
+        self.lwmax = f32::NEG_INFINITY;
+        self.events = 0;
+        self.patterns = 0;
+        let mut rest = set;
+        while rest != 0 {
+            let t = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            if let Some(v) = self.y.get_mut(t) {
+                *v = 0.0;
+            }
+            if let Some(v) = self.bmiss.get_mut(t) {
+                *v = 0.0;
+            }
+            if let Some(row) = self.beta.get_mut(t) {
+                *row = [0.0; MAX_ROW_POINTS];
+            }
+            if let Some(row) = self.c.get_mut(t) {
+                *row = [0.0; L];
+            }
+            for row in self.c.iter_mut() {
+                if let Some(v) = row.get_mut(t) {
+                    *v = 0.0;
+                }
+            }
+        }
+    }
+
     /// `β[t][j] += w` for member `mb` picking point `j` in events of total weight `w`.
     #[inline(always)]
     fn pick(&mut self, mb: &Member<L>, j: u32, w: f32) {

@@ -235,7 +235,6 @@ pub fn update_masked<const NS: usize, const LANES: usize>(
 ///
 /// # Complexity
 /// As [`update`].
-#[allow(non_snake_case)]
 pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     state: &mut Stacked<NS, LANES>,
     h: &SVector<f32, NS>,
@@ -245,8 +244,33 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     skip: u32,
     probe: &mut P,
 ) -> RowOutcome<LANES> {
-    probe.enter(Stage::Gating);
     let mut out = RowOutcome::<LANES>::default();
+    update_into(
+        &mut out,
+        state,
+        h,
+        points,
+        params,
+        (max_events, skip),
+        probe,
+    );
+    out
+}
+
+/// [`update_probed`] into `out` (reset first): the frame walk keeps one outcome for all its
+/// rows, so that no ~1 KiB outcome is copied per row (a memcpy on the Cortex-M4F).
+#[allow(non_snake_case)]
+pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
+    out: &mut RowOutcome<LANES>,
+    state: &mut Stacked<NS, LANES>,
+    h: &SVector<f32, NS>,
+    points: &[f32],
+    params: &RowParams,
+    (max_events, skip): (usize, u32),
+    probe: &mut P,
+) {
+    probe.enter(Stage::Gating);
+    *out = RowOutcome::<LANES>::default();
     let (xs, ps, n) = state.parts_mut();
     let n = n.min(LANES);
     let m = points.len().min(MAX_ROW_POINTS);
@@ -255,7 +279,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     if n == 0 {
         out.ignored_points += points.iter().filter(|z| !z.is_finite()).count() as u32;
         out.clutter_points = points.iter().filter(|z| z.is_finite()).count() as u32;
-        return out;
+        return;
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
 
@@ -266,9 +290,9 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     let mut zhat = [0.0f32; LANES];
     let mut sbar = [[0.0f32; LANES]; LANES];
     if !gate(
-        xs, ps, n, hv, points, params, skip, &mut out, &mut zhat, &mut sbar,
+        xs, ps, n, hv, points, params, skip, out, &mut zhat, &mut sbar,
     ) {
-        return out;
+        return;
     }
 
     probe.enter(Stage::Events);
@@ -290,7 +314,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         if !fits {
             out.approximated = true;
             prune(
-                &mut out,
+                out,
                 (&sbar, &zhat, points),
                 n,
                 max_events.max(1) as u64,
@@ -321,18 +345,19 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
         true,
         &mut acc,
     ) else {
-        return failed(out);
+        failed(out);
+        return;
     };
     out.events = acc.events;
     out.patterns = acc.patterns;
     probe.enter(Stage::Update);
     if !apply_mixture(xs, ps, n, el, &g, &acc.y, &acc.c, inv) {
-        return failed(out);
+        failed(out);
+        return;
     }
-    normalise(&mut out, &acc.beta, &acc.bmiss, inv, n, m, skip);
+    normalise(out, &acc.beta, &acc.bmiss, inv, n, m, skip);
     let sdiag: [f32; LANES] = core::array::from_fn(|t| at(&sbar, t, t));
-    exclusive_density(&mut out, &zhat, &sdiag, points, n);
-    out
+    exclusive_density(out, &zhat, &sdiag, points, n);
 }
 
 /// The event weights of a row's eligible tracks `elig[..na]` into `acc`, and the factor `inv`
@@ -370,6 +395,9 @@ fn weigh_row<const LANES: usize>(
     }
     let m = points.len();
     acc.bmiss = [1.0; LANES];
+    // One accumulator for every cluster, cleared after each on its members alone.
+    let mut part = Acc::<LANES>::new();
+    let mut ctx_prev_set = 0u32;
     for cl in 0..clusters {
         let (mem, k, set_c) = members((elig, na), label, cl);
         let mut ctx = lg.ctx(
@@ -382,7 +410,10 @@ fn weigh_row<const LANES: usize>(
             moments,
         );
         ctx.active_set = set_c;
-        let mut part = Acc::<LANES>::new();
+        if cl > 0 {
+            part.clear_tracks(ctx_prev_set);
+        }
+        ctx_prev_set = set_c;
         if !(weigh(&ctx, &mut part) && part.wtot.is_finite() && part.wtot > 0.0) {
             return None;
         }
@@ -450,10 +481,31 @@ pub fn associate<const LANES: usize>(
     n: usize,
     points: &[f32],
     params: &RowParams,
-    (max_events, mode): (usize, Association),
+    budget: (usize, Association),
     skip: u32,
 ) -> RowOutcome<LANES> {
     let mut out = RowOutcome::<LANES>::default();
+    associate_into(
+        &mut out, zhat, sdiag, cross, n, points, params, budget, skip,
+    );
+    out
+}
+
+/// [`associate`] into `out` (reset first): the caller keeps one outcome for all its rows, so
+/// that no ~1 KiB outcome is copied per row (a memcpy on the Cortex-M4F).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn associate_into<const LANES: usize>(
+    out: &mut RowOutcome<LANES>,
+    zhat: &[f32; LANES],
+    sdiag: &[f32; LANES],
+    cross: impl Fn(usize, usize) -> f32,
+    n: usize,
+    points: &[f32],
+    params: &RowParams,
+    (max_events, mode): (usize, Association),
+    skip: u32,
+) {
+    *out = RowOutcome::<LANES>::default();
     let n = n.min(LANES);
     let m = points.len().min(MAX_ROW_POINTS);
     out.ignored_points = (points.len() - m) as u32;
@@ -462,12 +514,15 @@ pub fn associate<const LANES: usize>(
     for (t, row) in sbar.iter_mut().enumerate().take(n) {
         set(row, t, get(sdiag, t));
     }
-    if n == 0 || !masks(zhat, &sbar, n, points, params, skip, &mut out) {
+    if n == 0 || !masks(zhat, &sbar, n, points, params, skip, out) {
         if n == 0 {
             out.clutter_points = points.iter().filter(|z| z.is_finite()).count() as u32;
             out.ignored_points += m as u32 - out.clutter_points;
         }
-        return if out.failed { failed(out) } else { out };
+        if out.failed {
+            failed(out);
+        }
+        return;
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
     let lg = Logs::of(params);
@@ -496,23 +551,17 @@ pub fn associate<const LANES: usize>(
     }
     out.approximated = over;
     if mode == Association::Lbp || (mode == Association::ExactOrLbp && out.approximated) {
-        return match lbp::marginals(&mut out, zhat, sdiag, points, n, &lg, skip) {
+        match lbp::marginals(out, zhat, sdiag, points, n, &lg, skip) {
             Some(it) => {
                 out.lbp_iterations = it.max(1);
-                exclusive_density(&mut out, zhat, sdiag, points, n);
-                out
+                exclusive_density(out, zhat, sdiag, points, n);
             }
             None => failed(out),
-        };
+        }
+        return;
     }
     if out.approximated {
-        prune(
-            &mut out,
-            (&sbar, zhat, points),
-            n,
-            max_events.max(1) as u64,
-            &lg,
-        );
+        prune(out, (&sbar, zhat, points), n, max_events.max(1) as u64, &lg);
     }
     let (elig, na) = eligible(&out.valid, n, skip);
     if !sbar_known {
@@ -534,13 +583,13 @@ pub fn associate<const LANES: usize>(
         false,
         &mut acc,
     ) else {
-        return failed(out);
+        failed(out);
+        return;
     };
     out.events = acc.events;
     out.patterns = acc.patterns;
-    normalise(&mut out, &acc.beta, &acc.bmiss, inv, n, m, skip);
-    exclusive_density(&mut out, zhat, sdiag, points, n);
-    out
+    normalise(out, &acc.beta, &acc.bmiss, inv, n, m, skip);
+    exclusive_density(out, zhat, sdiag, points, n);
 }
 
 /// The eligible tracks among the first `n` (not masked by `skip`, at least one candidate).
@@ -893,7 +942,8 @@ fn exclusive_density<const LANES: usize>(
         let st = get(sdiag, t);
         let zt = get(zhat, t);
         let mask = get(&out.valid, t);
-        let own = out.beta.get(t).copied().unwrap_or([0.0; MAX_ROW_POINTS]);
+        // By reference: a copy of the row is a 128-byte memcpy on the Cortex-M4F.
+        let own = out.beta.get(t).unwrap_or(&[0.0; MAX_ROW_POINTS]);
         let norm = -0.5 * (ln_2pi + math::ln(st));
         let d: f32 = points
             .iter()
@@ -901,7 +951,7 @@ fn exclusive_density<const LANES: usize>(
             .filter(|(j, _)| mask & (1 << j) != 0)
             .map(|(j, z)| {
                 let e = z - zt;
-                let free = (1.0 - (get(&claimed, j) - get(&own, j))).clamp(0.0, 1.0);
+                let free = (1.0 - (get(&claimed, j) - get(own, j))).clamp(0.0, 1.0);
                 math::exp(norm - 0.5 * e * e / st) * free
             })
             .sum();
@@ -992,11 +1042,10 @@ fn prune<const LANES: usize>(
 }
 
 /// Marks `out` failed, with the weights of an untouched row (β cleared, every track missed).
-fn failed<const LANES: usize>(mut out: RowOutcome<LANES>) -> RowOutcome<LANES> {
+fn failed<const LANES: usize>(out: &mut RowOutcome<LANES>) {
     out.failed = true;
     out.beta = [[0.0; MAX_ROW_POINTS]; LANES];
     out.beta_miss = [1.0; LANES];
-    out
 }
 
 #[cfg(test)]
