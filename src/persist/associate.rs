@@ -126,6 +126,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         let mut counts = PassCounts::default();
         // One outcome for every row (reset by each row's association).
         let mut out = RowOutcome::<LANES>::default();
+        let mut scratch = row::Scratch::<LANES>::new();
         for r in 0..pass.rows.min(ROWS) {
             let pts = row_points(r);
             let m = pts.len().min(MAX_ROW_POINTS);
@@ -175,7 +176,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 },
             };
             row::associate_into(
-                &mut out,
+                (&mut out, &mut scratch),
                 &pred.zhat,
                 &pred.sdiag,
                 |a, bb| {

@@ -455,8 +455,9 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
             miss: cfg.miss,
         };
 
-        // One row outcome for every row (reset by each row's update).
+        // One row outcome and one set of event arrays for every row.
         let mut o = row::RowOutcome::<LANES>::default();
+        let mut scratch = row::Scratch::<LANES>::new();
         for r in 0..rows {
             if r > 0 {
                 probe.enter(Stage::RowPredict);
@@ -492,7 +493,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                         }
                     });
             row::update_into(
-                &mut o,
+                (&mut o, &mut scratch),
                 &mut self.state,
                 &hv,
                 rest.get(..nr).unwrap_or(&[]),

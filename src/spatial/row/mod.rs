@@ -68,6 +68,7 @@ use crate::probe::{NoProbe, Probe, Stage};
 mod events;
 mod lbp;
 mod mixture;
+pub(crate) use events::Scratch;
 use events::{count_events, Acc, Ctx, WINDOW};
 use mixture::{apply_mixture, at, eligible_gains, mat_vec, put};
 
@@ -246,7 +247,7 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
 ) -> RowOutcome<LANES> {
     let mut out = RowOutcome::<LANES>::default();
     update_into(
-        &mut out,
+        (&mut out, &mut Scratch::new()),
         state,
         h,
         points,
@@ -257,11 +258,12 @@ pub fn update_probed<const NS: usize, const LANES: usize, P: Probe>(
     out
 }
 
-/// [`update_probed`] into `out` (reset first): the frame walk keeps one outcome for all its
-/// rows, so that no ~1 KiB outcome is copied per row (a memcpy on the Cortex-M4F).
+/// [`update_probed`] into `out` (reset first), with the event pass's arrays `scratch`: the
+/// frame walk keeps one of each for all its rows, so that no ~1 KiB outcome is copied and no
+/// pattern arrays are cleared per row (a memcpy and a memclr on the Cortex-M4F).
 #[allow(non_snake_case)]
 pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
-    out: &mut RowOutcome<LANES>,
+    (out, scratch): (&mut RowOutcome<LANES>, &mut Scratch<LANES>),
     state: &mut Stacked<NS, LANES>,
     h: &SVector<f32, NS>,
     points: &[f32],
@@ -344,6 +346,7 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
         (n, n_skipped, skip),
         true,
         &mut acc,
+        scratch,
     ) else {
         failed(out);
         return;
@@ -379,6 +382,7 @@ fn weigh_row<const LANES: usize>(
     (n, n_skipped, skip): (usize, usize, u32),
     moments: bool,
     acc: &mut Acc<LANES>,
+    scratch: &mut Scratch<LANES>,
 ) -> Option<f32> {
     if clusters <= 1 {
         let ctx = lg.ctx(
@@ -390,7 +394,7 @@ fn weigh_row<const LANES: usize>(
             (n, n_skipped, skip),
             moments,
         );
-        let ok = weigh(&ctx, acc) && acc.wtot.is_finite() && acc.wtot > 0.0;
+        let ok = weigh(&ctx, acc, scratch) && acc.wtot.is_finite() && acc.wtot > 0.0;
         return ok.then(|| 1.0 / acc.wtot);
     }
     let m = points.len();
@@ -414,7 +418,7 @@ fn weigh_row<const LANES: usize>(
             part.clear_tracks(ctx_prev_set);
         }
         ctx_prev_set = set_c;
-        if !(weigh(&ctx, &mut part) && part.wtot.is_finite() && part.wtot > 0.0) {
+        if !(weigh(&ctx, &mut part, scratch) && part.wtot.is_finite() && part.wtot > 0.0) {
             return None;
         }
         acc.events += part.events;
@@ -486,16 +490,25 @@ pub fn associate<const LANES: usize>(
 ) -> RowOutcome<LANES> {
     let mut out = RowOutcome::<LANES>::default();
     associate_into(
-        &mut out, zhat, sdiag, cross, n, points, params, budget, skip,
+        (&mut out, &mut Scratch::new()),
+        zhat,
+        sdiag,
+        cross,
+        n,
+        points,
+        params,
+        budget,
+        skip,
     );
     out
 }
 
-/// [`associate`] into `out` (reset first): the caller keeps one outcome for all its rows, so
-/// that no ~1 KiB outcome is copied per row (a memcpy on the Cortex-M4F).
+/// [`associate`] into `out` (reset first), with the event pass's arrays `scratch`: the caller
+/// keeps one of each for all its rows, so that no ~1 KiB outcome is copied and no pattern
+/// arrays are cleared per row (a memcpy and a memclr on the Cortex-M4F).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn associate_into<const LANES: usize>(
-    out: &mut RowOutcome<LANES>,
+    (out, scratch): (&mut RowOutcome<LANES>, &mut Scratch<LANES>),
     zhat: &[f32; LANES],
     sdiag: &[f32; LANES],
     cross: impl Fn(usize, usize) -> f32,
@@ -582,6 +595,7 @@ pub(crate) fn associate_into<const LANES: usize>(
         (n, n_skipped, skip),
         false,
         &mut acc,
+        scratch,
     ) else {
         failed(out);
         return;
@@ -963,10 +977,14 @@ fn exclusive_density<const LANES: usize>(
 /// events, redone once with a new reference if the weights' scale was off. `None` on a
 /// numerical failure (`acc` then holds nothing meaningful).
 #[inline(always)]
-fn weigh<const LANES: usize>(ctx: &Ctx<'_, LANES>, acc: &mut Acc<LANES>) -> bool {
+fn weigh<const LANES: usize>(
+    ctx: &Ctx<'_, LANES>,
+    acc: &mut Acc<LANES>,
+    scratch: &mut Scratch<LANES>,
+) -> bool {
     let empty = ctx.base(0, 0.0);
     let mut reference = if empty.is_finite() { empty } else { 0.0 };
-    if !ctx.pass(reference, acc) {
+    if !ctx.pass(reference, acc, scratch) {
         return false;
     }
     if acc.lwmax.is_finite()
@@ -974,7 +992,7 @@ fn weigh<const LANES: usize>(ctx: &Ctx<'_, LANES>, acc: &mut Acc<LANES>) -> bool
     {
         reference = acc.lwmax;
         *acc = Acc::new();
-        if !ctx.pass(reference, acc) {
+        if !ctx.pass(reference, acc, scratch) {
             return false;
         }
     }
