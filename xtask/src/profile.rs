@@ -83,7 +83,7 @@ impl Counts {
         let mut c = Self::default();
         // The block being disassembled: (start, instructions so far).
         let mut block: Option<(u32, u32)> = None;
-        // The last block's symbol outside the helpers, and whether the last block was a helper.
+        // The symbol of the last block outside the helpers: a helper's caller.
         let mut caller = String::new();
         for line in r.lines() {
             let line = line.context("reading the QEMU log")?;
@@ -250,26 +250,26 @@ pub fn run(a: &ProfileArgs) -> Result<()> {
         100.0 * systick as f64 / total.max(1) as f64
     );
     let nf = frames.len().max(1) as u64;
-    println!("{:>12} {:>6}  function", "per frame", "%");
-    for (name, n) in funcs.iter().take(a.top) {
-        println!(
-            "{:>12} {:>5.1}%  {}",
-            n / nf,
-            100.0 * *n as f64 / total.max(1) as f64,
-            name
-        );
-    }
+    print_table("function", &funcs, (a.top, nf, total));
     println!("\nhelpers by caller (the helper's instructions, charged to the block before it):");
-    println!("{:>12} {:>6}  caller → helper", "per frame", "%");
-    for (name, n) in counts.helpers_by_caller().iter().take(a.top) {
+    print_table(
+        "caller → helper",
+        &counts.helpers_by_caller(),
+        (a.top, nf, total),
+    );
+    Ok(())
+}
+
+/// The first `top` rows: instructions per frame (`frames` frames), share of `total`, name.
+fn print_table(what: &str, rows: &[(String, u64)], (top, frames, total): (usize, u64, u64)) {
+    println!("{:>12} {:>6}  {what}", "per frame", "%");
+    for (name, n) in rows.iter().take(top) {
         println!(
-            "{:>12} {:>5.1}%  {}",
-            n / nf,
-            100.0 * *n as f64 / total.max(1) as f64,
-            name
+            "{:>12} {:>5.1}%  {name}",
+            n / frames,
+            100.0 * *n as f64 / total.max(1) as f64
         );
     }
-    Ok(())
 }
 
 #[cfg(test)]
