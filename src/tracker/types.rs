@@ -68,6 +68,44 @@ impl TrackerConfig {
         ..Self::DEFAULT
     };
 
+    /// This configuration with `k` rows per index interval (K, docs/design.md §2) instead of
+    /// its own, and every length it counts in rows rescaled so that it keeps its length in
+    /// metres: the spatial filter's initiation rows, hits, misses and merge rows and the
+    /// known-lane stage's hits and dash gap become `⌈n·k/K⌉` (at least 1), and the clutter
+    /// densities, which are per row, `K/k` times theirs (a row then collects the points of
+    /// `K/k` rows). Rows cost per frame in proportion to their number, `(N − 1)·k + 1`
+    /// (docs/measurements.md "Fitting the MCU"); `k = 0` is taken as 1.
+    #[must_use]
+    pub const fn with_rows_per_interval(self, k: u8) -> Self {
+        let k = if k == 0 { 1 } else { k };
+        let k0 = if self.spatial.rows_per_interval == 0 {
+            1
+        } else {
+            self.spatial.rows_per_interval
+        };
+        let density = k0 as f32 / k as f32;
+        let mut c = self;
+        c.spatial.rows_per_interval = k;
+        c.spatial.init_rows = {
+            let v = rescale_rows(k0, k, self.spatial.init_rows as u16);
+            if v > u8::MAX as u16 {
+                u8::MAX
+            } else {
+                v as u8
+            }
+        };
+        c.spatial.confirm_hits = rescale_rows(k0, k, self.spatial.confirm_hits);
+        c.spatial.tentative_misses = rescale_rows(k0, k, self.spatial.tentative_misses);
+        c.spatial.tentative_gap_misses = rescale_rows(k0, k, self.spatial.tentative_gap_misses);
+        c.spatial.max_misses = rescale_rows(k0, k, self.spatial.max_misses);
+        c.spatial.merge_rows = rescale_rows(k0, k, self.spatial.merge_rows);
+        c.spatial.clutter_density = self.spatial.clutter_density * density;
+        c.persist.confirm_hits = rescale_rows(k0, k, self.persist.confirm_hits);
+        c.persist.gap_misses = rescale_rows(k0, k, self.persist.gap_misses);
+        c.persist.clutter_floor = self.persist.clutter_floor * density;
+        c
+    }
+
     /// Every byte zero: the configuration of [`Tracker::UNINIT`], which never runs with it
     /// ([`Tracker::init`] replaces it). Not a usable configuration.
     pub(super) const ZEROED: Self = Self {
@@ -121,6 +159,18 @@ impl TrackerConfig {
         },
         smoother_per_lane: false,
     };
+}
+
+/// `⌈n·k/k0⌉`, at least 1 (a length in rows at `k0` rows per interval, at `k`).
+const fn rescale_rows(k0: u8, k: u8, n: u16) -> u16 {
+    let v = (n as u32 * k as u32).div_ceil(k0 as u32);
+    if v == 0 {
+        1
+    } else if v > u16::MAX as u32 {
+        u16::MAX
+    } else {
+        v as u16
+    }
 }
 
 impl Default for TrackerConfig {
@@ -233,4 +283,34 @@ pub struct StepOutput<const LANES: usize, const POINTS: usize> {
     pub smoothed: Vec<LaneEstimate<POINTS>, LANES>,
     /// Counters.
     pub report: StepReport,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::TrackerConfig;
+
+    #[test]
+    fn rows_per_interval_keeps_lengths_in_metres() {
+        let d = TrackerConfig::DEFAULT;
+        assert_eq!(d.with_rows_per_interval(d.spatial.rows_per_interval), d);
+        let h = d.with_rows_per_interval(2);
+        assert_eq!(h.spatial.rows_per_interval, 2);
+        // K 4 → 2: every row count halves, rounded up, none below one.
+        assert_eq!(h.spatial.confirm_hits, 3);
+        assert_eq!(h.spatial.max_misses, 6);
+        assert_eq!(h.spatial.tentative_misses, 4);
+        assert_eq!(h.spatial.merge_rows, 2);
+        assert_eq!(h.spatial.init_rows, 2);
+        assert_eq!(h.persist.gap_misses, 6);
+        assert_eq!(h.persist.confirm_hits, 2);
+        // A row of twice the length holds twice the clutter.
+        assert_eq!(h.spatial.clutter_density, 2.0 * d.spatial.clutter_density);
+        assert_eq!(h.persist.clutter_floor, 2.0 * d.persist.clutter_floor);
+        // The other parameters are untouched.
+        assert_eq!(h.spatial.gamma, d.spatial.gamma);
+        assert_eq!(h.persist.row_noise_scale, d.persist.row_noise_scale);
+        let one = d.with_rows_per_interval(0);
+        assert_eq!(one.spatial.rows_per_interval, 1);
+        assert_eq!(one.spatial.merge_rows, 1);
+    }
 }

@@ -11,7 +11,10 @@
 //!    exact enumeration (pruned over the budget), LBP over the budget, LBP on every row; the
 //!    labelled last frames, with the events enumerated and the rows pruned or weighed by LBP;
 //! 4. the uncoupled model (`tables::UNCOUPLED`, docs/design.md §4.2.6) alone and with the
-//!    cheaper options of 1 and 3 on top: the labelled last frames.
+//!    cheaper options of 1 and 3 on top: the labelled last frames;
+//! 5. fewer rows: K = 4 (the default), 3 and 2 rows per index interval
+//!    (`TrackerConfig::with_rows_per_interval`, every row count rescaled to keep its metres),
+//!    uncoupled and coupled B: the labelled last frames.
 //!
 //! The instructions per frame of the same models on the Cortex-M4F come from
 //! `STJPDACF_FW_RANK=r` / `STJPDACF_FW_PER_LANE=1` / `STJPDACF_FW_ASSOC=lbp|hybrid` /
@@ -20,7 +23,8 @@
 //!
 //! `cargo run --release -p stjpdacf-tools --example model_cost [rank ...]` (all sections; the
 //! ranks given, or 7 down to 3), `... --example model_cost assoc` (section 3 only),
-//! `... --example model_cost uncoupled` (section 4 only).
+//! `... --example model_cost uncoupled` (section 4 only), `... --example model_cost rows`
+//! (section 5 only).
 use stjpdacf::persist::PersistConfig;
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
@@ -48,10 +52,11 @@ fn truncated_from(base: &ReferenceTables, rank: u32) -> ReferenceTables {
 fn main() -> anyhow::Result<()> {
     let only_assoc = std::env::args().nth(1).as_deref() == Some("assoc");
     let only_uncoupled = std::env::args().nth(1).as_deref() == Some("uncoupled");
+    let only_rows = std::env::args().nth(1).as_deref() == Some("rows");
     let ranks: Vec<u32> = {
         let a: Vec<u32> = std::env::args()
             .skip(1)
-            .filter(|s| s != "assoc" && s != "uncoupled")
+            .filter(|s| s != "assoc" && s != "uncoupled" && s != "rows")
             .map(|s| s.parse())
             .collect::<Result<_, _>>()?;
         if a.is_empty() {
@@ -70,6 +75,9 @@ fn main() -> anyhow::Result<()> {
     if only_uncoupled {
         return uncoupled(&replays);
     }
+    if only_rows {
+        return rows(&replays);
+    }
     if !only_assoc {
         gram(&ranks, &replays)?;
     }
@@ -77,6 +85,7 @@ fn main() -> anyhow::Result<()> {
     if !only_assoc {
         smoother(&levels)?;
         uncoupled(&replays)?;
+        rows(&replays)?;
     }
     Ok(())
 }
@@ -107,6 +116,32 @@ fn uncoupled(replays: &Replays) -> anyhow::Result<()> {
                 "| {name} | {level:?} | {:.3} | {:.3} | {:.3} | {:.3} |",
                 s.accuracy, s.fp, s.fn_, st.step_mean_ms
             );
+        }
+    }
+    Ok(())
+}
+
+/// Section 5.
+fn rows(replays: &Replays) -> anyhow::Result<()> {
+    println!(
+        "\nRows per index interval K (TrackerConfig::with_rows_per_interval; labelled last frames):\n"
+    );
+    println!("| tables | K | rows | noise | accuracy | FP | FN | host ms/frame |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (name, tables) in [("uncoupled B", &UNCOUPLED), ("coupled B", &DEFAULT)] {
+        for k in [4u8, 3, 2] {
+            let config = TrackerConfig::DEFAULT.with_rows_per_interval(k);
+            for (level, o) in replays {
+                let (s, st) = demo::score_replay_last(o, tables, config)?;
+                println!(
+                    "| {name} | {k} | {} | {level:?} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                    (DEFAULT.gram_eigval.len() - 1) * usize::from(k) + 1,
+                    s.accuracy,
+                    s.fp,
+                    s.fn_,
+                    st.step_mean_ms
+                );
+            }
         }
     }
     Ok(())

@@ -114,9 +114,21 @@ const fn association_override(default: Association) -> Association {
     }
 }
 
+/// `STJPDACF_FW_K` when it is one digit `1..=default`, else `default`.
+const fn rows_override(default: u8) -> u8 {
+    match option_env!("STJPDACF_FW_K") {
+        Some(s) => match s.as_bytes() {
+            [d @ b'1'..=b'9'] if *d - b'0' <= default => *d - b'0',
+            _ => default,
+        },
+        None => default,
+    }
+}
+
 /// The tracker's configuration: [`TrackerConfig::DEFAULT`], with the per-lane smoother when the
-/// build-time variable `STJPDACF_FW_PER_LANE` is `1` and the known-lane association of
-/// `STJPDACF_FW_ASSOC` (docs/measurements.md "Fitting the MCU").
+/// build-time variable `STJPDACF_FW_PER_LANE` is `1`, the known-lane association of
+/// `STJPDACF_FW_ASSOC` and the rows per index interval of `STJPDACF_FW_K`
+/// ([`TrackerConfig::with_rows_per_interval`]; docs/measurements.md "Fitting the MCU").
 const CONFIG: TrackerConfig = TrackerConfig {
     smoother_per_lane: per_lane_override(),
     persist: PersistConfig {
@@ -124,7 +136,10 @@ const CONFIG: TrackerConfig = TrackerConfig {
         ..PersistConfig::DEFAULT
     },
     ..TrackerConfig::DEFAULT
-};
+}
+.with_rows_per_interval(rows_override(
+    TrackerConfig::DEFAULT.spatial.rows_per_interval,
+));
 
 /// The tracker (≈148 KB) lives in a static, never on the stack; all zero
 /// ([`ReferenceTracker::UNINIT`]), so it is in `.bss` and takes no flash. [`run_tracker_with`]
