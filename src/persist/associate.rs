@@ -8,7 +8,7 @@ use crate::spatial::row::{self, RowOutcome, RowParams, MAX_ROW_POINTS};
 use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 
-use super::rows::{band, mean_at, quad, RowBasis};
+use super::rows::{band, quad, LaneBlocks, RowBasis};
 use super::{Evidence, Pass, PassCounts, Persist, PersistConfig};
 
 /// The rows' points a known lane explains, per row (bit `j` = point `j`).
@@ -94,7 +94,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     pub fn associate<'p, const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
-        basis: &RowBasis<RANK, ROWS>,
+        (basis, blocks): (&RowBasis<RANK, ROWS>, &mut LaneBlocks<RANK, LANES>),
         filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
         lanes: &Lanes<'_, LANES>,
         pass: &Pass,
@@ -121,6 +121,8 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             tables.coreg.get((a, b)).copied().unwrap_or(0.0)
         };
         let uncoupled = filter.uncoupled();
+        // Each lane's own block, read once for all rows.
+        blocks.load(filter, lanes.slots, r_used);
         let mut unexplained = [0.0f32; POINTS];
         let mut band_rows = [0.0f32; POINTS];
         let mut counts = PassCounts::default();
@@ -149,12 +151,15 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 if r < usize::from(lo) || r > usize::from(hi) {
                     continue;
                 }
+                let Some(o) = blocks.get(s) else {
+                    continue;
+                };
                 let k = pred.n;
-                set(&mut pred.zhat, k, mean_at(filter, s, &c, r_used));
+                set(&mut pred.zhat, k, o.mean(&c, r_used));
                 set(
                     &mut pred.sdiag,
                     k,
-                    quad(filter, s, s, &c, r_used) + rho * bss(s, s) + self.noise(b, pass.params.r),
+                    o.quad(&c, r_used) + rho * bss(s, s) + self.noise(b, pass.params.r),
                 );
                 set(&mut pred.idx, k, s);
                 pred.n += 1;

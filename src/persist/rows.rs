@@ -109,13 +109,10 @@ impl<const RANK: usize, const ROWS: usize> RowBasis<RANK, ROWS> {
     }
 }
 
-/// `cᵀ a_s` over the first `r` components: lane `s`'s predicted mean at the row.
-pub(super) fn mean_at<
-    const LANES: usize,
-    const POINTS: usize,
-    const RANK: usize,
-    const NX: usize,
->(
+/// `cᵀ a_s` over the first `r` components: lane `s`'s predicted mean at the row (the strided
+/// read that [`OwnBlock::mean`] replaces; its test oracle).
+#[cfg(test)]
+fn mean_at<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize>(
     f: &TemporalFilter<LANES, POINTS, RANK, NX>,
     s: usize,
     c: &[f32; RANK],
@@ -161,6 +158,110 @@ pub(super) fn quad<const LANES: usize, const POINTS: usize, const RANK: usize, c
     acc
 }
 
+/// Every lane's position coefficients and their covariance block, copied contiguously once per
+/// pass for the rows that follow (docs/design.md §11.2): the known-lane pass's working memory,
+/// `LANES·(RANK + RANK²)·4` bytes (1,344 B at the reference configuration), held by the
+/// [`crate::tracker::Tracker`] beside its [`RowBasis`] rather than on the stack.
+#[derive(Debug, Clone, Copy)]
+pub struct LaneBlocks<const RANK: usize, const LANES: usize> {
+    pub(super) lanes: [OwnBlock<RANK>; LANES],
+}
+
+impl<const RANK: usize, const LANES: usize> LaneBlocks<RANK, LANES> {
+    /// All zero.
+    pub const NEW: Self = Self {
+        lanes: [OwnBlock::ZERO; LANES],
+    };
+
+    /// Copies the blocks of the active lanes among `slots` (bit `s`) out of `f`, over the
+    /// first `r` components: `(r + r²)` loads a lane.
+    pub(super) fn load<const POINTS: usize, const NX: usize>(
+        &mut self,
+        f: &TemporalFilter<LANES, POINTS, RANK, NX>,
+        slots: u32,
+        r: usize,
+    ) {
+        for (s, o) in self.lanes.iter_mut().enumerate() {
+            if slots & (1 << s) != 0 && f.is_active(s) {
+                *o = OwnBlock::of(f, s, r);
+            }
+        }
+    }
+
+    /// Lane `s`'s block (as last loaded).
+    pub(super) fn get(&self, s: usize) -> Option<&OwnBlock<RANK>> {
+        self.lanes.get(s)
+    }
+}
+
+/// One lane's position coefficients and their covariance block, contiguous: [`OwnBlock::mean`]
+/// and [`OwnBlock::quad`] are [`mean_at`] and [`quad`]`(s, s)` with the same products summed in
+/// the same order (the same values bit for bit), without their strided reads of the stacked
+/// filter (stop 31: the strided `quad` was 10 % of a typical uncoupled frame on the
+/// Cortex-M4F).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct OwnBlock<const RANK: usize> {
+    /// `a_sj`, `j < r`.
+    a: [f32; RANK],
+    /// `p[j][k] = P[a_sk, a_sj]`, `j, k < r` (column `a_sj` as [`quad`] reads it).
+    p: [[f32; RANK]; RANK],
+}
+
+impl<const RANK: usize> OwnBlock<RANK> {
+    /// All zero (a lane not looked at).
+    pub(super) const ZERO: Self = Self {
+        a: [0.0; RANK],
+        p: [[0.0; RANK]; RANK],
+    };
+
+    /// Lane `s`'s block over the first `r` components (entries out of the filter's range read
+    /// as 0, which adds nothing).
+    pub(super) fn of<const LANES: usize, const POINTS: usize, const NX: usize>(
+        f: &TemporalFilter<LANES, POINTS, RANK, NX>,
+        s: usize,
+        r: usize,
+    ) -> Self {
+        let x = f.mean();
+        let p = f.covariance().as_slice();
+        let s0 = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, 0, 0);
+        let mut b = Self::ZERO;
+        for (j, (aj, col)) in b.a.iter_mut().zip(b.p.iter_mut()).enumerate().take(r) {
+            let ij = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
+            *aj = x.get(ij).copied().unwrap_or(0.0);
+            let c0 = ij * NX + s0;
+            for (k, v) in col.iter_mut().enumerate().take(r) {
+                *v = p.get(c0 + 2 * k).copied().unwrap_or(0.0);
+            }
+        }
+        b
+    }
+
+    /// `cᵀ a_s` over the first `r` components ([`mean_at`]).
+    pub(super) fn mean(&self, c: &[f32; RANK], r: usize) -> f32 {
+        c.iter()
+            .zip(self.a.iter())
+            .take(r)
+            .map(|(cj, aj)| cj * aj)
+            .sum()
+    }
+
+    /// `cᵀ P[a_s, a_s] c` over the first `r` components ([`quad`]`(s, s)`): `r²`
+    /// multiply-adds.
+    pub(super) fn quad(&self, c: &[f32; RANK], r: usize) -> f32 {
+        let mut acc = 0.0;
+        for (cj, col) in c.iter().zip(self.p.iter()).take(r) {
+            let inner: f32 = col
+                .iter()
+                .zip(c.iter())
+                .take(r)
+                .map(|(pv, ck)| pv * ck)
+                .sum();
+            acc += cj * inner;
+        }
+        acc
+    }
+}
+
 impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, POINTS, ROWS> {
     /// The point-variance estimate from this frame's posterior residuals of the lanes in
     /// `slots` (after their updates, docs/design.md §11.6): for every row where one point holds
@@ -171,7 +272,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     pub fn estimate_noise<const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
-        basis: &RowBasis<RANK, ROWS>,
+        (basis, blocks): (&RowBasis<RANK, ROWS>, &mut LaneBlocks<RANK, LANES>),
         filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
         (slots, ranks): (u32, &[u8; LANES]),
         pass: &Pass,
@@ -194,6 +295,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 .copied()
                 .unwrap_or([0.0; 2])
         };
+        blocks.load(filter, slots, r_used);
         for r in 0..pass.rows.min(ROWS) {
             let any = (0..LANES).any(|s| slots & (1 << s) != 0 && row_of(s, r)[1] >= 0.5);
             if !any {
@@ -206,7 +308,10 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 if slots & (1 << s) == 0 || w < 0.5 || !filter.is_active(s) {
                     continue;
                 }
-                let z = mean_at(filter, s, &c, r_used);
+                let Some(o) = blocks.get(s) else {
+                    continue;
+                };
+                let z = o.mean(&c, r_used);
                 let rk = usize::from(get(ranks, s));
                 let bss = tables.coreg.get((rk, rk)).copied().unwrap_or(0.0);
                 let e = zt - z;
@@ -214,7 +319,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 // association took for the lane); the truncation's bias (×0.973 for a
                 // Gaussian) is corrected.
                 let cur = self.noise(b, pass.params.r);
-                let est = (e * e - rho * bss + quad(filter, s, s, &c, r_used)) / 0.973;
+                let est = (e * e - rho * bss + o.quad(&c, r_used)) / 0.973;
                 if est.is_finite() && e * e <= 9.0 * cur {
                     if let Some(nb) = self.noise.get_mut(b) {
                         nb[0] += est.max(0.0);
@@ -223,5 +328,58 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::observation::{LaneObservation, Status};
+    use crate::tables::DEFAULT;
+    use crate::temporal::smoother::Temporal;
+
+    /// The contiguous block gives the strided reads' values bit for bit, on a coupled
+    /// covariance (lanes conditioned on each other, predicted), for every lane, rank and row.
+    #[test]
+    fn own_block_equals_the_strided_reads() {
+        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
+        let mut ranks = [0u8; 6];
+        for (s, r) in [(0usize, 0u8), (1, 1), (3, 2), (5, 3)] {
+            ranks[s] = r;
+            t.start_lane(&DEFAULT, s, r, &ranks).unwrap();
+            t.predict(&DEFAULT, 0.05 + 0.01 * s as f32).unwrap();
+        }
+        for (n, s) in [0usize, 1, 3, 5].into_iter().enumerate() {
+            let mut o = LaneObservation::<16>::EMPTY;
+            o.status = Status::Confirmed;
+            for i in (0..16).filter(|i| (i + n) % 3 != 0) {
+                o.present[i] = true;
+                o.z[i] = -5.0 + 3.4 * n as f32 + 0.02 * DEFAULT.index_u[i];
+                o.cov[(i, i)] = 0.0025;
+            }
+            t.update(&DEFAULT, s, &o).unwrap();
+        }
+        let f = t.filter();
+        assert!(!f.uncoupled());
+        let mut checked = 0;
+        for s in [0usize, 1, 3, 5] {
+            for r in 1..=7 {
+                let block = OwnBlock::of(f, s, r);
+                for row in 0..9 {
+                    let c: [f32; 7] = core::array::from_fn(|j| {
+                        ((row * 7 + j) as f32 * 0.37).sin() / (1.0 + j as f32)
+                    });
+                    assert_eq!(block.mean(&c, r).to_bits(), mean_at(f, s, &c, r).to_bits());
+                    assert_eq!(block.quad(&c, r).to_bits(), quad(f, s, s, &c, r).to_bits());
+                    assert!(block.quad(&c, r) >= 0.0);
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 4 * 7 * 9);
+        // Not a comparison of zeros.
+        let c = [0.3f32, -0.2, 0.1, 0.05, -0.04, 0.02, 0.01];
+        let b = OwnBlock::of(f, 3, 7);
+        assert!(b.mean(&c, 7).abs() > 0.1 && b.quad(&c, 7) > 0.0);
     }
 }
