@@ -62,7 +62,7 @@ fn equivalent_measurement(
         nbar += bj * d;
         n2 += bj * d * d;
     }
-    let spread = (n2 - nbar * nbar).max(0.0);
+    let spread = math::max(n2 - nbar * nbar, 0.0);
     let q = w / st - spread / (st * st);
     let p_row = st - r;
     let var = if q > 0.0 {
@@ -112,7 +112,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         let mut pd0 = [[0.5f32; POINTS]; LANES];
         for (l, row) in self.lanes.iter().zip(pd0.iter_mut()) {
             for (b, v) in row.iter_mut().enumerate() {
-                *v = l.pd(b).max(cfg.pd_floor);
+                *v = math::max(l.pd(b), cfg.pd_floor);
             }
         }
         let bss = |s: usize, t: usize| {
@@ -333,7 +333,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 e.weight += w;
                 if w >= 0.5 {
                     e.extent[0] = e.extent[0].min(at.u);
-                    e.extent[1] = e.extent[1].max(at.u);
+                    e.extent[1] = math::max(e.extent[1], at.u);
                 }
             }
         }
@@ -360,7 +360,11 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 continue;
             }
             let [lo, hi] = self.span.get(b).copied().unwrap_or([0.0; 2]);
-            let width = if hi > lo { (hi - lo).max(1.0) } else { 1.0 };
+            let width = if hi > lo {
+                math::max(hi - lo, 1.0)
+            } else {
+                1.0
+            };
             let est = get(unexplained, b) / (rows * width);
             if let Some(c) = self.clutter.get_mut(b) {
                 *c = if c.is_finite() {

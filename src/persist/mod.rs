@@ -376,16 +376,16 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     /// `fallback` worth `n₀ = 2` rows, floored at `1e-5` m².
     pub fn noise(&self, b: usize, fallback: f32) -> f32 {
         let [s, n] = self.noise.get(b).copied().unwrap_or([0.0; 2]);
-        ((s + 2.0 * fallback) / (n + 2.0)).max(1e-5)
+        math::max((s + 2.0 * fallback) / (n + 2.0), 1e-5)
     }
 
     /// The clutter density of band `b`, or `fallback` before the first estimate.
     pub fn clutter(&self, b: usize, fallback: f32, floor: f32) -> f32 {
         let c = get(&self.clutter, b);
         if c.is_finite() {
-            c.max(floor)
+            math::max(c, floor)
         } else {
-            fallback.max(floor)
+            math::max(fallback, floor)
         }
     }
 

@@ -118,7 +118,7 @@ pub fn ray_stat<const POINTS: usize>(
     for i in (0..POINTS).filter(|&i| usable(i)) {
         let ui = u.get(i).copied().unwrap_or(0.0);
         lo = lo.min(ui);
-        hi = hi.max(ui);
+        hi = math::max(hi, ui);
     }
     let (mid, half) = ((lo + hi) / 2.0, (hi - lo) / 2.0);
     if half <= 0.0 {
@@ -234,7 +234,7 @@ fn line_moments<const POINTS: usize>(
     let mut scale = 0.0f32;
     for i in (0..POINTS).filter(|&i| usable(i)) {
         n += 1;
-        scale = scale.max(u.get(i).copied().unwrap_or(0.0).abs());
+        scale = math::max(scale, u.get(i).copied().unwrap_or(0.0).abs());
     }
     if n < 3 || scale <= 0.0 {
         return None;

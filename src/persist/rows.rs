@@ -322,7 +322,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 let est = (e * e - rho * bss + o.quad(&c, r_used)) / 0.973;
                 if est.is_finite() && e * e <= 9.0 * cur {
                     if let Some(nb) = self.noise.get_mut(b) {
-                        nb[0] += est.max(0.0);
+                        nb[0] += math::max(est, 0.0);
                         nb[1] += 1.0;
                     }
                 }

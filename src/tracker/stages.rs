@@ -273,7 +273,7 @@ impl_tracker! {
                         continue;
                     }
                     let (d, var) = self.difference_at(tables, (s, &zs, &vs), (t, &zt, &vt), i);
-                    let var = var.max(tables.hyper.pseudo_noise);
+                    let var = math::max(var, tables.hyper.pseudo_noise);
                     cost += d * d / var;
                     dist += d.abs();
                     n += 1;
@@ -389,7 +389,7 @@ impl_tracker! {
                     // computed only when the bounds do not decide.
                     let at = |v: &SVector<f32, POINTS>| v.get(i).copied().unwrap_or(f32::NAN);
                     let d = at(zs) - at(zt);
-                    let sd = math::sqrt(at(vs).max(0.0)) + math::sqrt(at(vt).max(0.0));
+                    let sd = math::sqrt(math::max(at(vs), 0.0)) + math::sqrt(math::max(at(vt), 0.0));
                     if !(d.is_finite() && sd.is_finite()) {
                         continue;
                     }
@@ -399,7 +399,7 @@ impl_tracker! {
                         true
                     } else {
                         let (_, var) = self.difference_at(tables, (s, zs, vs), (t, zt, vt), i);
-                        d * d > gate * (var.max(0.0) + 2.0 * rr)
+                        d * d > gate * (math::max(var, 0.0) + 2.0 * rr)
                     };
                     common += 1;
                     if apart {

@@ -363,7 +363,7 @@ impl<const L: usize> Ctx<'_, L> {
             if !weighted {
                 return (1, 0.0);
             }
-            acc.lwmax = acc.lwmax.max(base);
+            acc.lwmax = math::max(acc.lwmax, base);
             return (1, math::exp(base - reference));
         };
         let levs = lev.get_mut(..k).unwrap_or(&mut []);
@@ -418,7 +418,7 @@ impl<const L: usize> Ctx<'_, L> {
                         continue; // weight 0 (e.g. ln 0 of a zero miss factor): no contribution
                     }
                     let lw = base - 0.5 * q;
-                    acc.lwmax = acc.lwmax.max(lw);
+                    acc.lwmax = math::max(acc.lwmax, lw);
                     let w = math::exp(lw - reference);
                     acc.pick(mb, j, w);
                     if self.moments {

@@ -946,9 +946,11 @@ fn exclusive_density<const LANES: usize>(
     n: usize,
 ) {
     let ln_2pi = math::ln(2.0 * core::f32::consts::PI);
+    // Only the row's points are read below (a gate bit `j` has `j < m`).
+    let m = points.len().min(MAX_ROW_POINTS);
     let mut claimed = [0.0f32; MAX_ROW_POINTS];
     for row in out.beta.iter().take(n) {
-        for (c, b) in claimed.iter_mut().zip(row.iter()) {
+        for (c, b) in claimed.iter_mut().zip(row.iter()).take(m) {
             *c += b;
         }
     }

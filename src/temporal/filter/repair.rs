@@ -135,9 +135,9 @@ pub(crate) fn repair_psd<const N: usize>(ps: &mut [f32], ld: usize, runs: &[Rang
         for (a, &i) in idx.iter().enumerate().skip(k + 1) {
             let v = ps.get(i + ld * c).copied().unwrap_or(0.0);
             set(&mut col, a, v);
-            theta2 = theta2.max(v * v);
+            theta2 = math::max(theta2, v * v);
         }
-        let d = REPAIR_PIVOT.max(dk.abs()).max(theta2);
+        let d = math::max(math::max(REPAIR_PIVOT, dk.abs()), theta2);
         if dk.is_nan() || dk < d {
             let e = d - dk;
             set(&mut raise, k, if e.is_finite() { e } else { 0.0 });

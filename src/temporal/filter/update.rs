@@ -502,7 +502,7 @@ pub(crate) fn project<const POINTS: usize, const RANK: usize>(
         *m = dot(&vi, a);
         let pv: [f32; RANK] = core::array::from_fn(|j| p.get(j).map_or(0.0, |row| dot(row, &vi)));
         let s: f32 = vi.iter().zip(&sd).map(|(v, d)| v.abs() * d).sum();
-        *w = dot(&pv, &vi).max(tol * s * s);
+        *w = math::max(dot(&pv, &vi), tol * s * s);
     }
     (mean, var)
 }
