@@ -20,7 +20,7 @@ use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use stjpdacf::persist::{self, Evidence, Explained, LaneBlocks, Lanes, Pass, Persist, RowBasis};
+use stjpdacf::persist::{self, Evidence, Explained, Lanes, Pass, PassMemory, Persist, RowBasis};
 use stjpdacf::probe::NoProbe;
 use stjpdacf::spatial::row::{MissModel, RowParams};
 use stjpdacf::tables::{Tables, DEFAULT, UNCOUPLED};
@@ -655,7 +655,7 @@ fn compare_pass(
     let mut explained: Explained<ROWS> = [0; ROWS];
     let mut basis = RowBasis::<RANK, ROWS>::NEW;
     basis.ensure(tables, &pass);
-    let mut blocks = LaneBlocks::<RANK, LANES>::NEW;
+    let mut blocks = PassMemory::<RANK, LANES>::NEW;
     let failed = ps
         .associate(
             tables,

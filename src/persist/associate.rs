@@ -8,7 +8,7 @@ use crate::spatial::row::{self, RowOutcome, RowParams, MAX_ROW_POINTS};
 use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 
-use super::rows::{band, quad, LaneBlocks, RowBasis};
+use super::rows::{band, quad, PassMemory, RowBasis};
 use super::{Evidence, Pass, PassCounts, Persist, PersistConfig};
 
 /// The rows' points a known lane explains, per row (bit `j` = point `j`).
@@ -94,7 +94,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     pub fn associate<'p, const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
-        (basis, blocks): (&RowBasis<RANK, ROWS>, &mut LaneBlocks<RANK, LANES>),
+        (basis, mem): (&RowBasis<RANK, ROWS>, &mut PassMemory<RANK, LANES>),
         filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
         lanes: &Lanes<'_, LANES>,
         pass: &Pass,
@@ -122,13 +122,16 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         };
         let uncoupled = filter.uncoupled();
         // Each lane's own block, read once for all rows.
-        blocks.load(filter, lanes.slots, r_used);
+        mem.load(filter, lanes.slots, r_used);
         let mut unexplained = [0.0f32; POINTS];
         let mut band_rows = [0.0f32; POINTS];
         let mut counts = PassCounts::default();
-        // One outcome for every row (reset by each row's association).
-        let mut out = RowOutcome::<LANES>::default();
-        let mut scratch = row::Scratch::<LANES>::new();
+        // One outcome and scratch for every row (the outcome reset by each row's association).
+        let PassMemory {
+            lanes: blocks,
+            out,
+            row: scratch,
+        } = mem;
         for r in 0..pass.rows.min(ROWS) {
             let pts = row_points(r);
             let m = pts.len().min(MAX_ROW_POINTS);
@@ -181,7 +184,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 },
             };
             row::associate_into(
-                (&mut out, &mut scratch),
+                (&mut *out, &mut *scratch),
                 &pred.zhat,
                 &pred.sdiag,
                 |a, bb| {
@@ -223,7 +226,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 let s = get(&pred.idx, a);
                 let pd = pd0.get(s).map_or(0.5, |row| get(row, b));
                 if let Some(e) = ev.get_mut(s) {
-                    self.lane_row(e, (s, a, pd), &pred, &out, pts, &at);
+                    self.lane_row(e, (s, a, pd), &pred, out, pts, &at);
                 }
             }
         }

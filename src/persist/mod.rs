@@ -45,7 +45,7 @@ mod rows;
 
 pub use associate::{Explained, Lanes};
 pub use ray::{parallel, ray_stat, RayStat, RayVerdict};
-pub use rows::{row_basis, LaneBlocks, RowBasis};
+pub use rows::{row_basis, PassMemory, RowBasis};
 
 /// Tuning of the known-lane stage. Values are model constants, not fitted to a data set
 /// (docs/design.md §11 says which data chose which).

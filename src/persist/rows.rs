@@ -4,6 +4,7 @@
 
 use crate::linalg::get;
 use crate::math;
+use crate::spatial::row::{self, RowOutcome};
 use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 
@@ -158,19 +159,25 @@ pub(super) fn quad<const LANES: usize, const POINTS: usize, const RANK: usize, c
     acc
 }
 
-/// Every lane's position coefficients and their covariance block, copied contiguously once per
-/// pass for the rows that follow (docs/design.md §11.2): the known-lane pass's working memory,
-/// `LANES·(RANK + RANK²)·4` bytes (1,344 B at the reference configuration), held by the
-/// [`crate::tracker::Tracker`] beside its [`RowBasis`] rather than on the stack.
-#[derive(Debug, Clone, Copy)]
-pub struct LaneBlocks<const RANK: usize, const LANES: usize> {
+/// The known-lane pass's working memory, held by the [`crate::tracker::Tracker`] beside its
+/// [`RowBasis`] rather than on the stack (the pass's frame is on the deepest stack path of a
+/// step): every lane's position coefficients and covariance block, copied contiguously once
+/// per pass for the rows that follow (`LANES·(RANK + RANK²)·4` bytes, 1,344 B at the reference
+/// configuration; docs/design.md §11.2), and the rows' association outcome and event arrays
+/// (about 3.7 KiB at 6 lanes). All zero when new, so a tracker holding it stays in `.bss`.
+#[derive(Clone)]
+pub struct PassMemory<const RANK: usize, const LANES: usize> {
     pub(super) lanes: [OwnBlock<RANK>; LANES],
+    pub(super) out: RowOutcome<LANES>,
+    pub(super) row: row::Scratch<LANES>,
 }
 
-impl<const RANK: usize, const LANES: usize> LaneBlocks<RANK, LANES> {
-    /// All zero.
+impl<const RANK: usize, const LANES: usize> PassMemory<RANK, LANES> {
+    /// All zero (every part is reset before it is read).
     pub const NEW: Self = Self {
         lanes: [OwnBlock::ZERO; LANES],
+        out: RowOutcome::ZEROED,
+        row: row::Scratch::ZEROED,
     };
 
     /// Copies the blocks of the active lanes among `slots` (bit `s`) out of `f`, over the
@@ -191,6 +198,12 @@ impl<const RANK: usize, const LANES: usize> LaneBlocks<RANK, LANES> {
     /// Lane `s`'s block (as last loaded).
     pub(super) fn get(&self, s: usize) -> Option<&OwnBlock<RANK>> {
         self.lanes.get(s)
+    }
+}
+
+impl<const RANK: usize, const LANES: usize> core::fmt::Debug for PassMemory<RANK, LANES> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("PassMemory").finish_non_exhaustive()
     }
 }
 
@@ -272,7 +285,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     pub fn estimate_noise<const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
-        (basis, blocks): (&RowBasis<RANK, ROWS>, &mut LaneBlocks<RANK, LANES>),
+        (basis, blocks): (&RowBasis<RANK, ROWS>, &mut PassMemory<RANK, LANES>),
         filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
         (slots, ranks): (u32, &[u8; LANES]),
         pass: &Pass,

@@ -32,7 +32,7 @@ use heapless::Vec;
 
 use crate::linalg::{get, set};
 use crate::observation::LaneObservation;
-use crate::persist::{LaneBlocks, Persist, RayVerdict, RowBasis};
+use crate::persist::{PassMemory, Persist, RayVerdict, RowBasis};
 use crate::probe::{NoProbe, Probe, Stage};
 use crate::spatial::filter::{SpatialFilter, SpatialReport};
 use crate::tables::Tables;
@@ -110,7 +110,7 @@ pub struct Tracker<
     /// The known-lane stage's row vectors (computed once for the row geometry).
     basis: RowBasis<RANK, ROWS>,
     /// The known-lane pass's per-lane blocks (working memory, not state).
-    blocks: LaneBlocks<RANK, LANES>,
+    blocks: PassMemory<RANK, LANES>,
     last: Option<Instant>,
     frames: u32,
 }
@@ -187,7 +187,7 @@ impl_tracker! {
             connector_run: [0; LANES],
             persist: Persist::ZEROED,
             basis: RowBasis::NEW,
-            blocks: LaneBlocks::NEW,
+            blocks: PassMemory::NEW,
             last: None,
             frames: 0,
         }

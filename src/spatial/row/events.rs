@@ -131,6 +131,7 @@ impl<const L: usize> Level<L> {
 /// The mixture sums of a row, in track coordinates and units of `e^{−ref}`:
 /// `wtot = Σ w`, `y = Σ w S_δ⁻¹ ν`, `c = Σ w (S_δ⁻¹ − S_δ⁻¹ ν νᵀ S_δ⁻¹)` (lower triangle, padded
 /// with zeros outside the pattern), `bmiss[t] = Σ_{t missed} w`, `beta[t][j] = Σ_{t→j} w`.
+#[derive(Clone)]
 pub(super) struct Acc<const L: usize> {
     pub(super) wtot: f32,
     pub(super) y: [f32; L],
@@ -143,23 +144,41 @@ pub(super) struct Acc<const L: usize> {
 }
 
 impl<const L: usize> Acc<L> {
-    pub(super) const fn new() -> Self {
-        Self {
-            wtot: 0.0,
-            y: [0.0; L],
-            c: [[0.0; L]; L],
-            bmiss: [0.0; L],
-            beta: [[0.0; MAX_ROW_POINTS]; L],
-            lwmax: f32::NEG_INFINITY,
-            events: 0,
-            patterns: 0,
+    /// Every byte zero: reset ([`Acc::reset`]) before a pass reads it. A fresh accumulator is
+    /// all zero but `lwmax = −∞`.
+    pub(super) const ZEROED: Self = Self {
+        wtot: 0.0,
+        y: [0.0; L],
+        c: [[0.0; L]; L],
+        bmiss: [0.0; L],
+        beta: [[0.0; MAX_ROW_POINTS]; L],
+        lwmax: 0.0,
+        events: 0,
+        patterns: 0,
+    };
+
+    /// Back to a fresh accumulator, given that every nonzero `β` entry lies in the first `rows`
+    /// rows and `cols` columns (a row's tracks and points: [`Acc::pick`] writes nothing else):
+    /// clearing all `LANES × MAX_ROW_POINTS` is a memclr of about 1 KiB on the Cortex-M4F, where
+    /// a row has a few points.
+    pub(super) fn reset(&mut self, rows: usize, cols: usize) {
+        self.wtot = 0.0;
+        self.y = [0.0; L];
+        self.c = [[0.0; L]; L];
+        self.bmiss = [0.0; L];
+        self.lwmax = f32::NEG_INFINITY;
+        self.events = 0;
+        self.patterns = 0;
+        for row in self.beta.iter_mut().take(rows) {
+            for v in row.iter_mut().take(cols) {
+                *v = 0.0;
+            }
         }
     }
 
-    /// Back to [`Acc::new`] after a pass over the tracks of `set` (bit `t`): a pass writes only
-    /// its members' rows and columns (`y`, `C`, `β_miss`, `β`; a non-member's entries stay
-    /// `+0.0`), so only those are cleared: the `LANES × MAX_ROW_POINTS` clear of `new` per
-    /// cluster is a memclr of about 1 KiB on the Cortex-M4F.
+    /// Back to a fresh accumulator after a pass over the tracks of `set` (bit `t`): a pass
+    /// writes only its members' rows and columns (`y`, `C`, `β_miss`, `β`; a non-member's
+    /// entries stay `+0.0`), so only those are cleared.
     pub(super) fn clear_tracks(&mut self, set: u32) {
         self.wtot = 0.0;
         self.lwmax = f32::NEG_INFINITY;
@@ -244,6 +263,7 @@ impl<const L: usize> Acc<L> {
 /// The pattern and event-tree arrays of [`Ctx::pass`], kept by the caller for all the passes of
 /// row and from row to row: every entry is written before it is read, and clearing them for
 /// each pass was a ~800-byte memclr per cluster on the Cortex-M4F.
+#[derive(Clone)]
 pub(crate) struct Scratch<const L: usize> {
     mems: [Member<L>; L],
     lev: [Level<L>; L],

@@ -68,16 +68,11 @@ use crate::probe::{NoProbe, Probe, Stage};
 mod events;
 mod lbp;
 mod mixture;
-pub(crate) use events::Scratch;
 use events::{count_events, Acc, Ctx, WINDOW};
 use mixture::{apply_mixture, at, eligible_gains, mat_vec, put};
 
 /// Largest number of points one row can hold (the gate masks are `u32`).
 pub const MAX_ROW_POINTS: usize = 32;
-
-/// Largest number of (track, point) candidates (16 tracks × 32 points), the size of the pruning
-/// list (3 KiB of stack when the budget forces pruning).
-const CANDIDATES: usize = 16 * MAX_ROW_POINTS;
 
 /// How a missed track is weighted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -198,6 +193,89 @@ impl<const LANES: usize> Default for RowOutcome<LANES> {
     }
 }
 
+impl<const LANES: usize> RowOutcome<LANES> {
+    /// Every byte zero: not an outcome (`β_miss` is 0), but a valid start for the outcome a
+    /// [`Scratch`] resets before each row (held in `.bss`).
+    pub(crate) const ZEROED: Self = Self {
+        beta_miss: [0.0; LANES],
+        beta: [[0.0; MAX_ROW_POINTS]; LANES],
+        valid: [0; LANES],
+        events: 0,
+        patterns: 0,
+        dropped_candidates: 0,
+        approximated: false,
+        lbp_iterations: 0,
+        clutter_points: 0,
+        ignored_points: 0,
+        failed: false,
+        dens: [0.0; LANES],
+    };
+
+    /// Back to [`RowOutcome::default`], given that every nonzero `β` entry lies in the first
+    /// `rows` rows and `cols` columns (what a row's association writes: its tracks and points).
+    /// Keep in step with `default`.
+    fn reset(&mut self, rows: usize, cols: usize) {
+        self.beta_miss = [1.0; LANES];
+        self.valid = [0; LANES];
+        self.events = 0;
+        self.patterns = 0;
+        self.dropped_candidates = 0;
+        self.approximated = false;
+        self.lbp_iterations = 0;
+        self.clutter_points = 0;
+        self.ignored_points = 0;
+        self.failed = false;
+        self.dens = [0.0; LANES];
+        for row in self.beta.iter_mut().take(rows) {
+            for v in row.iter_mut().take(cols) {
+                *v = 0.0;
+            }
+        }
+    }
+}
+
+/// What a caller keeps for all the rows of a pass, beside one [`RowOutcome`] that only
+/// [`associate_into`] or [`update_into`] with this scratch writes: the event pass's arrays, the
+/// row's event accumulators, and how far the last row wrote `β` into each (its tracks and
+/// points), so that each row resets the outcome and the accumulators to their defaults by
+/// clearing that much, not ~1 KiB apiece (memclr was 8 % of a typical frame on the
+/// Cortex-M4F).
+#[derive(Clone)]
+pub(crate) struct Scratch<const L: usize> {
+    events: events::Scratch<L>,
+    acc: Acc<L>,
+    part: Acc<L>,
+    /// `(rows, columns)` of `β` written since the last reset: of the outcome and `acc`, and of
+    /// `part` (used by rows with more than one cluster only).
+    extent: (usize, usize),
+    part_extent: (usize, usize),
+}
+
+impl<const L: usize> Scratch<L> {
+    /// Every byte zero, for an outcome whose `β` is zero ([`RowOutcome::default`] or
+    /// [`RowOutcome::ZEROED`]): each row resets what it reads.
+    pub(crate) const ZEROED: Self = Self {
+        events: events::Scratch::new(),
+        acc: Acc::ZEROED,
+        part: Acc::ZEROED,
+        extent: (0, 0),
+        part_extent: (0, 0),
+    };
+
+    /// For a [`RowOutcome::default`].
+    pub(crate) const fn new() -> Self {
+        Self::ZEROED
+    }
+
+    /// Resets `out` and the row accumulator for a row of `n` tracks and `m` points.
+    fn begin_row(&mut self, out: &mut RowOutcome<L>, n: usize, m: usize) {
+        let (rows, cols) = self.extent;
+        out.reset(rows, cols);
+        self.acc.reset(rows, cols);
+        self.extent = (n, m);
+    }
+}
+
 /// One row step on `state` with measurement row `h` (`z = hᵀ x_t + noise`, e.g. `[1, 1, 0, …]` for
 /// the offset + curve state) and the row's lateral positions `points`.
 ///
@@ -272,10 +350,10 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
     probe: &mut P,
 ) {
     probe.enter(Stage::Gating);
-    *out = RowOutcome::<LANES>::default();
     let (xs, ps, n) = state.parts_mut();
     let n = n.min(LANES);
     let m = points.len().min(MAX_ROW_POINTS);
+    scratch.begin_row(out, n, m);
     out.ignored_points = (points.len() - m) as u32;
     let points = points.get(..m).unwrap_or(&[]);
     if n == 0 {
@@ -337,7 +415,6 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
         } else {
             ([0; LANES], 1)
         };
-    let mut acc = Acc::<LANES>::new();
     let Some(inv) = weigh_row(
         &lg,
         (&elig, na, &label, clusters),
@@ -345,12 +422,12 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
         points,
         (n, n_skipped, skip),
         true,
-        &mut acc,
         scratch,
     ) else {
         failed(out);
         return;
     };
+    let acc = &scratch.acc;
     out.events = acc.events;
     out.patterns = acc.patterns;
     probe.enter(Stage::Update);
@@ -381,9 +458,15 @@ fn weigh_row<const LANES: usize>(
     points: &[f32],
     (n, n_skipped, skip): (usize, usize, u32),
     moments: bool,
-    acc: &mut Acc<LANES>,
     scratch: &mut Scratch<LANES>,
 ) -> Option<f32> {
+    let Scratch {
+        events: arrays,
+        acc,
+        part,
+        part_extent,
+        ..
+    } = scratch;
     if clusters <= 1 {
         let ctx = lg.ctx(
             (*elig, na),
@@ -394,13 +477,14 @@ fn weigh_row<const LANES: usize>(
             (n, n_skipped, skip),
             moments,
         );
-        let ok = weigh(&ctx, acc, scratch) && acc.wtot.is_finite() && acc.wtot > 0.0;
+        let ok = weigh(&ctx, acc, arrays) && acc.wtot.is_finite() && acc.wtot > 0.0;
         return ok.then(|| 1.0 / acc.wtot);
     }
     let m = points.len();
     acc.bmiss = [1.0; LANES];
     // One accumulator for every cluster, cleared after each on its members alone.
-    let mut part = Acc::<LANES>::new();
+    part.reset(part_extent.0, part_extent.1);
+    *part_extent = (n, m);
     let mut ctx_prev_set = 0u32;
     for cl in 0..clusters {
         let (mem, k, set_c) = members((elig, na), label, cl);
@@ -418,7 +502,7 @@ fn weigh_row<const LANES: usize>(
             part.clear_tracks(ctx_prev_set);
         }
         ctx_prev_set = set_c;
-        if !(weigh(&ctx, &mut part, scratch) && part.wtot.is_finite() && part.wtot > 0.0) {
+        if !(weigh(&ctx, part, arrays) && part.wtot.is_finite() && part.wtot > 0.0) {
             return None;
         }
         acc.events += part.events;
@@ -518,9 +602,9 @@ pub(crate) fn associate_into<const LANES: usize>(
     (max_events, mode): (usize, Association),
     skip: u32,
 ) {
-    *out = RowOutcome::<LANES>::default();
     let n = n.min(LANES);
     let m = points.len().min(MAX_ROW_POINTS);
+    scratch.begin_row(out, n, m);
     out.ignored_points = (points.len() - m) as u32;
     let points = points.get(..m).unwrap_or(&[]);
     let mut sbar = [[0.0f32; LANES]; LANES];
@@ -586,7 +670,6 @@ pub(crate) fn associate_into<const LANES: usize>(
     // cluster's marginals are exact on their own. A cluster's miss factors of the other
     // tracks are common to all its events and cancel.
     let (label, clusters) = clusters(&out.valid, (&elig, na), &|a, b| at(&sbar, a, b) != 0.0);
-    let mut acc = Acc::<LANES>::new();
     let Some(inv) = weigh_row(
         &lg,
         (&elig, na, &label, clusters),
@@ -594,12 +677,12 @@ pub(crate) fn associate_into<const LANES: usize>(
         points,
         (n, n_skipped, skip),
         false,
-        &mut acc,
         scratch,
     ) else {
         failed(out);
         return;
     };
+    let acc = &scratch.acc;
     out.events = acc.events;
     out.patterns = acc.patterns;
     normalise(out, &acc.beta, &acc.bmiss, inv, n, m, skip);
@@ -982,7 +1065,7 @@ fn exclusive_density<const LANES: usize>(
 fn weigh<const LANES: usize>(
     ctx: &Ctx<'_, LANES>,
     acc: &mut Acc<LANES>,
-    scratch: &mut Scratch<LANES>,
+    scratch: &mut events::Scratch<LANES>,
 ) -> bool {
     let empty = ctx.base(0, 0.0);
     let mut reference = if empty.is_finite() { empty } else { 0.0 };
@@ -993,7 +1076,8 @@ fn weigh<const LANES: usize>(
         && ((acc.lwmax - reference).abs() > WINDOW || !(acc.wtot.is_finite() && acc.wtot > 0.0))
     {
         reference = acc.lwmax;
-        *acc = Acc::new();
+        // The pass wrote β only at the row's points.
+        acc.reset(LANES, ctx.points.len());
         if !ctx.pass(reference, acc, scratch) {
             return false;
         }
@@ -1006,7 +1090,8 @@ fn weigh<const LANES: usize>(
 /// tracks' `S̄`, `ẑ` and the row's points.
 ///
 /// # Complexity
-/// `O(C²)` compares (insertion sort) for the `C ≤ n·m` candidates; 4 KiB of stack for the candidate list.
+/// `O(C²)` compares (insertion sort) for the `C ≤ n·m` candidates; `8·LANES·MAX_ROW_POINTS` bytes of
+/// stack for the candidate list (1.5 KiB at 6 lanes).
 fn prune<const LANES: usize>(
     out: &mut RowOutcome<LANES>,
     (sbar, zhat, points): (&[[f32; LANES]; LANES], &[f32; LANES], &[f32]),
@@ -1019,7 +1104,10 @@ fn prune<const LANES: usize>(
         ln_miss,
         ln_2pi,
     } = *lg;
-    let mut cand = [(0.0f32, 0u8, 0u8); CANDIDATES];
+    // Every (track, point) candidate: `LANES × MAX_ROW_POINTS` entries of 8 bytes (1.5 KiB of
+    // stack at 6 lanes when the budget forces pruning), one flat list.
+    let mut cand2 = [[(0.0f32, 0u8, 0u8); MAX_ROW_POINTS]; LANES];
+    let cand = cand2.as_flattened_mut();
     let mut nc = 0usize;
     for t in 0..n {
         let st = at(sbar, t, t);
@@ -1033,7 +1121,9 @@ fn prune<const LANES: usize>(
                 let e = z - zt;
                 let l = ln_norm - 0.5 * (e * e / st);
                 lmax = lmax.max(l);
-                set(&mut cand, nc, (l, t as u8, j as u8));
+                if let Some(c) = cand.get_mut(nc) {
+                    *c = (l, t as u8, j as u8);
+                }
                 nc += 1;
             }
         }
