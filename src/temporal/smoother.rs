@@ -664,8 +664,13 @@ fn lag_update<const LANES: usize, const RANK: usize, const NA: usize, const NX: 
             }
         }
     }
-    // Σ_t −= KM_t K_tᵀ (symmetric: one triangle computed, mirrored).
-    for t in 0..LANES {
+    // Σ_t −= KM_t K_tᵀ (symmetric: one triangle computed, mirrored). On the own block only the
+    // updated lane's rows of K are set: the others are zero and would subtract exact zeros.
+    let lanes = match only {
+        Some(s) => s..(s + 1).min(LANES),
+        None => 0..LANES,
+    };
+    for t in lanes {
         if !get(&lag.present, t) {
             continue;
         }
