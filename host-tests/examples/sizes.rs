@@ -21,7 +21,7 @@ fn main() {
         stjpdacf::spatial::filter::LaneObservation<16>
     );
     size!(
-        "spatial::row::RowOutcome<6> (stack, per row)",
+        "spatial::row::RowOutcome<6> (one per pass)",
         stjpdacf::spatial::row::RowOutcome<6>
     );
     size!("temporal::filter::TemporalFilter<6, 16, 7, 84>", stjpdacf::temporal::filter::TemporalFilter<6, 16, 7, 84>);
@@ -33,6 +33,10 @@ fn main() {
     size!(
         "persist::Persist<6, 16, 64> (the known-lane stage)",
         stjpdacf::persist::Persist<6, 16, 64>
+    );
+    size!(
+        "persist::PassMemory<7, 6> (the known-lane pass's working memory)",
+        stjpdacf::persist::PassMemory<7, 6>
     );
     size!(
         "tracker::ReferenceTracker (the whole tracker)",
