@@ -228,7 +228,9 @@ impl<const RANK: usize> OwnBlock<RANK> {
     };
 
     /// Lane `s`'s block over the first `r` components (entries out of the filter's range read
-    /// as 0, which adds nothing).
+    /// as 0, which adds nothing). Not inlined: inlined into the loop over the lanes it was
+    /// unrolled into 4 KB of flash.
+    #[inline(never)]
     pub(super) fn of<const LANES: usize, const POINTS: usize, const NX: usize>(
         f: &TemporalFilter<LANES, POINTS, RANK, NX>,
         s: usize,
