@@ -11,10 +11,13 @@
 //!    exact enumeration (pruned over the budget), LBP over the budget, LBP on every row; the
 //!    labelled last frames, with the events enumerated and the rows pruned or weighed by LBP;
 //! 4. the uncoupled model (`tables::UNCOUPLED`, docs/design.md §4.2.6) alone and with the
-//!    cheaper options of 1 and 3 on top: the labelled last frames;
+//!    cheaper options of 1 and 3 on top (LBP on every row, Gram rank 5, 4, 3): the labelled
+//!    last frames;
 //! 5. fewer rows: K = 4 (the default), 3 and 2 rows per index interval
 //!    (`TrackerConfig::with_rows_per_interval`, every row count rescaled to keep its metres),
-//!    uncoupled and coupled B: the labelled last frames.
+//!    uncoupled and coupled B: the labelled last frames;
+//! 6. the smaller uncoupled models (LBP on every row, Gram rank 7, 5, 4, 3) on the demo's
+//!    robustness curve and held-out check, next to the per-frame RANSAC fit.
 //!
 //! The instructions per frame of the same models on the Cortex-M4F come from
 //! `STJPDACF_FW_RANK=r` / `STJPDACF_FW_PER_LANE=1` / `STJPDACF_FW_ASSOC=lbp|hybrid` /
@@ -24,7 +27,7 @@
 //! `cargo run --release -p stjpdacf-tools --example model_cost [rank ...]` (all sections; the
 //! ranks given, or 7 down to 3), `... --example model_cost assoc` (section 3 only),
 //! `... --example model_cost uncoupled` (section 4 only), `... --example model_cost rows`
-//! (section 5 only).
+//! (section 5 only), `... --example model_cost small` (section 6 only).
 use stjpdacf::persist::PersistConfig;
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
@@ -53,10 +56,11 @@ fn main() -> anyhow::Result<()> {
     let only_assoc = std::env::args().nth(1).as_deref() == Some("assoc");
     let only_uncoupled = std::env::args().nth(1).as_deref() == Some("uncoupled");
     let only_rows = std::env::args().nth(1).as_deref() == Some("rows");
+    let only_small = std::env::args().nth(1).as_deref() == Some("small");
     let ranks: Vec<u32> = {
         let a: Vec<u32> = std::env::args()
             .skip(1)
-            .filter(|s| s != "assoc" && s != "uncoupled" && s != "rows")
+            .filter(|s| s != "assoc" && s != "uncoupled" && s != "rows" && s != "small")
             .map(|s| s.parse())
             .collect::<Result<_, _>>()?;
         if a.is_empty() {
@@ -78,6 +82,9 @@ fn main() -> anyhow::Result<()> {
     if only_rows {
         return rows(&replays);
     }
+    if only_small {
+        return small();
+    }
     if !only_assoc {
         gram(&ranks, &replays)?;
     }
@@ -86,6 +93,7 @@ fn main() -> anyhow::Result<()> {
         smoother(&levels)?;
         uncoupled(&replays)?;
         rows(&replays)?;
+        small()?;
     }
     Ok(())
 }
@@ -103,11 +111,15 @@ fn uncoupled(replays: &Replays) -> anyhow::Result<()> {
         ..TrackerConfig::DEFAULT
     };
     let r5: &'static ReferenceTables = Box::leak(Box::new(truncated_from(&UNCOUPLED, 5)));
-    let models: [(&str, &'static ReferenceTables, TrackerConfig); 4] = [
+    let r4: &'static ReferenceTables = Box::leak(Box::new(truncated_from(&UNCOUPLED, 4)));
+    let r3: &'static ReferenceTables = Box::leak(Box::new(truncated_from(&UNCOUPLED, 3)));
+    let models: [(&str, &'static ReferenceTables, TrackerConfig); 6] = [
         ("coupled B (default)", &DEFAULT, TrackerConfig::DEFAULT),
         ("uncoupled B", &UNCOUPLED, TrackerConfig::DEFAULT),
         ("uncoupled B, LBP every row", &UNCOUPLED, lbp),
         ("uncoupled B, LBP every row, rank 5", r5, lbp),
+        ("uncoupled B, LBP every row, rank 4", r4, lbp),
+        ("uncoupled B, LBP every row, rank 3", r3, lbp),
     ];
     for (name, tables, config) in models {
         for (level, o) in replays {
@@ -117,6 +129,86 @@ fn uncoupled(replays: &Replays) -> anyhow::Result<()> {
                 s.accuracy, s.fp, s.fn_, st.step_mean_ms
             );
         }
+    }
+    Ok(())
+}
+
+/// Section 6: the smaller uncoupled models on the demo's robustness curve and held-out check,
+/// next to the per-frame RANSAC fit (their accuracy and margin over it).
+fn small() -> anyhow::Result<()> {
+    let lbp = TrackerConfig {
+        persist: PersistConfig {
+            association: Association::Lbp,
+            ..PersistConfig::DEFAULT
+        },
+        ..TrackerConfig::DEFAULT
+    };
+    let mut variants = vec![
+        demo::Variant::new("coupled B (default)", TrackerConfig::DEFAULT),
+        demo::Variant {
+            tables: &UNCOUPLED,
+            ..demo::Variant::new("uncoupled B", TrackerConfig::DEFAULT)
+        },
+    ];
+    for rank in [7u32, 5, 4, 3] {
+        let tables: &'static ReferenceTables =
+            Box::leak(Box::new(truncated_from(&UNCOUPLED, rank)));
+        variants.push(demo::Variant {
+            tables,
+            ..demo::Variant::new(&format!("uncoupled B, LBP every row, rank {rank}"), lbp)
+        });
+    }
+    let opts = DemoOptions {
+        out: std::env::temp_dir().join("stjpdacf_model_cost_small"),
+        levels: vec![NoiseLevel::Mid],
+        images: false,
+        score_run_time: false,
+        robustness_variants: variants,
+        ..DemoOptions::default()
+    };
+    let report = demo::run(&opts, |_, _, _| {})?;
+    println!("\nSmaller models: accuracy (margin over the per-frame RANSAC fit) per condition\n");
+    let print = |section: &str, rows: Vec<(String, Vec<demo::VariantScore>, f64)>| {
+        for (cond, trackers, base) in rows {
+            for t in trackers {
+                println!(
+                    "| {section} | {cond} | {} | {:.3} / {:.3} / {:.3} | {:+.3} | {base:.3} |",
+                    t.name, t.score.accuracy, t.score.fp, t.score.fn_, t.accuracy_minus_baseline
+                );
+            }
+        }
+    };
+    println!("| section | condition | model | accuracy / FP / FN | margin | RANSAC |");
+    println!("|---|---|---|---|---|---|");
+    if let Some(r) = report.robustness {
+        print(
+            "robustness",
+            r.rows
+                .into_iter()
+                .map(|row| (row.condition, row.trackers, row.baseline.accuracy))
+                .collect(),
+        );
+    }
+    if let Some(h) = report.heldout {
+        // The held-out check's bar is against the baseline capped at the lanes a road has.
+        print(
+            "held-out (margin over the capped RANSAC fit)",
+            h.rows
+                .into_iter()
+                .map(|row| {
+                    let base = row.baseline_capped.accuracy;
+                    let trackers = row
+                        .trackers
+                        .into_iter()
+                        .map(|t| demo::VariantScore {
+                            accuracy_minus_baseline: t.score.accuracy - base,
+                            ..t
+                        })
+                        .collect();
+                    (row.condition, trackers, base)
+                })
+                .collect(),
+        );
     }
     Ok(())
 }

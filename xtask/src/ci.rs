@@ -211,6 +211,18 @@ pub fn run() -> Result<()> {
         qemu_ram: false,
         timeout: 300,
         no_build: false,
+        budget: None,
+    })?;
+
+    step("firmware: the smallest measured model (uncoupled B, LBP on every row, Gram rank 4), check bench/firmware/budget-mcu.json");
+    crate::firmware::run(crate::firmware::RunArgs {
+        json: Some(crate::firmware::fw_dir().join("target/report-mcu.json")),
+        check: true,
+        update_budget: false,
+        qemu_ram: false,
+        timeout: 300,
+        no_build: false,
+        budget: Some(crate::firmware::fw_dir().join("budget-mcu.json")),
     })?;
 
     step("firmware: no-panic proof");

@@ -87,6 +87,22 @@ pub struct RunArgs {
     /// Skip `cargo build` (use the binaries already built).
     #[arg(long)]
     pub no_build: bool,
+    /// The budget file (default bench/firmware/budget.json). A budget records the build-time
+    /// model variables it was measured with (`build_env`: `STJPDACF_FW_TABLES`, `_RANK`,
+    /// `_ASSOC`, `_PER_LANE`, `_K`): `--check` builds with exactly those, `--update-budget`
+    /// records the ones set now.
+    #[arg(long)]
+    pub budget: Option<PathBuf>,
+}
+
+/// The prefix of the firmware's build-time model variables (bench/firmware/src/lib.rs).
+const MODEL_ENV: &str = "STJPDACF_FW_";
+
+/// The model variables set in this process's environment.
+fn model_env() -> BTreeMap<String, String> {
+    std::env::vars()
+        .filter(|(k, _)| k.starts_with(MODEL_ENV))
+        .collect()
 }
 
 /// max and median (the lower median: a value of an actual frame) of per-frame counts.
@@ -181,6 +197,9 @@ struct Budget {
     stack_limit_bytes: u64,
     /// Flash (`text + data`: `data`'s initial image is stored in flash) of every running binary.
     flash_limit_bytes: u64,
+    /// The build-time model variables of the measured build (empty: the default model).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    build_env: BTreeMap<String, String>,
     binaries: BTreeMap<String, BudgetEntry>,
 }
 
@@ -604,6 +623,7 @@ fn budget_from(report: &Report) -> Budget {
         slack_instructions: SLACK,
         stack_limit_bytes: STACK_LIMIT,
         flash_limit_bytes: FLASH_LIMIT,
+        build_env: model_env(),
         binaries,
     }
 }
@@ -625,7 +645,18 @@ fn cmd_run(
     qemu_ram: bool,
     timeout: u64,
     no_build: bool,
+    budget_path: Option<PathBuf>,
 ) -> Result<()> {
+    let budget_path = budget_path.unwrap_or_else(|| fw_dir().join("budget.json"));
+    // A check builds the model its budget was measured with, whatever this shell has set.
+    let budget: Option<Budget> = if do_check {
+        Some(serde_json::from_str(
+            &std::fs::read_to_string(&budget_path)
+                .with_context(|| format!("reading {}", budget_path.display()))?,
+        )?)
+    } else {
+        None
+    };
     let bins: Vec<String> = binaries()?
         .into_iter()
         .filter(|b| b != NOPANIC && b != LANES)
@@ -644,6 +675,15 @@ fn cmd_run(
         c.env("CARGO_TARGET_DIR", &target);
         if qemu_ram {
             c.env("STJPDACF_MEMORY_X", "memory-qemu.x");
+        }
+        if let Some(b) = &budget {
+            for k in model_env().keys() {
+                c.env_remove(k);
+            }
+            c.envs(&b.build_env);
+            if !b.build_env.is_empty() {
+                println!("model of {}: {:?}", budget_path.display(), b.build_env);
+            }
         }
         let st = c.status().context("cargo build (firmware)")?;
         ensure!(st.success(), "the firmware build failed");
@@ -680,17 +720,12 @@ fn cmd_run(
     }
     std::fs::write(&json, serde_json::to_string_pretty(&report)? + "\n")?;
     println!("\nwrote {}", json.display());
-    let budget_path = fw_dir().join("budget.json");
     if update {
         let b = budget_from(&report);
         std::fs::write(&budget_path, serde_json::to_string_pretty(&b)? + "\n")?;
         println!("wrote {}", budget_path.display());
     }
-    if do_check {
-        let b: Budget = serde_json::from_str(
-            &std::fs::read_to_string(&budget_path)
-                .with_context(|| format!("reading {}", budget_path.display()))?,
-        )?;
+    if let Some(b) = budget {
         let fails = check(&report, &b);
         if !fails.is_empty() {
             for f in &fails {
@@ -827,6 +862,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         a.qemu_ram,
         a.timeout,
         a.no_build,
+        a.budget,
     )
 }
 
