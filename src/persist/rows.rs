@@ -287,7 +287,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     pub fn estimate_noise<const NT: usize, const RANK: usize, const NX: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
-        (basis, blocks): (&RowBasis<RANK, ROWS>, &mut PassMemory<RANK, LANES>),
+        (basis, mem): (&RowBasis<RANK, ROWS>, &mut PassMemory<RANK, LANES>),
         filter: &TemporalFilter<LANES, POINTS, RANK, NX>,
         (slots, ranks): (u32, &[u8; LANES]),
         pass: &Pass,
@@ -310,7 +310,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 .copied()
                 .unwrap_or([0.0; 2])
         };
-        blocks.load(filter, slots, r_used);
+        mem.load(filter, slots, r_used);
         for r in 0..pass.rows.min(ROWS) {
             let any = (0..LANES).any(|s| slots & (1 << s) != 0 && row_of(s, r)[1] >= 0.5);
             if !any {
@@ -323,7 +323,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 if slots & (1 << s) == 0 || w < 0.5 || !filter.is_active(s) {
                     continue;
                 }
-                let Some(o) = blocks.get(s) else {
+                let Some(o) = mem.get(s) else {
                     continue;
                 };
                 let z = o.mean(&c, r_used);

@@ -109,8 +109,8 @@ pub struct Tracker<
     persist: Persist<LANES, POINTS, ROWS>,
     /// The known-lane stage's row vectors (computed once for the row geometry).
     basis: RowBasis<RANK, ROWS>,
-    /// The known-lane pass's per-lane blocks (working memory, not state).
-    blocks: PassMemory<RANK, LANES>,
+    /// The known-lane pass's working memory (not state).
+    pass_memory: PassMemory<RANK, LANES>,
     last: Option<Instant>,
     frames: u32,
 }
@@ -187,7 +187,7 @@ impl_tracker! {
             connector_run: [0; LANES],
             persist: Persist::ZEROED,
             basis: RowBasis::NEW,
-            blocks: PassMemory::NEW,
+            pass_memory: PassMemory::NEW,
             last: None,
             frames: 0,
         }

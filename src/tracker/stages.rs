@@ -54,7 +54,7 @@ impl_tracker! {
             let spatial = &self.spatial;
             let counts = self.persist.associate(
                 tables,
-                (&self.basis, &mut self.blocks),
+                (&self.basis, &mut self.pass_memory),
                 self.temporal.filter(),
                 &lanes,
                 &pass,
@@ -107,7 +107,7 @@ impl_tracker! {
         }
         self.persist.estimate_noise(
             tables,
-            (&self.basis, &mut self.blocks),
+            (&self.basis, &mut self.pass_memory),
             self.temporal.filter(),
             (live, &self.ranks),
             &pass,

@@ -175,27 +175,19 @@ pub struct RowOutcome<const LANES: usize> {
 }
 
 impl<const LANES: usize> Default for RowOutcome<LANES> {
+    /// No weights, every track missed.
     fn default() -> Self {
         Self {
             beta_miss: [1.0; LANES],
-            beta: [[0.0; MAX_ROW_POINTS]; LANES],
-            valid: [0; LANES],
-            events: 0,
-            patterns: 0,
-            dropped_candidates: 0,
-            approximated: false,
-            lbp_iterations: 0,
-            clutter_points: 0,
-            ignored_points: 0,
-            failed: false,
-            dens: [0.0; LANES],
+            ..Self::ZEROED
         }
     }
 }
 
 impl<const LANES: usize> RowOutcome<LANES> {
     /// Every byte zero: not an outcome (`β_miss` is 0), but a valid start for the outcome a
-    /// [`Scratch`] resets before each row (held in `.bss`).
+    /// [`Scratch`] resets before each row (held in `.bss`); [`RowOutcome::default`] is this with
+    /// every track missed.
     pub(crate) const ZEROED: Self = Self {
         beta_miss: [0.0; LANES],
         beta: [[0.0; MAX_ROW_POINTS]; LANES],
