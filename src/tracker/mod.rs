@@ -111,6 +111,8 @@ pub struct Tracker<
     basis: RowBasis<RANK, ROWS>,
     /// The known-lane pass's working memory (not state).
     pass_memory: PassMemory<RANK, LANES>,
+    /// The lanes' projections at the index points, once per filter state (not state).
+    views: Views<LANES, POINTS>,
     last: Option<Instant>,
     frames: u32,
 }
@@ -188,6 +190,7 @@ impl_tracker! {
             persist: Persist::ZEROED,
             basis: RowBasis::NEW,
             pass_memory: PassMemory::NEW,
+            views: Views::NEW,
             last: None,
             frames: 0,
         }
@@ -274,6 +277,7 @@ impl_tracker! {
             return Err(StepError::NotInitialised);
         };
         probe.enter(Stage::Binning);
+        self.views.clear();
         let dt_us = match self.last {
             Some(last) if now <= last => return Err(StepError::NonIncreasingTime),
             Some(last) => Some(now.as_micros().saturating_sub(last.as_micros())),
@@ -350,7 +354,7 @@ impl_tracker! {
                 self.ids.reset_misses(s);
             }
         }
-        let outcome = self.associate(tables, n_obs);
+        let outcome = self.associate(n_obs);
         report.identity = outcome.report;
         report.known.ray_refused = outcome
             .obs
@@ -365,7 +369,10 @@ impl_tracker! {
         }
         probe.enter(Stage::Temporal);
         // 6. Removed lanes leave the temporal filter, new lanes start, seen lanes are updated.
+        // The filter changes here: its projections are taken again after.
+        self.views.clear();
         self.temporal_stage(tables, &outcome.slots, known, &mut report, probe);
+        self.refresh_views();
         if self.cfg.persist.enabled {
             probe.enter(Stage::Known);
             self.maintain_known(&outcome.slots, &mut report);
@@ -389,14 +396,11 @@ impl_tracker! {
     /// Step 3: this frame's observations against the temporal predictions.
     // Not inlined: its predictions (~0.9 KiB) must not add to the temporal stage's stack.
     #[inline(never)]
-    fn associate(
-        &mut self,
-        tables: &'static Tables<NT, LANES, POINTS>,
-        n_obs: usize,
-    ) -> IdentityOutcome<LANES> {
+    fn associate(&mut self, n_obs: usize) -> IdentityOutcome<LANES> {
+        self.refresh_views();
         let mut preds = [LanePrediction::<POINTS>::EMPTY; LANES];
         for (s, p) in preds.iter_mut().enumerate() {
-            if let Some((z, var)) = self.temporal.filter().lane(tables, s) {
+            if let Some((z, var)) = self.view(s) {
                 *p = LanePrediction {
                     present: [true; POINTS],
                     z,
@@ -517,5 +521,7 @@ impl_tracker! {
 
 mod stages;
 mod types;
+
+use stages::Views;
 
 pub use types::{KnownReport, LaneEstimate, StepError, StepOutput, StepReport, TrackerConfig};

@@ -21,7 +21,87 @@ use super::{LaneEstimate, StepReport, Tracker, NO_INFO};
 /// A lane's means and variances at the index points ([`TemporalFilter::lane`]).
 type View<const POINTS: usize> = (SVector<f32, POINTS>, SVector<f32, POINTS>);
 
+/// Every active lane's [`View`], projected once per filter state instead of once per use
+/// (a projection is `POINTS·(RANK² + 2·RANK)` multiply-adds; the identity, maintenance and
+/// output stages used ~40 a frame). Filled by [`Tracker::refresh_views`] at the two places where
+/// the filter's state is final for what follows: before the identity stage (after the
+/// known-lane updates) and after the temporal stage. Removing a lane clears its entry and
+/// leaves the others valid (it zeroes only its own rows and columns); nothing else changes
+/// the filter until the next refresh. Working memory, not state: each step starts with none.
+#[derive(Debug, Clone)]
+pub(super) struct Views<const LANES: usize, const POINTS: usize> {
+    lanes: [View<POINTS>; LANES],
+    /// Bit `s`: `lanes[s]` is lane `s`'s projection of the filter's current state.
+    valid: u32,
+}
+
+impl<const LANES: usize, const POINTS: usize> Views<LANES, POINTS> {
+    const ZERO: SVector<f32, POINTS> =
+        SVector::from_array_storage(nalgebra::ArrayStorage([[0.0; POINTS]; 1]));
+
+    /// No lane projected (all zero: `.bss`).
+    pub(super) const NEW: Self = Self {
+        lanes: [(Self::ZERO, Self::ZERO); LANES],
+        valid: 0,
+    };
+
+    /// Forgets every projection.
+    pub(super) fn clear(&mut self) {
+        self.valid = 0;
+    }
+
+    /// Forgets lane `s`'s projection.
+    pub(super) fn forget(&mut self, s: usize) {
+        if s < 32 {
+            self.valid &= !(1u32 << s);
+        }
+    }
+}
+
 impl_tracker! {
+    /// Projects every active lane of the filter's current state into [`Views`].
+    #[inline(never)]
+    pub(super) fn refresh_views(&mut self) {
+        self.views.clear();
+        let Some(tables) = self.tables else {
+            return;
+        };
+        for s in 0..LANES.min(32) {
+            if let (Some(v), Some(slot)) = (
+                self.temporal.filter().lane(tables, s),
+                self.views.lanes.get_mut(s),
+            ) {
+                *slot = v;
+                self.views.valid |= 1 << s;
+            }
+        }
+    }
+
+    /// Lane `s`'s [`View`]: [`TemporalFilter::lane`], from [`Views`] when it holds the lane
+    /// (`None` for a free slot). A lane not in the views is projected here, so a missing
+    /// refresh costs time, not correctness; a stale entry would, which is why every change of
+    /// the filter's state is preceded by [`Views::clear`] or followed by a refresh.
+    pub(super) fn view(&self, s: usize) -> Option<View<POINTS>> {
+        if !self.temporal.filter().is_active(s) {
+            return None;
+        }
+        if s < 32 && self.views.valid & (1 << s) != 0 {
+            let v = self.views.lanes.get(s).copied();
+            // Tests run with debug assertions: every use of a kept projection is checked
+            // against a fresh one, bit for bit.
+            debug_assert!(
+                v.map(|(z, w)| (z.map(f32::to_bits), w.map(f32::to_bits)))
+                    == self
+                        .tables
+                        .and_then(|t| self.temporal.filter().lane(t, s))
+                        .map(|(z, w)| (z.map(f32::to_bits), w.map(f32::to_bits))),
+                "stale projection of lane {s}"
+            );
+            return v;
+        }
+        self.temporal.filter().lane(self.tables?, s)
+    }
+
     /// Step 3 (docs/design.md §11): the live lanes' row evidence against their prediction, the
     /// temporal update with it, their existence; the points they explain leave the rows.
     /// Returns the lanes seen (bit = slot).
@@ -228,7 +308,7 @@ impl_tracker! {
                     if projected & (1 << l) == 0 {
                         projected |= 1 << l;
                         if let Some(v) = views.get_mut(l) {
-                            *v = self.temporal.filter().lane(tables, l);
+                            *v = self.view(l);
                         }
                     }
                 }
@@ -300,6 +380,7 @@ impl_tracker! {
 
     /// Removes the lane in slot `s` from every stage.
     pub(super) fn remove_slot(&mut self, s: usize) {
+        self.views.forget(s);
         set(&mut self.connector_run, s, 0);
         self.ids.remove(s);
         self.temporal.remove_lane(s);
@@ -370,7 +451,7 @@ impl_tracker! {
         let lanes: [Option<(SVector<f32, POINTS>, SVector<f32, POINTS>)>; LANES] =
             core::array::from_fn(|s| {
                 if live(s) {
-                    self.temporal.filter().lane(tables, s)
+                    self.view(s)
                 } else {
                     None
                 }
@@ -586,12 +667,7 @@ impl_tracker! {
             return RayVerdict::Undecided;
         };
         let c = &self.cfg.persist;
-        let Some((z, var)) = self
-            .temporal
-            .filter()
-            .lane(tables, s)
-            .filter(|_| c.ray_z > 0.0)
-        else {
+        let Some((z, var)) = self.view(s).filter(|_| c.ray_z > 0.0) else {
             return RayVerdict::Undecided;
         };
         let rr = tables.hyper.meas_noise;
@@ -613,10 +689,7 @@ impl_tracker! {
         let Some(tables) = self.tables else {
             return false;
         };
-        let (Some((zs, vs)), Some((zt, vt))) = (
-            self.temporal.filter().lane(tables, s),
-            self.temporal.filter().lane(tables, t),
-        ) else {
+        let (Some((zs, vs)), Some((zt, vt))) = (self.view(s), self.view(t)) else {
             return false;
         };
         let (os, ot) = (self.observed(s), self.observed(t));
@@ -641,7 +714,7 @@ impl_tracker! {
         let Some(tables) = self.tables else {
             return false;
         };
-        let Some((zt, vt)) = self.temporal.filter().lane(tables, t) else {
+        let Some((zt, vt)) = self.view(t) else {
             return false;
         };
         let rr = tables.hyper.meas_noise;
@@ -732,10 +805,7 @@ impl_tracker! {
         // §11.5). In the first two frames after nothing was tracked every lane is published.
         let tracking = (0..LANES).any(|t| self.ids.lane(t).is_some_and(|l| l.age > 1));
         for s in 0..LANES {
-            if let (Some(lane), Some((z, var))) = (
-                self.ids.lane(s),
-                self.temporal.filter().lane(tables, s),
-            ) {
+            if let (Some(lane), Some((z, var))) = (self.ids.lane(s), self.view(s)) {
                 let (u_first, u_last) = self.extent_of(s, 0);
                 let info = get(&self.info, s);
                 if self.cfg.persist.enabled
@@ -941,4 +1011,46 @@ fn quadratic_form<const N: usize>(m: &SMatrix<f32, N, N>, p: &[f32; N], q: &[f32
         }
     }
     acc
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::tables::{DEFAULT, UNCOUPLED};
+    use crate::tracker::{Instant, ReferenceTracker, TrackerConfig};
+
+    /// Every projection the step takes from its views equals a fresh one (the `debug_assert`
+    /// in `Tracker::view`, on in tests), over frames that start, update, merge and lose lanes,
+    /// on coupled and uncoupled tables; and the views were used.
+    #[test]
+    fn kept_projections_equal_fresh_ones() {
+        for tables in [&DEFAULT, &UNCOUPLED] {
+            let mut t = Box::new(ReferenceTracker::UNINIT);
+            t.init(tables, TrackerConfig::DEFAULT);
+            let mut used = 0u32;
+            for k in 0..40u32 {
+                let mut pts = heapless::Vec::<[f32; 2], 256>::new();
+                // Three markings drifting sideways; the right one disappears after frame 25,
+                // a fourth appears at frame 10; a few clutter points per frame.
+                let drift = 0.02 * k as f32;
+                for (i, x0) in [-3.6f32, 0.1, 3.7, 7.2].into_iter().enumerate() {
+                    if (i == 2 && k > 25) || (i == 3 && k < 10) {
+                        continue;
+                    }
+                    for r in 0..40 {
+                        let u = 4.0 + 1.5 * r as f32;
+                        let x = x0 + drift + 0.002 * u + 1e-4 * u * u;
+                        let _ = pts.push([u, x + 0.03 * ((r * 7 + k as usize) as f32).sin()]);
+                    }
+                }
+                for c in 0..12u32 {
+                    let h = (k * 31 + c * 17) as f32;
+                    let _ = pts.push([5.0 + (h * 0.61).sin().abs() * 60.0, (h * 1.3).sin() * 9.0]);
+                }
+                let out = t.step(Instant::from_micros(i64::from(k) * 50_000), &pts);
+                assert!(out.is_ok());
+                used |= t.views.valid;
+            }
+            assert_ne!(used, 0, "no projection was kept");
+        }
+    }
 }
