@@ -32,9 +32,14 @@ const LN_PSI_MAX: f32 = 60.0;
 /// in `out.valid`; tracks of `skip` and tracks without candidates are missed). Returns the
 /// iterations run, or `None` on a numerical failure (a non-finite weight or message).
 ///
+/// `out.beta` must be zero on entry (as [`associate_into`](super::associate_into) leaves it):
+/// the weights `ψ` are built in it and turned into the marginals in place. The messages are
+/// kept only for a row with cycles; without them every `ν` is 1, and `ψ·1 = ψ` exactly, so the
+/// marginals are the same bits either way.
+///
 /// # Complexity
 /// `O(n · m)` exponentials once, then at most [`MAX_ITERATIONS`] × `2 n m` multiply-adds and
-/// `2 n m` divisions; `2 · LANES · 32` f32 of stack for the weights and messages.
+/// `2 n m` divisions; `2 · LANES · 32` f32 of stack for the messages.
 // Not inlined: its frame replaces the event pass's, it does not add to it.
 #[inline(never)]
 pub(super) fn marginals<const LANES: usize>(
@@ -47,10 +52,8 @@ pub(super) fn marginals<const LANES: usize>(
     skip: u32,
 ) -> Option<u32> {
     let m = points.len().min(MAX_ROW_POINTS);
-    // ψ_tj (0 outside the gate), and the messages ν_tj.
-    let mut psi = [[0.0f32; MAX_ROW_POINTS]; LANES];
-    let mut nu = [[1.0f32; MAX_ROW_POINTS]; LANES];
-    for (t, row) in psi.iter_mut().enumerate().take(n) {
+    // ψ_tj (0 outside the gate), in β.
+    for (t, row) in out.beta.iter_mut().enumerate().take(n) {
         if skip & (1 << t) != 0 {
             continue;
         }
@@ -76,42 +79,67 @@ pub(super) fn marginals<const LANES: usize>(
         shared |= seen & v;
         seen |= v;
     }
-    let mut iterations = 0u32;
-    if shared != 0 {
-        let mut mu = [[0.0f32; MAX_ROW_POINTS]; LANES];
-        while iterations < MAX_ITERATIONS {
-            iterations += 1;
-            // Track → point.
-            for ((mrow, prow), nrow) in mu.iter_mut().zip(psi.iter()).zip(nu.iter()).take(n) {
-                let s = track_total(prow, nrow, m);
-                for ((mu_tj, p), v) in mrow.iter_mut().zip(prow.iter()).zip(nrow.iter()).take(m) {
-                    *mu_tj = if *p > 0.0 { p / (s - p * v) } else { 0.0 };
-                }
+    if shared == 0 {
+        // ν = 1: β_tj = ψ_tj / (1 + Σ_j' ψ_tj').
+        for (t, (bm, brow)) in out
+            .beta_miss
+            .iter_mut()
+            .zip(out.beta.iter_mut())
+            .enumerate()
+            .take(n)
+        {
+            if skip & (1 << t) != 0 {
+                *bm = 1.0;
+                continue;
             }
-            // Point → track.
-            let mut moved = 0.0f32;
-            for j in 0..m {
-                let col: f32 = 1.0 + mu.iter().take(n).map(|r| get(r, j)).sum::<f32>();
-                for (nrow, mrow) in nu.iter_mut().zip(mu.iter()).take(n) {
-                    let new = 1.0 / (col - get(mrow, j));
-                    let old = get(nrow, j);
-                    moved = moved.max((new - old).abs());
-                    set(nrow, j, new);
-                }
-            }
-            if !moved.is_finite() {
+            let s = 1.0 + brow.iter().take(m).sum::<f32>();
+            if !(s.is_finite() && s >= 1.0) {
                 return None;
             }
-            if moved <= TOLERANCE {
-                break;
+            let inv = 1.0 / s;
+            *bm = inv;
+            for b in brow.iter_mut().take(m) {
+                *b *= inv;
             }
         }
+        return Some(0);
     }
-    for (t, ((bm, brow), (prow, nrow))) in out
+    let psi = &out.beta;
+    let mut nu = [[1.0f32; MAX_ROW_POINTS]; LANES];
+    let mut mu = [[0.0f32; MAX_ROW_POINTS]; LANES];
+    let mut iterations = 0u32;
+    while iterations < MAX_ITERATIONS {
+        iterations += 1;
+        // Track → point.
+        for ((mrow, prow), nrow) in mu.iter_mut().zip(psi.iter()).zip(nu.iter()).take(n) {
+            let s = track_total(prow, nrow, m);
+            for ((mu_tj, p), v) in mrow.iter_mut().zip(prow.iter()).zip(nrow.iter()).take(m) {
+                *mu_tj = if *p > 0.0 { p / (s - p * v) } else { 0.0 };
+            }
+        }
+        // Point → track.
+        let mut moved = 0.0f32;
+        for j in 0..m {
+            let col: f32 = 1.0 + mu.iter().take(n).map(|r| get(r, j)).sum::<f32>();
+            for (nrow, mrow) in nu.iter_mut().zip(mu.iter()).take(n) {
+                let new = 1.0 / (col - get(mrow, j));
+                let old = get(nrow, j);
+                moved = moved.max((new - old).abs());
+                set(nrow, j, new);
+            }
+        }
+        if !moved.is_finite() {
+            return None;
+        }
+        if moved <= TOLERANCE {
+            break;
+        }
+    }
+    for (t, ((bm, brow), nrow)) in out
         .beta_miss
         .iter_mut()
         .zip(out.beta.iter_mut())
-        .zip(psi.iter().zip(nu.iter()))
+        .zip(nu.iter())
         .enumerate()
         .take(n)
     {
@@ -119,14 +147,14 @@ pub(super) fn marginals<const LANES: usize>(
             *bm = 1.0;
             continue;
         }
-        let s = track_total(prow, nrow, m);
+        let s = track_total(brow, nrow, m);
         if !(s.is_finite() && s >= 1.0) {
             return None;
         }
         let inv = 1.0 / s;
         *bm = inv;
-        for ((b, p), v) in brow.iter_mut().zip(prow.iter()).zip(nrow.iter()).take(m) {
-            *b = p * v * inv;
+        for (b, v) in brow.iter_mut().zip(nrow.iter()).take(m) {
+            *b = *b * v * inv;
         }
     }
     Some(iterations)
