@@ -92,20 +92,47 @@ pub(super) fn marginals<const LANES: usize>(
                 *bm = 1.0;
                 continue;
             }
-            let s = 1.0 + brow.iter().take(m).sum::<f32>();
-            if !(s.is_finite() && s >= 1.0) {
-                return None;
-            }
-            let inv = 1.0 / s;
-            *bm = inv;
-            for b in brow.iter_mut().take(m) {
-                *b *= inv;
-            }
+            *bm = alone(brow, m)?;
         }
         return Some(0);
     }
-    let psi = &out.beta;
     let mut nu = [[1.0f32; MAX_ROW_POINTS]; LANES];
+    let iterations = iterate(&out.beta, &mut nu, n, m)?;
+    for (t, ((bm, brow), nrow)) in out
+        .beta_miss
+        .iter_mut()
+        .zip(out.beta.iter_mut())
+        .zip(nu.iter())
+        .enumerate()
+        .take(n)
+    {
+        if skip & (1 << t) != 0 {
+            *bm = 1.0;
+            continue;
+        }
+        let s = track_total(brow, nrow, m);
+        if !(s.is_finite() && s >= 1.0) {
+            return None;
+        }
+        let inv = 1.0 / s;
+        *bm = inv;
+        for (b, v) in brow.iter_mut().zip(nrow.iter()).take(m) {
+            *b = *b * v * inv;
+        }
+    }
+    Some(iterations)
+}
+
+/// The messages `ν` (1 on entry) of a row with cycles, from the weights `ψ` of its first `n`
+/// tracks over `m` points; returns the iterations run, `None` when a message is not finite.
+// Not inlined: its messages' frame is only taken by rows with cycles.
+#[inline(never)]
+fn iterate<const LANES: usize>(
+    psi: &[[f32; MAX_ROW_POINTS]; LANES],
+    nu: &mut [[f32; MAX_ROW_POINTS]; LANES],
+    n: usize,
+    m: usize,
+) -> Option<u32> {
     let mut mu = [[0.0f32; MAX_ROW_POINTS]; LANES];
     let mut iterations = 0u32;
     while iterations < MAX_ITERATIONS {
@@ -135,29 +162,24 @@ pub(super) fn marginals<const LANES: usize>(
             break;
         }
     }
-    for (t, ((bm, brow), nrow)) in out
-        .beta_miss
-        .iter_mut()
-        .zip(out.beta.iter_mut())
-        .zip(nu.iter())
-        .enumerate()
-        .take(n)
-    {
-        if skip & (1 << t) != 0 {
-            *bm = 1.0;
-            continue;
-        }
-        let s = track_total(brow, nrow, m);
-        if !(s.is_finite() && s >= 1.0) {
-            return None;
-        }
-        let inv = 1.0 / s;
-        *bm = inv;
-        for (b, v) in brow.iter_mut().zip(nrow.iter()).take(m) {
-            *b = *b * v * inv;
-        }
-    }
     Some(iterations)
+}
+
+/// A track's marginals when no other track gates its points (`ν = 1`): `ψ_tj` in `brow`
+/// becomes `β_tj = ψ_tj / (1 + Σ_j' ψ_tj')`; returns `β_t,miss`, `None` when the sum is not
+/// finite.
+// Not inlined: one copy of the loops, not one per track (flash).
+#[inline(never)]
+fn alone(brow: &mut [f32; MAX_ROW_POINTS], m: usize) -> Option<f32> {
+    let s = 1.0 + brow.iter().take(m).sum::<f32>();
+    if !(s.is_finite() && s >= 1.0) {
+        return None;
+    }
+    let inv = 1.0 / s;
+    for b in brow.iter_mut().take(m) {
+        *b *= inv;
+    }
+    Some(inv)
 }
 
 /// `1 + Σ_j ψ_tj ν_tj` over a track's first `m` points: its miss plus its messages-weighted
