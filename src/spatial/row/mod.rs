@@ -241,6 +241,11 @@ pub(crate) struct Scratch<const L: usize> {
     /// `part` (used by rows with more than one cluster only).
     extent: (usize, usize),
     part_extent: (usize, usize),
+    /// The last row's log terms and the parameters they were taken of (`P_D`, `P_G`, `λ_c`
+    /// bits and the miss model): a pass's rows share their band's parameters, so most rows
+    /// reuse them (four `ln` a row otherwise).
+    logs: Logs,
+    logs_of: Option<(u32, u32, u32, MissModel)>,
 }
 
 impl<const L: usize> Scratch<L> {
@@ -252,11 +257,33 @@ impl<const L: usize> Scratch<L> {
         part: Acc::ZEROED,
         extent: (0, 0),
         part_extent: (0, 0),
+        logs: Logs {
+            ln_pd_lambda: 0.0,
+            ln_miss: 0.0,
+            ln_2pi: 0.0,
+        },
+        logs_of: None,
     };
 
     /// For a [`RowOutcome::default`].
     pub(crate) const fn new() -> Self {
         Self::ZEROED
+    }
+
+    /// [`Logs::of`] `params`, taken again only when they differ from the last row's (the same
+    /// bits in, the same bits out).
+    fn logs(&mut self, params: &RowParams) -> Logs {
+        let key = (
+            params.pd.to_bits(),
+            params.pg.to_bits(),
+            params.clutter_density.to_bits(),
+            params.miss,
+        );
+        if self.logs_of != Some(key) {
+            self.logs = Logs::of(params);
+            self.logs_of = Some(key);
+        }
+        self.logs
     }
 
     /// Resets `out` and the row accumulator for a row of `n` tracks and `m` points.
@@ -368,7 +395,7 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
     }
 
     probe.enter(Stage::Events);
-    let lg = Logs::of(params);
+    let lg = scratch.logs(params);
     // The budget counts the events of the row's clusters (tracks that share a candidate or are
     // correlated, `S̄_st ≠ 0`; see [`associate`]): a row over it as one enumeration is tried as
     // clusters when its clusters by shared candidates fit and the first two are uncorrelated.
@@ -429,7 +456,7 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
     }
     normalise(out, &acc.beta, &acc.bmiss, inv, n, m, skip);
     let sdiag: [f32; LANES] = core::array::from_fn(|t| at(&sbar, t, t));
-    exclusive_density(out, &zhat, &sdiag, points, n);
+    exclusive_density(out, (&zhat, &sdiag, None), points, n, lg.ln_2pi);
 }
 
 /// The event weights of a row's eligible tracks `elig[..na]` into `acc`, and the factor `inv`
@@ -614,7 +641,7 @@ pub(crate) fn associate_into<const LANES: usize>(
         return;
     }
     let n_skipped = (0..n).filter(|t| skip & (1 << t) != 0).count();
-    let lg = Logs::of(params);
+    let lg = scratch.logs(params);
     // The event count is checked once: an over-budget row is weighed by LBP or pruned. A row
     // whose tracks fall into independent clusters (below) is enumerated cluster by cluster, so
     // its count is the clusters' sum: over the budget as one enumeration, it may fit as several.
@@ -640,10 +667,11 @@ pub(crate) fn associate_into<const LANES: usize>(
     }
     out.approximated = over;
     if mode == Association::Lbp || (mode == Association::ExactOrLbp && out.approximated) {
-        match lbp::marginals(out, zhat, sdiag, points, n, &lg, skip) {
+        let mut ln_s = [0.0f32; LANES];
+        match lbp::marginals(out, zhat, sdiag, points, n, &lg, skip, &mut ln_s) {
             Some(it) => {
                 out.lbp_iterations = it.max(1);
-                exclusive_density(out, zhat, sdiag, points, n);
+                exclusive_density(out, (zhat, sdiag, Some(&ln_s)), points, n, lg.ln_2pi);
             }
             None => failed(out),
         }
@@ -678,7 +706,7 @@ pub(crate) fn associate_into<const LANES: usize>(
     out.events = acc.events;
     out.patterns = acc.patterns;
     normalise(out, &acc.beta, &acc.bmiss, inv, n, m, skip);
-    exclusive_density(out, zhat, sdiag, points, n);
+    exclusive_density(out, (zhat, sdiag, None), points, n, lg.ln_2pi);
 }
 
 /// The eligible tracks among the first `n` (not masked by `skip`, at least one candidate).
@@ -909,6 +937,7 @@ fn masks<const LANES: usize>(
 }
 
 /// The constant log terms of a row's event weights (docs/design.md §4.1 step 3).
+#[derive(Clone, Copy)]
 struct Logs {
     /// `ln(P_D / λ_c)`.
     ln_pd_lambda: f32,
@@ -1012,15 +1041,15 @@ fn normalise<const LANES: usize>(
 
 /// `out.dens[t] = Σ_{j gated} N(z_j; ẑ_t, S̄_tt) · (1 − Σ_{t' ≠ t} β_{t'j})` after the weights:
 /// each point counts for a track as far as no other track claims it (a broad track overlapping
-/// a known one gets no credit for the known one's points, as in JIPDA).
+/// a known one gets no credit for the known one's points, as in JIPDA). `ln_s[t] = ln S̄_tt`
+/// when the caller has them (LBP does), `ln_2pi = ln 2π` (the row's [`Logs`]).
 fn exclusive_density<const LANES: usize>(
     out: &mut RowOutcome<LANES>,
-    zhat: &[f32; LANES],
-    sdiag: &[f32; LANES],
+    (zhat, sdiag, ln_s): (&[f32; LANES], &[f32; LANES], Option<&[f32; LANES]>),
     points: &[f32],
     n: usize,
+    ln_2pi: f32,
 ) {
-    let ln_2pi = math::ln(2.0 * core::f32::consts::PI);
     // Only the row's points are read below (a gate bit `j` has `j < m`).
     let m = points.len().min(MAX_ROW_POINTS);
     let mut claimed = [0.0f32; MAX_ROW_POINTS];
@@ -1035,7 +1064,11 @@ fn exclusive_density<const LANES: usize>(
         let mask = get(&out.valid, t);
         // By reference: a copy of the row is a 128-byte memcpy on the Cortex-M4F.
         let own = out.beta.get(t).unwrap_or(&[0.0; MAX_ROW_POINTS]);
-        let norm = -0.5 * (ln_2pi + math::ln(st));
+        let ln_st = match ln_s {
+            Some(l) => get(l, t),
+            None => math::ln(st),
+        };
+        let norm = -0.5 * (ln_2pi + ln_st);
         let d: f32 = points
             .iter()
             .enumerate()
