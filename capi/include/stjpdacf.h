@@ -27,7 +27,7 @@
 
 // Bytes of the tracker buffer (at least `sizeof` of the tracker on every supported target:
 // checked at compile time).
-#define STJPDACF_TRACKER_SIZE 155448
+#define STJPDACF_TRACKER_SIZE 155480
 
 // Alignment of the tracker buffer, bytes.
 #define STJPDACF_TRACKER_ALIGN 8

@@ -48,7 +48,7 @@ pub const STJPDACF_MAX_POINTS_IN: usize = 65_536;
 pub const STJPDACF_LAG: usize = 4;
 /// Bytes of the tracker buffer (at least `sizeof` of the tracker on every supported target:
 /// checked at compile time).
-pub const STJPDACF_TRACKER_SIZE: usize = 155_448;
+pub const STJPDACF_TRACKER_SIZE: usize = 155_480;
 /// Alignment of the tracker buffer, bytes.
 pub const STJPDACF_TRACKER_ALIGN: usize = 8;
 

@@ -242,10 +242,12 @@ pub(crate) struct Scratch<const L: usize> {
     extent: (usize, usize),
     part_extent: (usize, usize),
     /// The last row's log terms and the parameters they were taken of (`P_D`, `P_G`, `λ_c`
-    /// bits and the miss model): a pass's rows share their band's parameters, so most rows
-    /// reuse them (four `ln` a row otherwise).
+    /// bits and whether the miss model is the gated one), when `logs_kept`: a pass's rows
+    /// share their band's parameters, so most rows reuse them (four `ln` a row otherwise).
+    /// Plain integers and a `bool`, so that a zeroed scratch is all zero bytes (`.bss`).
     logs: Logs,
-    logs_of: Option<(u32, u32, u32, MissModel)>,
+    logs_of: (u32, u32, u32, bool),
+    logs_kept: bool,
 }
 
 impl<const L: usize> Scratch<L> {
@@ -262,7 +264,8 @@ impl<const L: usize> Scratch<L> {
             ln_miss: 0.0,
             ln_2pi: 0.0,
         },
-        logs_of: None,
+        logs_of: (0, 0, 0, false),
+        logs_kept: false,
     };
 
     /// For a [`RowOutcome::default`].
@@ -277,11 +280,12 @@ impl<const L: usize> Scratch<L> {
             params.pd.to_bits(),
             params.pg.to_bits(),
             params.clutter_density.to_bits(),
-            params.miss,
+            params.miss == MissModel::Gated,
         );
-        if self.logs_of != Some(key) {
+        if !self.logs_kept || self.logs_of != key {
             self.logs = Logs::of(params);
-            self.logs_of = Some(key);
+            self.logs_of = key;
+            self.logs_kept = true;
         }
         self.logs
     }
