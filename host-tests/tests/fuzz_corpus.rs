@@ -315,3 +315,15 @@ fn finding_f7_update_below_the_old_trigger_repaired_to_psd() {
     });
     assert_eq!(passed, 1);
 }
+
+/// **F8** (fixed in `src/tracker/` before it landed): the first minutes of `tracker_step` after
+/// the tracker began keeping its lanes' projections (stop 32) found a refused frame (time not
+/// increasing) that changed the tracker: the projections were forgotten before the time was
+/// checked. They are now forgotten after it; a refused frame leaves every byte as it was.
+#[test]
+fn finding_f8_refused_step_leaves_the_tracker_unchanged() {
+    assert_eq!(
+        replay("regressions/tracker_step", "f8-", harness::tracker_step),
+        1
+    );
+}

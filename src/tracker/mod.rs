@@ -277,12 +277,14 @@ impl_tracker! {
             return Err(StepError::NotInitialised);
         };
         probe.enter(Stage::Binning);
-        self.views.clear();
         let dt_us = match self.last {
             Some(last) if now <= last => return Err(StepError::NonIncreasingTime),
             Some(last) => Some(now.as_micros().saturating_sub(last.as_micros())),
             None => None,
         };
+        // The filter moves below (prediction, known-lane updates) before the views are taken
+        // again; a refused frame (above) leaves everything as it was.
+        self.views.clear();
         let dt = dt_us.map_or(0.0, |us| us as f32 * 1e-6);
         let used = points.len().min(MEAS);
         let mut report = StepReport {
