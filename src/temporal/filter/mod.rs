@@ -425,13 +425,23 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         let r = Self::r_used(tables);
         let sp = self.spans(r);
         let own = Self::idx(s, 0, 0)..Self::idx(s, 0, 0) + 2 * r;
+        // The lanes the new one is conditioned on: the other active lanes with `a_t ≠ 0`, in slot
+        // order. A term `0 · v` of a finite `v` is ±0 and adding it to a sum that starts at +0 changes
+        // no bit, so the sums below skip those lanes (all of them on the uncoupled tables).
+        let mut on = [0usize; LANES];
+        let mut n_on = 0usize;
+        for t in (0..LANES).filter(|&t| t != s && self.is_active(t) && get(&a, t) != 0.0) {
+            set(&mut on, n_on, t);
+            n_on += 1;
+        }
+        let on = on.get(..n_on).unwrap_or(&[]);
         // Slot s's rows and columns are zero (free slot). New rows:
         // x_new[j,c] = Σ_t a_t x[t,j,c]; Cov(new[j,c], y) = Σ_t a_t Cov(x[t,j,c], y) for the other
         // lanes' y, written into row and column (s, j, c).
         for e in own.clone() {
             let off = e - Self::idx(s, 0, 0);
             let mut m = 0.0;
-            for t in (0..LANES).filter(|&t| t != s && self.is_active(t)) {
+            for &t in on {
                 m += get(&a, t) * self.xg(Self::idx(t, 0, 0) + off);
             }
             if let Some(v) = self.x.as_mut_slice().get_mut(e) {
@@ -439,7 +449,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             }
             for col in sp.indices().filter(|c| !own.contains(c)) {
                 let mut cv = 0.0;
-                for t in (0..LANES).filter(|&t| t != s && self.is_active(t)) {
+                for &t in on {
                     cv += get(&a, t) * self.pg(Self::idx(t, 0, 0) + off, col);
                 }
                 let ps = self.p.as_mut_slice();
@@ -460,7 +470,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
                 let off2 = e2 - Self::idx(s, 0, 0);
                 let (j2, c2) = (off2 / 2, off2 % 2);
                 let mut cv = 0.0;
-                for t in (0..LANES).filter(|&t| t != s && self.is_active(t)) {
+                for &t in on {
                     cv += get(&a, t) * self.pg(e, Self::idx(t, 0, 0) + off2);
                 }
                 if j == j2 {
