@@ -3,7 +3,9 @@
 //! parameters, or with `name=value` overrides given as arguments (for tuning on the tuning set).
 //!
 //! `cargo run --release -p stjpdacf-tools --example frontend_eval [--png=DIR] [name=value …]`
-//! (`--png=DIR`: also write each frame's overlay, feature points red and labels green, to DIR)
+//! (`--png=DIR`: also write each frame's overlay, feature points red and labels green, to DIR;
+//! `--bev=DIR`: each frame's bird's-eye view with its feature points; `--no-tracker`: skip the
+//! end-to-end part)
 
 use std::time::Instant;
 
@@ -17,7 +19,12 @@ fn main() -> anyhow::Result<()> {
     let mut p = FrontendParams::default();
     let mut png: Option<std::path::PathBuf> = None;
     let mut bev: Option<std::path::PathBuf> = None;
+    let mut tracker = true;
     for a in std::env::args().skip(1) {
+        if a == "--no-tracker" {
+            tracker = false;
+            continue;
+        }
         if let Some(d) = a.strip_prefix("--bev=") {
             bev = Some(d.into());
             continue;
@@ -84,6 +91,9 @@ fn main() -> anyhow::Result<()> {
             ms / set.len() as f64
         );
     }
+    if !tracker {
+        return Ok(());
+    }
     // End to end: front end → tracker → official metric, all 10 frames, with the calibrated
     // camera and with the horizon estimated from each image (no calibration: Camera::guess).
     let guess = Camera::guess(1280.0, 720.0);
@@ -97,9 +107,10 @@ fn main() -> anyhow::Result<()> {
             let img = frontend::load_rgb(&dir.join(f.raw_file.as_deref().unwrap_or("")))?;
             let cam = frontend::camera_with(&img, &mode)?;
             println!(
-                "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes), points P {:.2} R {:.2}, vanishing point ({:.1}, {:.1}), row {:+.1} from the calibration",
+                "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes), points P {:.2} R {:.2}, vanishing point ({:.1}, {:.1}), row {:+.1} from the calibration, height {:.2} m",
                 r.raw_file, r.score.accuracy, r.score.fp, r.score.fn_, r.lanes, r.gt_lanes,
-                r.precision, r.recall, cam.vp_col, cam.vp_row, cam.vp_row - calibrated.vp_row
+                r.precision, r.recall, cam.vp_col, cam.vp_row, cam.vp_row - calibrated.vp_row,
+                cam.height_m
             );
         }
         let n = real.results.len() as f64;

@@ -273,6 +273,10 @@ fn culane_sized_camera_and_horizon_estimate() {
         "row {}",
         est.vp_row
     );
+    // The camera height from the boundaries' spacing (3.6 m here, taken as LANE_WIDTH).
+    let h = truth.height_m * frontend::LANE_WIDTH / 3.6;
+    eprintln!("height {} (expected {h})", est.height_m);
+    assert!((est.height_m - h).abs() <= 0.05, "height {}", est.height_m);
     // Estimating and detecting in one go finds the same camera, and points on the markings.
     let (cam2, pts2) =
         frontend::estimate_and_detect(&img, &Camera::culane(), &FrontendParams::default()).unwrap();
