@@ -1513,7 +1513,8 @@ pub fn render_markdown(r: &DemoReport) -> String {
     }
     s.push_str(&format!(
         "\nReal frames without the calibration (horizon and vanishing column estimated from each \
-         image, camera height and focal length guessed): accuracy {:.3}, FP {:.3}, FN {:.3}.\n",
+         image, camera height from the spacing of the lane boundaries in view, focal length \
+         guessed): accuracy {:.3}, FP {:.3}, FN {:.3}.\n",
         r.real_uncalibrated.accuracy, r.real_uncalibrated.fp, r.real_uncalibrated.fn_
     ));
     s.push_str(&render_identity(r));
