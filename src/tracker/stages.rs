@@ -290,8 +290,10 @@ impl_tracker! {
             return 0;
         };
         let mut any = 0u32;
-        // Each lane's positions and variances, projected once when a pair first needs them
-        // (removing a lane zeroes only its own rows and columns: the others' stay valid).
+        // Each lane's positions and variances, copied once from the tracker's kept projections
+        // when a pair first needs them (removing a lane zeroes only its own rows and columns:
+        // the others' stay valid). Reading `self.view` per pair instead copies each lane's
+        // 128 B up to five times: +2.5 k instructions a typical frame on the M4F (measured).
         let mut views: [Option<View<POINTS>>; LANES] = [None; LANES];
         let mut projected = 0u32;
         for s in 0..LANES {
