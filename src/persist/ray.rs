@@ -84,13 +84,15 @@ pub fn ray_stat<const POINTS: usize>(
     weight: &[f32; POINTS],
     cov: &dyn Fn(&[f32; POINTS], &[f32; POINTS]) -> f32,
 ) -> Option<RayStat> {
-    let usable = |i: usize| {
+    // Tested once per point (the fits below walk the points five times).
+    let ok: [bool; POINTS] = core::array::from_fn(|i| {
         get(present, i)
             && get(weight, i) > 0.0
             && get(weight, i).is_finite()
             && u.get(i).is_some_and(|v| v.is_finite())
             && z.get(i).is_some_and(|v| v.is_finite())
-    };
+    });
+    let usable = |i: usize| get(&ok, i);
     let LineMoments {
         scale,
         m0,
@@ -183,13 +185,14 @@ pub fn parallel<const POINTS: usize>(
     z: f32,
     var: &dyn Fn(&[f32; POINTS]) -> f32,
 ) -> bool {
-    let usable = |i: usize| {
+    let ok: [bool; POINTS] = core::array::from_fn(|i| {
         get(present, i)
             && get(weight, i) > 0.0
             && get(weight, i).is_finite()
             && get(d, i).is_finite()
             && u.get(i).is_some_and(|v| v.is_finite())
-    };
+    });
+    let usable = |i: usize| get(&ok, i);
     let Some(LineMoments {
         scale,
         m0,
