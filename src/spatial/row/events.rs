@@ -169,11 +169,7 @@ impl<const L: usize> Acc<L> {
         self.lwmax = f32::NEG_INFINITY;
         self.events = 0;
         self.patterns = 0;
-        for row in self.beta.iter_mut().take(rows) {
-            for v in row.iter_mut().take(cols) {
-                *v = 0.0;
-            }
-        }
+        crate::linalg::zero_block(&mut self.beta, rows, cols);
     }
 
     /// Back to a fresh accumulator after a pass over the tracks of `set` (bit `t`): a pass

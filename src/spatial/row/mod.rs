@@ -218,11 +218,7 @@ impl<const LANES: usize> RowOutcome<LANES> {
         self.ignored_points = 0;
         self.failed = false;
         self.dens = [0.0; LANES];
-        for row in self.beta.iter_mut().take(rows) {
-            for v in row.iter_mut().take(cols) {
-                *v = 0.0;
-            }
-        }
+        crate::linalg::zero_block(&mut self.beta, rows, cols);
     }
 }
 
