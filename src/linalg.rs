@@ -166,3 +166,24 @@ pub(crate) fn cm_set<const N: usize>(m: &mut [[f32; N]; N], r: usize, c: usize, 
         *e = v;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn zero_block_clears_exactly_the_block() {
+        let mut m = [[1.5f32; 5]; 4];
+        zero_block(&mut m, 2, 3);
+        for (i, row) in m.iter().enumerate() {
+            for (j, v) in row.iter().enumerate() {
+                let want = if i < 2 && j < 3 { 0.0 } else { 1.5 };
+                assert_eq!(v.to_bits(), f32::to_bits(want), "({i}, {j})");
+            }
+        }
+        // Past the end is a no-op, not a panic; +0.0, not −0.0.
+        let mut m = [[-1.0f32; 2]; 2];
+        zero_block(&mut m, 9, 9);
+        assert!(m.iter().flatten().all(|v| v.to_bits() == 0));
+    }
+}
