@@ -459,6 +459,16 @@ pub(crate) fn dot<const R: usize>(a: &[f32; R], b: &[f32; R]) -> f32 {
     acc
 }
 
+/// [`dot`] over the first `n` entries.
+#[inline(always)]
+fn dot_first<const R: usize>(a: &[f32; R], b: &[f32; R], n: usize) -> f32 {
+    let mut acc = 0.0;
+    for (x, y) in a.iter().zip(b).take(n) {
+        acc += x * y;
+    }
+    acc
+}
+
 /// `a M` for a row `a` and a square `M` (`(a M)_k = Σ_j a_j M[j, k]`).
 #[inline(always)]
 pub(crate) fn times_sym<const R: usize>(a: &[f32; R], m: &SMatrix<f32, R, R>) -> [f32; R] {
@@ -499,10 +509,18 @@ pub(crate) fn project<const POINTS: usize, const RANK: usize>(
                 0.0
             }
         });
-        *m = dot(&vi, a);
-        let pv: [f32; RANK] = core::array::from_fn(|j| p.get(j).map_or(0.0, |row| dot(row, &vi)));
+        // The sums stop at `r`: beyond it `vi` is zero, and the terms they would add after the
+        // first `r` (±0 of a finite `P`, `a`) change no bit of a sum that starts at +0.
+        *m = dot_first(&vi, a, r);
+        let pv: [f32; RANK] = core::array::from_fn(|j| {
+            if j < r {
+                p.get(j).map_or(0.0, |row| dot_first(row, &vi, r))
+            } else {
+                0.0
+            }
+        });
         let s: f32 = vi.iter().zip(&sd).map(|(v, d)| v.abs() * d).sum();
-        *w = math::max(dot(&pv, &vi), tol * s * s);
+        *w = math::max(dot_first(&pv, &vi, r), tol * s * s);
     }
     (mean, var)
 }
