@@ -509,18 +509,25 @@ pub(crate) fn project<const POINTS: usize, const RANK: usize>(
                 0.0
             }
         });
-        // The sums stop at `r`: beyond it `vi` is zero, and the terms they would add after the
-        // first `r` (±0 of a finite `P`, `a`) change no bit of a sum that starts at +0.
-        *m = dot_first(&vi, a, r);
-        let pv: [f32; RANK] = core::array::from_fn(|j| {
-            if j < r {
-                p.get(j).map_or(0.0, |row| dot_first(row, &vi, r))
-            } else {
-                0.0
-            }
-        });
         let s: f32 = vi.iter().zip(&sd).map(|(v, d)| v.abs() * d).sum();
-        *w = math::max(dot_first(&pv, &vi, r), tol * s * s);
+        if r >= RANK {
+            *m = dot(&vi, a);
+            let pv: [f32; RANK] =
+                core::array::from_fn(|j| p.get(j).map_or(0.0, |row| dot(row, &vi)));
+            *w = math::max(dot(&pv, &vi), tol * s * s);
+        } else {
+            // The sums stop at `r`: beyond it `vi` is zero, and the terms they would add after
+            // the first `r` (±0 of a finite `P`, `a`) change no bit of a sum that starts at +0.
+            *m = dot_first(&vi, a, r);
+            let pv: [f32; RANK] = core::array::from_fn(|j| {
+                if j < r {
+                    p.get(j).map_or(0.0, |row| dot_first(row, &vi, r))
+                } else {
+                    0.0
+                }
+            });
+            *w = math::max(dot_first(&pv, &vi, r), tol * s * s);
+        }
     }
     (mean, var)
 }
