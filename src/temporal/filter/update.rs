@@ -510,14 +510,17 @@ pub(crate) fn project<const POINTS: usize, const RANK: usize>(
             }
         });
         let s: f32 = vi.iter().zip(&sd).map(|(v, d)| v.abs() * d).sum();
+        // Both branches give the same bits; the fixed-length sums are faster at full rank (the
+        // coupled default: the truncated loops ran it 0.2 % slower on the M4F).
         if r >= RANK {
             *m = dot(&vi, a);
             let pv: [f32; RANK] =
                 core::array::from_fn(|j| p.get(j).map_or(0.0, |row| dot(row, &vi)));
             *w = math::max(dot(&pv, &vi), tol * s * s);
         } else {
-            // The sums stop at `r`: beyond it `vi` is zero, and the terms they would add after
-            // the first `r` (±0 of a finite `P`, `a`) change no bit of a sum that starts at +0.
+            // The sums stop at `r`: beyond it `vi` is zero and both callers zero `a` and `P`, so
+            // the terms they would add after the first `r` are ±0 and change no bit of a sum
+            // that starts at +0 (it is never −0).
             *m = dot_first(&vi, a, r);
             let pv: [f32; RANK] = core::array::from_fn(|j| {
                 if j < r {
