@@ -606,6 +606,7 @@ fn compare_pass(
                             .max(f64::from(cfg.persist.pd_floor))
                     })
                     .collect(),
+                existence: f64::from(l.existence),
             }
         })
         .collect();
@@ -732,7 +733,7 @@ fn compare_pass(
             w.weight
         );
         // Existence: P_D,b fixed over the pass (the discounted estimate at its start, §11.5),
-        // each gated point weighted by the share no other lane claims.
+        // each gated point against clutter and the other lanes' detections.
         let l = &start.lanes[s];
         let mut hits: Vec<f64> = (0..POINTS).map(|b| f64::from(l.hits[b]) * decay).collect();
         let mut looks: Vec<f64> = (0..POINTS).map(|b| f64::from(l.looks[b]) * decay).collect();

@@ -154,6 +154,9 @@ pub struct KnownLane {
     pub rows: (usize, usize),
     /// The lane's detection probability `P_D,b` per band (the existence update's, §11.5).
     pub pd: Vec<f64>,
+    /// `P(exists)` before the pass: the weight `P_D · P` of the lane's detections as the other
+    /// lanes' competitor in their existence evidence (§11.5).
+    pub existence: f64,
 }
 
 /// A band's estimates (docs/design.md §11.6) and span (§11.1), inputs of the pass.
@@ -226,8 +229,8 @@ pub struct LaneRow {
     pub equivalent: Option<(f64, f64)>,
     /// Points in the lane's gate (`(z_j − ẑ)²/S_ss ≤ γ`).
     pub gated: Vec<bool>,
-    /// `Σ_{j gated} N(z_j; ẑ, S_ss) (1 − Σ_{t ≠ s} β_{t,j})`: each point as far as no other
-    /// lane claims it.
+    /// `Σ_{j gated} N(z_j; ẑ, S_ss) · λ / (λ + Σ_{t ≠ s gating j} P_D P_t N(z_j; ẑ_t, S_tt))`:
+    /// each point against clutter and the other lanes' detections (§11.5).
     pub gated_likelihood: f64,
     /// `ẑ` inside its band's span (§11.1).
     pub in_view: bool,
@@ -367,14 +370,19 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
         let one = DMatrix::from_element(1, 1, 1.0);
         let res = jpda::row_step(&zhat, &p_row, &one, &row.points, &params)
             .with_context(|| format!("row {ri}: the joint events cannot be weighed"))?;
-        // Σ over all lanes of β_{t,j}: a point counts for a lane's existence as far as no other
-        // lane claims it (§11.5).
-        let mut claimed = vec![0.0; row.points.len()];
-        for b in &res.beta {
-            for (c, v) in claimed.iter_mut().zip(b.iter().skip(1)) {
-                *c += v;
+        // Each point's density under the other lanes' detections: λ + Σ_t P_D P_t N(z_j; ẑ_t,
+        // S_tt) over the lanes that gate it; a lane's own term is taken out below (§11.5).
+        let lane_density = |a: usize, j: usize| -> f64 {
+            if res.gating.valid[a][j] {
+                normal_pdf(row.points[j] - zhat[a], res.gating.s[a])
+            } else {
+                0.0
             }
-        }
+        };
+        let weight = |a: usize| prm.pd * input.lanes[idx[a]].existence.clamp(0.0, 1.0);
+        let others: Vec<f64> = (0..m)
+            .map(|j| (0..nr).map(|a| weight(a) * lane_density(a, j)).sum())
+            .collect();
         for (a, &s) in idx.iter().enumerate() {
             let lane = &input.lanes[s];
             let beta: Vec<f64> = res.beta[a].iter().skip(1).copied().collect();
@@ -400,14 +408,12 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             let q = w / st - spread / (st * st);
             let equivalent = (q > 0.0).then(|| (1.0 / q - p, zh + nu_bar / (q * st)));
             let gated = res.gating.valid[a].clone();
-            let gated_likelihood: f64 = row
-                .points
-                .iter()
-                .zip(&gated)
-                .zip(claimed.iter().zip(&beta))
-                .filter(|((_, g), _)| **g)
-                .map(|((z, _), (cl, own))| {
-                    normal_pdf(z - zh, st) * (1.0 - (cl - own)).clamp(0.0, 1.0)
+            let gated_likelihood: f64 = (0..m)
+                .filter(|&j| gated[j])
+                .map(|j| {
+                    let own = lane_density(a, j);
+                    let rest = (others[j] - weight(a) * own).max(0.0);
+                    own * band.clutter / (band.clutter + rest)
                 })
                 .sum();
             let in_view = band.span.is_some_and(|(lo, hi)| zh >= lo && zh <= hi);

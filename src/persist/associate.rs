@@ -83,6 +83,72 @@ fn dominant(brow: &[f32; MAX_ROW_POINTS], m: usize) -> (usize, f32) {
     )
 }
 
+/// The density of a row's gated points for each lane's existence (docs/design.md §11.5),
+/// against clutter **and the other lanes** (LMIPDA, Mušicki & La Scala 2008): under "lane `a`
+/// does not exist" a point it gates is clutter or a detection of another lane `t`, of density
+/// `λ + Σ_{t≠a} q_t N(z_j; ẑ_t, S_tt)` with `q_t = P_D P(t exists)`. So
+/// `out.dens[a] = λ Σ_{j gated} N(z_j; ẑ_a, S_aa) / (λ + Σ_{t≠a, j gated by t} q_t N(z_j; ẑ_t, S_tt))`
+/// replaces the exclusive density of the spatial rows (each point as far as no other lane
+/// claims it by `β`), which gave a lane that runs on another lane's marking for a few rows the
+/// evidence of a marking of its own there (a split `β ≈ ½` still counted half of a point
+/// worth `N/λ ≫ 1`). `dens / λ` enters `Λ_r` as before.
+///
+/// # Complexity
+/// One `exp` per lane and gated point, `O(n·m)`; the caller's `nd` (`4·LANES·32` bytes, kept
+/// over the pass: only the pairs a row writes are read, so it is not cleared per row). Out of
+/// line, as the row's other kernels.
+#[inline(never)]
+fn joint_density<const LANES: usize>(
+    out: &mut RowOutcome<LANES>,
+    pred: &Predicted<LANES>,
+    pts: &[f32],
+    lam: f32,
+    q: &[f32; LANES],
+) {
+    let m = pts.len().min(MAX_ROW_POINTS);
+    // Opaque to the optimiser: unrolled over `LANES` with `exp` inlined in each copy, this
+    // function took 2.3 KB of flash.
+    let n = core::hint::black_box(pred.n.min(LANES));
+    let in_row = if m >= 32 { u32::MAX } else { (1u32 << m) - 1 };
+    // N(z_j; ẑ_a, S_aa) of a gated pair: `(ẑ, 1/S, 1/√(2πS))` per lane.
+    let lane = |a: usize| {
+        let st = get(&pred.sdiag, a);
+        let c = 1.0 / math::sqrt(2.0 * core::f32::consts::PI * st);
+        (get(&pred.zhat, a), 1.0 / st, c)
+    };
+    // N(z_j; ẑ_a, S_aa) of every gated pair into `nd` and Σ_t q_t N(z_j; ẑ_t, S_tt) per point.
+    let mut tot = [0.0f32; MAX_ROW_POINTS];
+    for a in 0..n {
+        let ((zt, inv, c), qa) = (lane(a), get(q, a));
+
+        let mut mask = get(&out.valid, a) & in_row;
+        while mask != 0 {
+            let j = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let e = pts.get(j).copied().unwrap_or(zt) - zt;
+            let v = c * math::exp_call(-0.5 * e * e * inv);
+            if let Some(t) = tot.get_mut(j) {
+                *t += qa * v;
+            }
+        }
+    }
+    // Each lane's density against clutter and the others (`nd` read only where written above).
+    for a in 0..n {
+        let ((zt, inv, c), qa) = (lane(a), get(q, a));
+        let mut mask = get(&out.valid, a) & in_row;
+        let mut d = 0.0f32;
+        while mask != 0 {
+            let j = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let e = pts.get(j).copied().unwrap_or(zt) - zt;
+            let v = c * math::exp_call(-0.5 * e * e * inv);
+            // `tot − q_a v ≥ 0` up to rounding: the denominator is at least `λ`.
+            d += lam * v / math::max(lam + get(&tot, j) - qa * v, lam);
+        }
+        set(&mut out.dens, a, if d.is_finite() { d } else { 0.0 });
+    }
+}
+
 impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, POINTS, ROWS> {
     /// One pass of the known lanes over the binned rows: per row the predicted lanes, the
     /// joint events, and each lane's evidence (`ev[s]`) and detection counts; the points each
@@ -222,6 +288,16 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             if let Some(un) = unexplained.get_mut(b) {
                 *un += (m as u32 - ex.count_ones()) as f32;
             }
+            if !out.failed {
+                // Each lane's detection weight as another lane's competitor: P_D · P(exists).
+                let mut q = [0.0f32; LANES];
+                for (a, qa) in q.iter_mut().enumerate().take(pred.n) {
+                    let s = get(&pred.idx, a);
+                    let p = self.lanes.get(s).map_or(0.0, |l| l.existence);
+                    *qa = pass.params.pd * p.clamp(0.0, 1.0);
+                }
+                joint_density(out, &pred, pts, at.params.clutter_density, &q);
+            }
             for a in 0..pred.n {
                 let s = get(&pred.idx, a);
                 let pd = pd0.get(s).map_or(0.5, |row| get(row, b));
@@ -290,8 +366,8 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         // In view: inside the band's span of points this frame.
         let [vlo, vhi] = self.span.get(b).copied().unwrap_or([0.0; 2]);
         let in_view = zh >= vlo && zh <= vhi;
-        // IPDA likelihood ratio of the row. Each gated point counts as far as no other lane
-        // claims it (JIPDA-style).
+        // IPDA likelihood ratio of the row, each gated point against clutter and the other
+        // lanes' detections ([`joint_density`]).
         let lambda = at.params.clutter_density;
         let lr = 1.0 - pd * at.params.pg + pd * get(&out.dens, a) / lambda;
         if in_view && lr.is_finite() && lr > 0.0 {

@@ -436,6 +436,26 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         );
     }
 
+    /// Seeds slot `s`'s detection counts from its birth track (docs/design.md §11.5): `k` looks
+    /// (the rows of one index interval) at the track's hit rate `rate` in every band, so the
+    /// lane's first known-lane pass uses the rate its own rows showed instead of the prior mean
+    /// 0.5 (a sparse dashed marking is not charged a solid line's misses).
+    #[inline(never)]
+    pub fn seed_pd(&mut self, s: usize, rate: f32, k: f32) {
+        if let Some(l) = self.lanes.get_mut(s) {
+            let rate = if rate.is_finite() {
+                rate.clamp(0.0, 1.0)
+            } else {
+                0.5
+            };
+            let k = if k.is_finite() { k.max(0.0) } else { 0.0 };
+            for (h, n) in l.hits.iter_mut().zip(l.looks.iter_mut()) {
+                *h = k * rate;
+                *n = k;
+            }
+        }
+    }
+
     /// Clears slot `s`.
     pub fn remove(&mut self, s: usize) {
         set(&mut self.lanes, s, LaneState::NEW);

@@ -463,6 +463,9 @@ impl_tracker! {
         for (s, fate) in slots.iter().enumerate() {
             if let SlotFate::New { obs, .. } = fate {
                 self.persist.start(s, &self.cfg.persist);
+                let rate = self.obs.get(usize::from(*obs)).map_or(0.5, |o| o.existence);
+                let k = f32::from(self.cfg.spatial.rows_per_interval.max(1));
+                self.persist.seed_pd(s, rate, k);
                 let x = self.bottom_position(s, Some(usize::from(*obs)));
                 let ranks = self.ranks_of(Some((s, x)));
                 if self

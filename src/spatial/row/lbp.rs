@@ -30,8 +30,7 @@ const LN_PSI_MAX: f32 = 60.0;
 
 /// LBP marginals of the first `n` tracks into `out.beta` / `out.beta_miss` (the gates already
 /// in `out.valid`; tracks of `skip` and tracks without candidates are missed). Returns the
-/// iterations run, or `None` on a numerical failure (a non-finite weight or message). `ln_s`
-/// receives `ln S̄_tt` of the first `n` tracks (for the row's exclusive densities).
+/// iterations run, or `None` on a numerical failure (a non-finite weight or message).
 ///
 /// `out.beta` must be zero on entry (as [`associate_into`](super::associate_into) leaves it):
 /// the weights `ψ` are built in it and turned into the marginals in place. The messages are
@@ -52,19 +51,17 @@ pub(super) fn marginals<const LANES: usize>(
     n: usize,
     lg: &Logs,
     skip: u32,
-    ln_s: &mut [f32; LANES],
 ) -> Option<u32> {
     let m = points.len().min(MAX_ROW_POINTS);
-    // ψ_tj (0 outside the gate), in β; ln S̄_tt of every track into `ln_s`.
-    for (t, (row, ls)) in out.beta.iter_mut().zip(ln_s.iter_mut()).enumerate().take(n) {
-        let st = get(sdiag, t);
-        *ls = math::ln(st);
+    // ψ_tj (0 outside the gate), in β.
+    for (t, row) in out.beta.iter_mut().enumerate().take(n) {
         if skip & (1 << t) != 0 {
             continue;
         }
+        let st = get(sdiag, t);
         let zt = get(zhat, t);
         let mask = get(&out.valid, t);
-        let ln_norm = lg.ln_pd_lambda - lg.ln_miss - 0.5 * (lg.ln_2pi + *ls);
+        let ln_norm = lg.ln_pd_lambda - lg.ln_miss - 0.5 * (lg.ln_2pi + math::ln(st));
         for (j, (p, z)) in row.iter_mut().zip(points.iter()).enumerate() {
             if mask & (1 << j) != 0 {
                 let e = z - zt;
@@ -72,7 +69,7 @@ pub(super) fn marginals<const LANES: usize>(
                 if !l.is_finite() {
                     return None;
                 }
-                *p = math::exp(l.clamp(-LN_PSI_MAX, LN_PSI_MAX));
+                *p = math::exp_call(l.clamp(-LN_PSI_MAX, LN_PSI_MAX));
             }
         }
     }

@@ -168,9 +168,11 @@ pub struct RowOutcome<const LANES: usize> {
     pub ignored_points: u32,
     /// A numerical failure: the state was left untouched.
     pub failed: bool,
-    /// `Σ_{j gated} N(z_j; ẑ_t, S̄_tt)` per track: the one-step-ahead likelihood of the track's
-    /// gated points before the update (the IPDA likelihood ratio of the row is
-    /// `1 − P_D P_G + P_D · dens / λ_c`, docs/design.md §11.5).
+    /// `Σ_{j gated} N(z_j; ẑ_t, S̄_tt) (1 − Σ_{t' ≠ t} β_{t'j})` per track, written by the
+    /// update ([`update_probed`]; 0 after [`associate`]): the one-step-ahead likelihood of the
+    /// track's gated points before the update, each as far as no other track claims it (the
+    /// IPDA likelihood ratio of the row is `1 − P_D P_G + P_D · dens / λ_c`, docs/design.md
+    /// §11.8). The known-lane pass weighs its rows against the other lanes instead (§11.5).
     pub dens: [f32; LANES],
 }
 
@@ -456,7 +458,7 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
     }
     normalise(out, &acc.beta, &acc.bmiss, inv, n, m, skip);
     let sdiag: [f32; LANES] = core::array::from_fn(|t| at(&sbar, t, t));
-    exclusive_density(out, (&zhat, &sdiag, None), points, n, lg.ln_2pi);
+    exclusive_density(out, (&zhat, &sdiag), points, n, lg.ln_2pi);
 }
 
 /// The event weights of a row's eligible tracks `elig[..na]` into `acc`, and the factor `inv`
@@ -667,12 +669,8 @@ pub(crate) fn associate_into<const LANES: usize>(
     }
     out.approximated = over;
     if mode == Association::Lbp || (mode == Association::ExactOrLbp && out.approximated) {
-        let mut ln_s = [0.0f32; LANES];
-        match lbp::marginals(out, zhat, sdiag, points, n, &lg, skip, &mut ln_s) {
-            Some(it) => {
-                out.lbp_iterations = it.max(1);
-                exclusive_density(out, (zhat, sdiag, Some(&ln_s)), points, n, lg.ln_2pi);
-            }
+        match lbp::marginals(out, zhat, sdiag, points, n, &lg, skip) {
+            Some(it) => out.lbp_iterations = it.max(1),
             None => failed(out),
         }
         return;
@@ -706,7 +704,6 @@ pub(crate) fn associate_into<const LANES: usize>(
     out.events = acc.events;
     out.patterns = acc.patterns;
     normalise(out, &acc.beta, &acc.bmiss, inv, n, m, skip);
-    exclusive_density(out, (zhat, sdiag, None), points, n, lg.ln_2pi);
 }
 
 /// The eligible tracks among the first `n` (not masked by `skip`, at least one candidate).
@@ -1041,11 +1038,13 @@ fn normalise<const LANES: usize>(
 
 /// `out.dens[t] = Σ_{j gated} N(z_j; ẑ_t, S̄_tt) · (1 − Σ_{t' ≠ t} β_{t'j})` after the weights:
 /// each point counts for a track as far as no other track claims it (a broad track overlapping
-/// a known one gets no credit for the known one's points, as in JIPDA). `ln_s[t] = ln S̄_tt`
-/// when the caller has them (LBP does), `ln_2pi = ln 2π` (the row's [`Logs`]).
+/// a known one gets no credit for the known one's points, as in JIPDA). `ln_2pi = ln 2π` (the
+/// row's [`Logs`]). Out of line: inlined into
+/// its one caller's row walk it adds 2.3 KB of flash.
+#[inline(never)]
 fn exclusive_density<const LANES: usize>(
     out: &mut RowOutcome<LANES>,
-    (zhat, sdiag, ln_s): (&[f32; LANES], &[f32; LANES], Option<&[f32; LANES]>),
+    (zhat, sdiag): (&[f32; LANES], &[f32; LANES]),
     points: &[f32],
     n: usize,
     ln_2pi: f32,
@@ -1064,21 +1063,18 @@ fn exclusive_density<const LANES: usize>(
         let mask = get(&out.valid, t);
         // By reference: a copy of the row is a 128-byte memcpy on the Cortex-M4F.
         let own = out.beta.get(t).unwrap_or(&[0.0; MAX_ROW_POINTS]);
-        let ln_st = match ln_s {
-            Some(l) => get(l, t),
-            None => math::ln(st),
-        };
+        let ln_st = math::ln(st);
         let norm = -0.5 * (ln_2pi + ln_st);
-        let d: f32 = points
-            .iter()
-            .enumerate()
-            .filter(|(j, _)| mask & (1 << j) != 0)
-            .map(|(j, z)| {
-                let e = z - zt;
-                let free = (1.0 - (get(&claimed, j) - get(own, j))).clamp(0.0, 1.0);
-                math::exp(norm - 0.5 * e * e / st) * free
-            })
-            .sum();
+        // Over the gate's set bits only (a bit `j` has `j < m`).
+        let mut bits = mask & if m >= 32 { u32::MAX } else { (1u32 << m) - 1 };
+        let mut d = 0.0f32;
+        while bits != 0 {
+            let j = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let e = points.get(j).copied().unwrap_or(zt) - zt;
+            let free = (1.0 - (get(&claimed, j) - get(own, j))).clamp(0.0, 1.0);
+            d += math::exp_call(norm - 0.5 * e * e / st) * free;
+        }
         set(&mut out.dens, t, if d.is_finite() { d } else { 0.0 });
     }
 }
