@@ -34,8 +34,12 @@ fn drive(seed: u64, frames: u64, cfg: TrackerConfig) -> (u64, u64, u64, u64) {
 
 /// Two drives of 15,000 frames (8.3 min each). Measured (stop 24): false lane-frames 3,408 →
 /// 762 (0.114 → 0.025 per frame), true line-frames tracked 99.30 % → 99.77 %, 18 connectors
-/// deleted. Asserted: at most 0.6× the false lane-frames, tracking not worse by more than 0.2
-/// points, and the rule must have acted.
+/// deleted. Since stop 35 a lane's existence is weighed against the other lanes' detections
+/// (docs/design.md §11.5), so a connector's rows on the two markings it touches no longer
+/// keep it alive and the rule has little left to do: 245 → 241 false lane-frames (0.004 per
+/// frame), 99.90 % tracked either way, 1 connector deleted. Asserted: the rule does not add
+/// false lanes or cost tracking (by more than 0.2 points), and with the defaults the false
+/// lane-frames stay under 0.01 per frame (0.4× the stop-24 figure with the rule).
 #[test]
 #[ignore = "60,000 tracker frames: release only (`.ci/run` runs it with --include-ignored)"]
 fn connectors_remove_false_lanes_and_keep_the_lines() {
@@ -64,12 +68,11 @@ fn connectors_remove_false_lanes_and_keep_the_lines() {
         with.3
     );
     assert_eq!(without.3, 0);
-    assert!(with.3 > 0);
+    assert!(with.0 <= without.0, "{} vs {}", with.0, without.0);
     assert!(
-        (with.0 as f64) <= 0.6 * without.0 as f64,
-        "{} vs {}",
-        with.0,
-        without.0
+        (with.0 as f64) <= 0.01 * 30_000.0,
+        "{} false lane-frames in 30,000 frames",
+        with.0
     );
     assert!(frac(with) >= frac(without) - 0.002);
 }
