@@ -94,8 +94,8 @@ fn dominant(brow: &[f32; MAX_ROW_POINTS], m: usize) -> (usize, f32) {
 /// worth `N/λ ≫ 1`). `dens / λ` enters `Λ_r` as before.
 ///
 /// # Complexity
-/// Two `exp` per lane and gated point (the first pass's are recomputed, not stored: storing
-/// them saved 0.5 % of a typical frame's instructions and cost 1.1 KB of flash, stop 35),
+/// One `exp` per lane and gated point, and one more per lane and point that another lane gates
+/// as well (those are recomputed, not stored: storing them cost 1.1 KB of flash, stop 35),
 /// `O(n·m)`; 128 B of stack. Out of line, as the row's other kernels.
 #[inline(never)]
 fn joint_density<const LANES: usize>(
@@ -116,11 +116,19 @@ fn joint_density<const LANES: usize>(
         let c = 1.0 / math::sqrt(2.0 * core::f32::consts::PI * st);
         (get(&pred.zhat, a), 1.0 / st, c)
     };
-    // Σ_t q_t N(z_j; ẑ_t, S_tt) per point, over the lanes that gate it.
+    // The points that more than one lane gates: only there do the other lanes enter the
+    // density (a point only lane a gates counts N_a(z_j) λ/λ = N_a(z_j)).
+    let (mut seen, mut shared) = (0u32, 0u32);
+    for a in 0..n {
+        let v = get(&out.valid, a) & in_row;
+        shared |= seen & v;
+        seen |= v;
+    }
+    // Σ_t q_t N(z_j; ẑ_t, S_tt) per shared point, over the lanes that gate it.
     let mut tot = [0.0f32; MAX_ROW_POINTS];
     for a in 0..n {
         let ((zt, inv, c), qa) = (lane(a), get(q, a));
-        let mut mask = get(&out.valid, a) & in_row;
+        let mut mask = get(&out.valid, a) & shared;
         while mask != 0 {
             let j = mask.trailing_zeros() as usize;
             mask &= mask - 1;
@@ -141,8 +149,12 @@ fn joint_density<const LANES: usize>(
             mask &= mask - 1;
             let e = pts.get(j).copied().unwrap_or(zt) - zt;
             let v = c * math::exp_call(-0.5 * e * e * inv);
-            // `tot − q_a v ≥ 0` up to rounding: the denominator is at least `λ`.
-            d += lam * v / math::max(lam + get(&tot, j) - qa * v, lam);
+            d += if shared & (1 << j) != 0 {
+                // `tot − q_a v ≥ 0` up to rounding: the denominator is at least `λ`.
+                lam * v / math::max(lam + get(&tot, j) - qa * v, lam)
+            } else {
+                v
+            };
         }
         set(&mut out.dens, a, if d.is_finite() { d } else { 0.0 });
     }
