@@ -95,7 +95,8 @@ fn dominant(brow: &[f32; MAX_ROW_POINTS], m: usize) -> (usize, f32) {
 ///
 /// # Complexity
 /// One `exp` per lane and gated point, and one more per lane and point that another lane gates
-/// as well (those are recomputed, not stored: storing them cost 1.1 KB of flash, stop 35),
+/// as well; one `√` per lane with a gated point in the row, and one more per lane with a shared
+/// point (those are recomputed, not stored: storing them cost 1.1 KB of flash, stop 35),
 /// `O(n·m)`; 128 B of stack. Out of line, as the row's other kernels.
 #[inline(never)]
 fn joint_density<const LANES: usize>(
@@ -127,8 +128,12 @@ fn joint_density<const LANES: usize>(
     // Σ_t q_t N(z_j; ẑ_t, S_tt) per shared point, over the lanes that gate it.
     let mut tot = [0.0f32; MAX_ROW_POINTS];
     for a in 0..n {
-        let ((zt, inv, c), qa) = (lane(a), get(q, a));
         let mut mask = get(&out.valid, a) & shared;
+        if mask == 0 {
+            // Most rows: no shared point, and no `√` for the lane's constants.
+            continue;
+        }
+        let ((zt, inv, c), qa) = (lane(a), get(q, a));
         while mask != 0 {
             let j = mask.trailing_zeros() as usize;
             mask &= mask - 1;
@@ -141,8 +146,13 @@ fn joint_density<const LANES: usize>(
     }
     // Each lane's density against clutter and the others.
     for a in 0..n {
-        let ((zt, inv, c), qa) = (lane(a), get(q, a));
         let mut mask = get(&out.valid, a) & in_row;
+        if mask == 0 {
+            // A lane with no gated point in the row: no `√`, and its density is 0.
+            set(&mut out.dens, a, 0.0);
+            continue;
+        }
+        let ((zt, inv, c), qa) = (lane(a), get(q, a));
         let mut d = 0.0f32;
         while mask != 0 {
             let j = mask.trailing_zeros() as usize;

@@ -464,17 +464,18 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 self.state.predict(&F, &Q, &tables.coreg);
             }
             probe.enter(Stage::Management);
-            let row_pts = self.bins.get(r).copied().unwrap_or([0.0; PER_ROW]);
+            let mut row_pts = self.bins.get(r).copied().unwrap_or([0.0; PER_ROW]);
             let m = usize::from(get(&self.bin_n, r)).min(PER_ROW);
             let used = self.initiate(
                 r, &row_pts, m, init_rows, cfg, &params, &hv, tables, &mut rep,
             );
-            // The points that started tracks have been used (§3.2d); the rest go to the update.
-            let mut rest = [0.0f32; PER_ROW];
+            // The points that started tracks have been used (§3.2d); the rest go to the update,
+            // compacted in place (`nr ≤ j`: no second array to clear every row).
             let mut nr = 0usize;
-            for (j, x) in row_pts.iter().enumerate().take(m) {
+            for j in 0..m {
                 if used & (1 << j) == 0 {
-                    set(&mut rest, nr, *x);
+                    let x = get(&row_pts, j);
+                    set(&mut row_pts, nr, x);
                     nr += 1;
                 }
             }
@@ -496,7 +497,7 @@ impl<const NS: usize, const LANES: usize, const ROWS: usize, const PER_ROW: usiz
                 (&mut o, &mut scratch),
                 &mut self.state,
                 &hv,
-                rest.get(..nr).unwrap_or(&[]),
+                row_pts.get(..nr).unwrap_or(&[]),
                 &params,
                 (cfg.max_events, skip),
                 probe,

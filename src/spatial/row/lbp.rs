@@ -152,7 +152,7 @@ fn iterate<const LANES: usize>(
             for (nrow, mrow) in nu.iter_mut().zip(mu.iter()).take(n) {
                 let new = 1.0 / (col - get(mrow, j));
                 let old = get(nrow, j);
-                moved = moved.max((new - old).abs());
+                moved = math::max(moved, (new - old).abs());
                 set(nrow, j, new);
             }
         }
