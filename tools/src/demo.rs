@@ -1545,7 +1545,9 @@ fn render_identity(r: &DemoReport) -> String {
          the lanes; \"of which never a true lane\": published ids never matched to a true lane in \
          their clip; false lanes = published lanes below 0.85 on every true lane. \
          \"merge/split\": the clips in which the replay animated a merge/split lane. Accuracy / \
-         FP / FN: official metric on the clips' labelled last frames.\n\n\
+         FP / FN: official metric on the clips' labelled last frames (its FP is predicted lanes \
+         minus matched true lanes, so it goes negative where one lane matches two true lanes \
+         that merge: the official scorer's rule, kept).\n\n\
          | noise | B | clips | accuracy / FP / FN | lane ids / clip | of which never a true lane | true lanes / clip | id switches / clip | false lanes / frame |\n\
          |---|---|---|---|---|---|---|---|---|\n",
     );
