@@ -51,6 +51,9 @@
 //!    boundary). Lane boundaries are at least a lane apart: of kept lines nearer than
 //!    `lane_gap` \[2.5 m\] the weaker is dropped if its evidence is below `gap_ratio` \[0.6\]
 //!    of the stronger's (a slab seam, a bright strip or tyre track inside a lane, a kerb).
+//!    Off by default, `gap_contrast` \[0\]: in these two tests a line's strength is its
+//!    evidence with each peak weighted by min(1, R / `gap_contrast`), so a low-contrast ridge
+//!    (a concrete strip, a pavement joint) counts for less than paint.
 //! 7. **Output**: each kept line as samples of its fitted curve, one per image row, between its
 //!    nearest and farthest peaks, across gaps between peaks of at most `fill_gap` \[12 m: one
 //!    US dash period, 3 m on + 9 m off\] (0 = the peaks themselves), mapped back with
@@ -117,8 +120,29 @@
 //! barriers); a threshold relative to the road's grey level (Weber contrast 0.1–0.3; tuning
 //! accuracy ≤ 0.814); correcting the horizon from the fan of the kept lines (δ = ε·f·h;
 //! accuracy 0.54–0.58, no better than the vote); a minimum fraction of the strongest line's
-//! evidence (tuning accuracy ≤ 0.786). Remaining false points are mostly real lines that are
-//! not labelled lanes (barriers, kerbs, the road edge, lanes two over, slab seams). About
+//! evidence (tuning accuracy ≤ 0.786); `gap_contrast` (issue 16; on the tuning frames 30 and
+//! 40 give exactly the default's points at `gap_ratio` 0.6, 60 / 80 / 100 / 150 / 200 a lower
+//! precision, 0.782 / 0.762 / 0.762 / 0.778 / 0.778, and tracker accuracy 0.904 / 0.903 /
+//! 0.903 / 0.859 / 0.859 against 0.904; at `gap_ratio` 0.7, 60 and above ≤ 0.841; so the tuning
+//! half cannot choose it and it stays 0; for the record, 40 on the held-out frames: precision
+//! 0.679, recall 0.636, the tracker unchanged; counting bright peaks only in the strength:
+//! tuning precision 0.780, worse).
+//!
+//! Where the false points are (issue 16, `--example frontend_diag`, default parameters, every
+//! false point assigned by its line and the overlay): of the held-out half's 795 false points
+//! (of 2190), 87 lie on real painted markings the label omits (edge lines, lanes two over, a
+//! line past the label's end), 176 on a labelled marking but more than 6 px from its label
+//! (the seam beside Botts' dots, the other line of a double line, a line fitted at a slightly
+//! wrong angle), 486 on no paint (a bright concrete strip beside a slab seam: 158; an
+//! asphalt–concrete pavement joint: 136; vehicles, barriers, kerbs, a shoulder's edge) and 46
+//! are the filled curve past the paint; the tuning half's 427 (of 2124): 78 / 160 / 108 / 81.
+//! So unlabelled paint does not bound precision: without the non-paint points the held-out
+//! precision would be 1395 / 1704 = 0.819. The held-out half's 198 missed label rows: 62 on
+//! Botts'-dot lines whose bright evidence is too small (one frame, ego-right and far-right
+//! lines), 37 far (≥ 20 m), 35 near rows past the nearest dash (no paint there; nothing is
+//! extrapolated), 27 faded or sparse dashes, 19 behind vehicles, 17 on a line found but
+//! offset, 1 at the image edge (tuning half, 122: 31 / 44 / 13 / 7 / 19 / 8 far / near /
+//! vehicles / Botts' dots / offset / image edge). About
 //! 3 ms per image in release on a loaded 2-core machine (detection only; 4.0–4.5 ms with the
 //! camera estimated by [`estimate_and_detect`]). Reproduce with `cargo run --release -p stjpdacf-tools --example
 //! frontend_eval` (per-frame figures, the tracker on them, calibrated and estimated camera;
@@ -211,6 +235,13 @@ pub struct FrontendParams {
     pub lane_gap: f64,
     /// See `lane_gap`; 0 = no such test.
     pub gap_ratio: f64,
+    /// Parallel-lane filter: a line's strength in the lateral suppression (`line_spacing`,
+    /// `lane_gap`) is its evidence with each peak's road length weighted by min(1, R /
+    /// `gap_contrast`), R its ridge response in grey levels (paint's contrast or more counts
+    /// fully): of two lines too near to both be lane boundaries the one that looks more like
+    /// paint stays. 0 = the evidence alone (the default: the tuning frames do not choose a
+    /// value, see the module doc).
+    pub gap_contrast: f64,
 }
 
 impl Default for FrontendParams {
@@ -243,6 +274,7 @@ impl Default for FrontendParams {
             refit_exponent: 0.5,
             lane_gap: 2.5,
             gap_ratio: 0.6,
+            gap_contrast: 0.0,
         }
     }
 }
@@ -276,6 +308,7 @@ impl FrontendParams {
             "refit_exponent" => &mut self.refit_exponent,
             "lane_gap" => &mut self.lane_gap,
             "gap_ratio" => &mut self.gap_ratio,
+            "gap_contrast" => &mut self.gap_contrast,
             "support_rows" => {
                 self.support_rows = v.round().max(0.0) as usize;
                 return Ok(());
@@ -290,6 +323,13 @@ impl FrontendParams {
         Ok(())
     }
 }
+
+/// A ridge peak: (BEV row index, u, x, bright, response), the response `R` (bright) or `D`
+/// (dark) of the ridge filter in grey levels.
+type Peak = (usize, f64, f64, bool, f64);
+
+/// An output point of the parallel-lane filter: (u, x, line index, on a peak's row).
+type LinePoint = (f64, f64, usize, bool);
 
 /// HSV hue (degrees), saturation and value (0..255) of an RGB triple.
 fn hsv([r, g, b]: [f64; 3]) -> (f64, f64, f64) {
@@ -312,6 +352,13 @@ fn hsv([r, g, b]: [f64; 3]) -> (f64, f64, f64) {
 /// Feature points of one image, as image pixels `[column, row]` (bottom rows first, then by
 /// column). Errors: a camera whose image size differs from the image's.
 pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f64; 2]>> {
+    check_size(img, cam)?;
+    let peaks = ridge_peaks(img, cam, p, 0, i64::MAX)?;
+    Ok(points_from_peaks(&peaks, cam, p))
+}
+
+/// Errors: a camera whose image size differs from the image's.
+fn check_size(img: &RgbImage, cam: &Camera) -> Result<()> {
     ensure!(
         (cam.width - f64::from(img.width())).abs() < 0.5
             && (cam.height - f64::from(img.height())).abs() < 0.5,
@@ -321,16 +368,11 @@ pub fn detect(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Vec<[f
         img.width(),
         img.height()
     );
-    let peaks = ridge_peaks(img, cam, p, 0, i64::MAX)?;
-    Ok(points_from_peaks(&peaks, cam, p))
+    Ok(())
 }
 
 /// Steps 5–7 (continuity, parallel-lane filter, output) on the ridge peaks of [`ridge_peaks`].
-fn points_from_peaks(
-    peaks: &[(usize, f64, f64, bool)],
-    cam: &Camera,
-    p: &FrontendParams,
-) -> Vec<[f64; 2]> {
+fn points_from_peaks(peaks: &[Peak], cam: &Camera, p: &FrontendParams) -> Vec<[f64; 2]> {
     let mut out = Vec::new();
     // Continuity: a marking persists over neighbouring BEV rows, road texture does not. Keep a
     // peak with at least `support` peaks within ±`support_rows` rows and a lateral distance of
@@ -340,28 +382,97 @@ fn points_from_peaks(
         let hi = peaks.partition_point(|q| q.0 <= r);
         &peaks[lo..hi]
     };
-    let mut kept: Vec<(f64, f64, bool)> = Vec::with_capacity(peaks.len());
-    for &(r, u, x, bright) in peaks {
+    let mut kept: Vec<(f64, f64, bool, f64)> = Vec::with_capacity(peaks.len());
+    for &(r, u, x, bright, resp) in peaks {
         let tol = p.marking_width.max(2.0 * u / cam.focal_px);
         let n = (r.saturating_sub(p.support_rows)..=r + p.support_rows)
             .filter(|&q| q != r)
             .map(|q| by_row(q).iter().filter(|o| (o.2 - x).abs() <= tol).count())
             .sum::<usize>();
         if n >= p.support {
-            kept.push((u, x, bright));
+            kept.push((u, x, bright, resp));
         }
     }
-    let kept: Vec<(f64, f64)> = if p.lane_support > 0.0 {
-        lane_filter(&kept, cam, p)
-    } else {
-        kept.iter().map(|q| (q.0, q.1)).collect()
-    };
-    for (u, x) in kept {
+    for (u, x, _, _) in lane_points(&kept, cam, p).0 {
         if let Some((col, row)) = cam.to_image(u, x) {
             out.push([col, row.round()]);
         }
     }
     out
+}
+
+/// Steps 6–7 on the peaks (u, x, bright) that passed the continuity test: (u, x, line, peak)
+/// of every output point, `line` the index of its kept line (`usize::MAX` without the
+/// parallel-lane filter) and `peak` whether a peak of that line lies on the point's image row
+/// (false: a sample of the fitted curve across a gap, [`FrontendParams::fill_gap`]).
+fn lane_points(
+    kept: &[(f64, f64, bool, f64)],
+    cam: &Camera,
+    p: &FrontendParams,
+) -> (Vec<LinePoint>, Vec<LineInfo>) {
+    if p.lane_support > 0.0 {
+        lane_filter(kept, cam, p)
+    } else {
+        let pts = kept.iter().map(|q| (q.0, q.1, usize::MAX, true)).collect();
+        (pts, Vec::new())
+    }
+}
+
+/// One output point of [`detect_tagged`], for diagnosis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TaggedPoint {
+    /// Image column and row (as [`detect`]).
+    pub px: [f64; 2],
+    /// Index of the kept line of the parallel-lane filter it belongs to (`usize::MAX` without
+    /// the filter).
+    pub line: usize,
+    /// Whether a ridge peak of that line lies on this image row (false: a sample of the line's
+    /// fitted curve across a gap between peaks, `fill_gap`).
+    pub peak: bool,
+}
+
+/// What [`detect_tagged`] returns.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Tagged {
+    /// [`detect`]'s points (same order and values) with their line and kind.
+    pub points: Vec<TaggedPoint>,
+    /// Every ridge peak of steps 1–4 as image pixels with its polarity (`true` = bright),
+    /// before the parallel-lane filter.
+    pub peaks: Vec<([f64; 2], bool)>,
+    /// Each kept line's statistics (indexed by [`TaggedPoint::line`]).
+    pub lines: Vec<LineInfo>,
+}
+
+/// [`detect`] with the provenance of every point, for diagnosis (see [`Tagged`]).
+/// Errors: as [`detect`]; continuity on (`support` > 0).
+pub fn detect_tagged(img: &RgbImage, cam: &Camera, p: &FrontendParams) -> Result<Tagged> {
+    check_size(img, cam)?;
+    ensure!(
+        p.support == 0,
+        "detect_tagged: the continuity test (support > 0) is not supported"
+    );
+    let peaks = ridge_peaks(img, cam, p, 0, i64::MAX)?;
+    let raw = peaks
+        .iter()
+        .filter_map(|&(_, u, x, b, _)| cam.to_image(u, x).map(|(c, r)| ([c, r.round()], b)))
+        .collect();
+    let kept: Vec<(f64, f64, bool, f64)> = peaks.iter().map(|q| (q.1, q.2, q.3, q.4)).collect();
+    let (pts, lines) = lane_points(&kept, cam, p);
+    let points = pts
+        .into_iter()
+        .filter_map(|(u, x, line, peak)| {
+            cam.to_image(u, x).map(|(c, r)| TaggedPoint {
+                px: [c, r.round()],
+                line,
+                peak,
+            })
+        })
+        .collect();
+    Ok(Tagged {
+        points,
+        peaks: raw,
+        lines,
+    })
 }
 
 /// Ridge peaks (steps 1–4 of the module doc) of the image rows `row_min..=row_max` inside the
@@ -373,7 +484,7 @@ fn ridge_peaks(
     p: &FrontendParams,
     row_min: i64,
     row_max: i64,
-) -> Result<Vec<(usize, f64, f64, bool)>> {
+) -> Result<Vec<Peak>> {
     let nx = (2.0 * p.x_max / p.dx).round() as usize + 1;
     let xs: Vec<f64> = (0..nx).map(|i| -p.x_max + i as f64 * p.dx).collect();
     let row_far = cam.row_at(p.u_max).context("u_max must be > 0")?.ceil() as i64;
@@ -388,7 +499,7 @@ fn ridge_peaks(
     let mut dark = vec![f64::NEG_INFINITY; nx];
     let mut vals: Vec<f64> = Vec::with_capacity(nx);
     // (BEV row index, u, x) of every ridge peak, bottom row first.
-    let mut peaks: Vec<(usize, f64, f64, bool)> = Vec::new();
+    let mut peaks: Vec<Peak> = Vec::new();
     let w = img.width() as usize;
     for row in (row_far.max(0)..=row_hi).rev() {
         let row_idx = (row_near - row) as usize;
@@ -517,7 +628,7 @@ fn ridge_peaks(
                 {
                     continue;
                 }
-                peaks.push((row_idx, u, x, bright));
+                peaks.push((row_idx, u, x, bright, r));
             }
         }
     }
@@ -564,10 +675,14 @@ fn residual_histogram(
 /// the peaks' residuals most, then the lanes (histogram maxima with at least `lane_support`
 /// metres of evidence), refits each lane's own quadratic (a wrong pitch or a fork bends lanes
 /// apart) and keeps the peaks within [`lane_tolerance`] of a lane.
-fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> Vec<(f64, f64)> {
+fn lane_filter(
+    peaks: &[(f64, f64, bool, f64)],
+    cam: &Camera,
+    p: &FrontendParams,
+) -> (Vec<LinePoint>, Vec<LineInfo>) {
     let pts: Vec<(f64, f64, f64)> = peaks
         .iter()
-        .map(|&(u, x, _)| (u, x, row_length(cam, u)))
+        .map(|&(u, x, _, _)| (u, x, row_length(cam, u)))
         .collect();
     let bin = 0.1;
     let span = p.x_max + p.max_slope * p.u_max;
@@ -622,6 +737,7 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
     // the peaks within a band, twice with the band narrowed to the tolerance.
     // Candidate lines: (offset c, correction a, b, peak indices, evidence).
     let mut cands: Vec<(f64, f64, f64, Vec<usize>, f64)> = Vec::new();
+    let mut strengths: Vec<f64> = Vec::new();
     for &c in &lanes {
         let base = |u: f64| c + s * u + 0.5 * k * u * u;
         let (mut a, mut b) = (0.0, 0.0);
@@ -660,7 +776,18 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
             }
         }
         if support >= p.lane_support && bright >= p.bright_support {
+            // Its strength for the lateral suppression: the evidence with each peak's road
+            // length weighted by its ridge response relative to paint's, min(1, R / `gap_contrast`)
+            // (a low-contrast ridge, a concrete strip or a pavement joint, counts for less).
+            let strength = if p.gap_contrast > 0.0 {
+                idx.iter()
+                    .map(|&i| pts[i].2 * (peaks[i].3 / p.gap_contrast).clamp(0.0, 1.0))
+                    .sum()
+            } else {
+                support
+            };
             cands.push((c, a, b, idx, support));
+            strengths.push(strength);
         }
     }
     // Lateral non-maximum suppression: of lines nearer than `line_spacing` to each other (at
@@ -670,20 +797,20 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
         l.0 + s * u + 0.5 * k * u * u + l.1 + l.2 * u
     };
     let mut order: Vec<usize> = (0..cands.len()).collect();
-    order.sort_by(|&i, &j| cands[j].4.total_cmp(&cands[i].4));
+    order.sort_by(|&i, &j| strengths[j].total_cmp(&strengths[i]));
     let mut chosen: Vec<usize> = Vec::new();
     for i in order {
         if chosen.iter().all(|&j| {
             let d = (at(&cands[i], 15.0) - at(&cands[j], 15.0)).abs();
-            d >= p.line_spacing && (d >= p.lane_gap || cands[i].4 >= p.gap_ratio * cands[j].4)
+            d >= p.line_spacing && (d >= p.lane_gap || strengths[i] >= p.gap_ratio * strengths[j])
         }) {
             chosen.push(i);
         }
     }
     chosen.sort_unstable();
-    let mut keep = vec![false; pts.len()];
-    let mut filled: Vec<(f64, f64)> = Vec::new();
-    for &ci in &chosen {
+    let mut keep = vec![usize::MAX; pts.len()];
+    let mut filled: Vec<LinePoint> = Vec::new();
+    for (li, &ci) in chosen.iter().enumerate() {
         let (c, a, b, ref idx, _) = cands[ci];
         let base = |u: f64| c + s * u + 0.5 * k * u * u;
         {
@@ -701,10 +828,11 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
                     let mut r = r0.ceil();
                     while r <= r1.floor() {
                         if let Some((u, _)) = cam.to_bev(cam.vp_col, r) {
-                            if !filled.iter().any(|q: &(f64, f64)| {
+                            if !filled.iter().any(|q: &LinePoint| {
                                 q.0 == u && (q.1 - base(u) - a - b * u).abs() < 0.3
                             }) {
-                                filled.push((u, base(u) + a + b * u));
+                                let peak = idx.iter().any(|&i| pts[i].0 == u);
+                                filled.push((u, base(u) + a + b * u, li, peak));
                             }
                         }
                         r += 1.0;
@@ -712,19 +840,68 @@ fn lane_filter(peaks: &[(f64, f64, bool)], cam: &Camera, p: &FrontendParams) -> 
                 }
             }
             for &i in idx {
-                keep[i] = true;
+                if keep[i] == usize::MAX {
+                    keep[i] = li;
+                }
             }
         }
     }
+    let infos = chosen
+        .iter()
+        .map(|&ci| {
+            let idx = &cands[ci].3;
+            let mut resp: Vec<f64> = idx
+                .iter()
+                .filter(|&&i| peaks[i].2)
+                .map(|&i| peaks[i].3)
+                .collect();
+            let median = if resp.is_empty() {
+                0.0
+            } else {
+                let m = resp.len() / 2;
+                *resp.select_nth_unstable_by(m, f64::total_cmp).1
+            };
+            let (lo, hi) = idx.iter().fold((f64::INFINITY, 0.0f64), |a, &i| {
+                (a.0.min(pts[i].0), a.1.max(pts[i].0))
+            });
+            LineInfo {
+                offset: cands[ci].0 + cands[ci].1 + 15.0 * cands[ci].2,
+                correction: (cands[ci].1, cands[ci].2),
+                evidence: cands[ci].4,
+                bright_evidence: idx.iter().filter(|&&i| peaks[i].2).map(|&i| pts[i].2).sum(),
+                median_response: median,
+                u_range: (lo, hi),
+            }
+        })
+        .collect();
     if p.fill_gap > 0.0 {
         filled.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.total_cmp(&b.1)));
-        return filled;
+        return (filled, infos);
     }
-    peaks
+    let out = peaks
         .iter()
         .zip(keep)
-        .filter_map(|(&q, k)| k.then_some((q.0, q.1)))
-        .collect()
+        .filter_map(|(&q, k)| (k != usize::MAX).then_some((q.0, q.1, k, true)))
+        .collect();
+    (out, infos)
+}
+
+/// Statistics of one kept line of the parallel-lane filter (for diagnosis, [`detect_tagged`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LineInfo {
+    /// Lateral position (m) 15 m ahead, relative to the common curve's heading
+    /// (`c + a + 15·b`).
+    pub offset: f64,
+    /// The line's own linear correction (a m, b) to the common curve.
+    pub correction: (f64, f64),
+    /// Evidence (m of road length with a peak on the line, as `lane_support`).
+    pub evidence: f64,
+    /// Evidence from bright peaks.
+    pub bright_evidence: f64,
+    /// Median ridge response `R` of its bright peaks, grey levels (0 if none).
+    pub median_response: f64,
+    /// Nearest and farthest distance (m) of its peaks.
+    pub u_range: (f64, f64),
 }
 
 /// Image files (`*.jpg`, `*.jpeg`, `*.png`, any case) under `dir`, recursively, in the order
@@ -1054,7 +1231,7 @@ fn lines_row_min(img: &RgbImage) -> i64 {
 fn vanishing_point_of_peaks(
     img: &RgbImage,
     guess: &Camera,
-    peaks: &[(usize, f64, f64, bool)],
+    peaks: &[Peak],
 ) -> Option<((f64, f64), Vec<VpLine>)> {
     let h = f64::from(img.height());
     let pts: Vec<(f64, f64)> = peaks
@@ -1228,7 +1405,7 @@ fn scaled_guess(img: &RgbImage, guess: &Camera) -> Camera {
 
 /// The estimated camera ([`CameraMode::Estimate`]) from the ridge peaks found with the scaled
 /// guess `g` on the rows below [`lines_row_min`].
-fn camera_from_peaks(img: &RgbImage, g: &Camera, peaks: &[(usize, f64, f64, bool)]) -> Camera {
+fn camera_from_peaks(img: &RgbImage, g: &Camera, peaks: &[Peak]) -> Camera {
     let mut cam = *g;
     // The markings' own lines first; the edge vote if fewer than two lines cross.
     let found = vanishing_point_of_peaks(img, g, peaks);
@@ -1283,7 +1460,7 @@ pub fn estimate_and_detect(
         r_new += 1;
     }
     let mut peaks = ridge_peaks(img, &cam, p, 0, r_new - 1)?;
-    for &(_, u, x, bright) in &near {
+    for &(_, u, x, bright, resp) in &near {
         let Some((col, row)) = g.to_image(u, x) else {
             continue;
         };
@@ -1295,7 +1472,7 @@ pub fn estimate_and_detect(
             continue;
         };
         if u2 >= p.u_min && u2 <= p.u_max && x2.abs() <= p.x_max && (row as i64) <= row_near {
-            peaks.push(((row_near - row as i64) as usize, u2, x2, bright));
+            peaks.push(((row_near - row as i64) as usize, u2, x2, bright, resp));
         }
     }
     peaks.sort_by(|a, b| a.0.cmp(&b.0).then(a.2.total_cmp(&b.2)));
