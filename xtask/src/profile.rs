@@ -17,6 +17,7 @@
 //! ```sh
 //! cargo xtask firmware-profile --bin tracker_typical --top 40
 //! STJPDACF_FW_TABLES=uncoupled cargo xtask firmware-profile --bin tracker_worst_patterns
+//! cargo xtask firmware-profile --top 20 --lines 40   # and per source line (addr2line -i)
 //! ```
 //!
 //! Needs what `cargo xtask firmware` needs, and `mkfifo` (coreutils). About 1–2 min for a binary
@@ -42,6 +43,13 @@ pub struct ProfileArgs {
     /// Functions to print.
     #[arg(long, default_value_t = 40)]
     pub top: usize,
+    /// Also print the source lines with the most instructions (0 = none): every executed
+    /// instruction's address weighed by its block's executions, mapped to `file:line` by
+    /// `arm-none-eabi-addr2line -i`: the innermost inlined location in this workspace's own
+    /// sources (else the innermost one), so that library code (`core` iterators, nalgebra)
+    /// counts at the tracker line that calls it.
+    #[arg(long, default_value_t = 0)]
+    pub lines: usize,
     /// Skip `cargo build` (use the binary already built).
     #[arg(long)]
     pub no_build: bool,
@@ -75,6 +83,10 @@ struct Counts {
     per: HashMap<String, u64>,
     /// Instructions of helpers per (caller, helper).
     helpers: HashMap<(String, String), u64>,
+    /// Executions per (block start, instruction limit; 0 = none).
+    execs: HashMap<(u32, u32), u64>,
+    /// Instruction addresses per translated block start (the largest translation seen).
+    insns: HashMap<u32, Vec<u32>>,
 }
 
 impl Counts {
@@ -83,12 +95,13 @@ impl Counts {
         let mut c = Self::default();
         // The block being disassembled: (start, instructions so far).
         let mut block: Option<(u32, u32)> = None;
+        let mut addrs: Vec<u32> = Vec::new();
         // The symbol of the last block outside the helpers: a helper's caller.
         let mut caller = String::new();
         for line in r.lines() {
             let line = line.context("reading the QEMU log")?;
             if let Some(rest) = line.strip_prefix("Trace ") {
-                c.close(&mut block);
+                c.close(&mut block, &mut addrs);
                 // "Trace 0: 0x7f… [00800408/00000400/00000110/ff020200] name"
                 let Some((fields, name)) =
                     rest.split_once('[').and_then(|(_, r)| r.split_once(']'))
@@ -108,6 +121,7 @@ impl Counts {
                 let w = if limit > 0 { size.min(limit) } else { size };
                 let name = name.trim();
                 *c.per.entry(name.to_string()).or_default() += w;
+                *c.execs.entry((pc, cflags & 0x1ff)).or_default() += 1;
                 if is_helper(name) {
                     *c.helpers
                         .entry((caller.clone(), name.to_string()))
@@ -117,6 +131,7 @@ impl Counts {
                 }
             } else if let Some(addr) = line.strip_prefix("0x").and_then(|l| l.split_once(':')) {
                 if let Ok(a) = u32::from_str_radix(addr.0, 16) {
+                    addrs.push(a);
                     match block.as_mut() {
                         Some((_, n)) => *n += 1,
                         None => block = Some((a, 1)),
@@ -124,18 +139,43 @@ impl Counts {
                 }
             } else {
                 // "IN: name", "----------------", blank lines: a block ends.
-                c.close(&mut block);
+                c.close(&mut block, &mut addrs);
             }
         }
-        c.close(&mut block);
+        c.close(&mut block, &mut addrs);
         Ok(c)
     }
 
-    fn close(&mut self, block: &mut Option<(u32, u32)>) {
+    fn close(&mut self, block: &mut Option<(u32, u32)>, addrs: &mut Vec<u32>) {
         if let Some((pc, n)) = block.take() {
             let e = self.size.entry(pc).or_default();
             *e = (*e).max(n);
+            let v = self.insns.entry(pc).or_default();
+            if addrs.len() > v.len() {
+                *v = std::mem::take(addrs);
+            }
         }
+        addrs.clear();
+    }
+
+    /// Instructions per instruction address: each block's executions on its first
+    /// `min(limit, size)` instructions.
+    fn by_address(&self) -> HashMap<u32, u64> {
+        let mut per: HashMap<u32, u64> = HashMap::new();
+        for (&(pc, limit), &n) in &self.execs {
+            let Some(v) = self.insns.get(&pc) else {
+                continue;
+            };
+            let k = if limit > 0 {
+                v.len().min(limit as usize)
+            } else {
+                v.len()
+            };
+            for a in v.iter().take(k) {
+                *per.entry(*a).or_default() += n;
+            }
+        }
+        per
     }
 
     /// Instructions per symbol (demangled, no hash), largest first, and the total.
@@ -257,7 +297,84 @@ pub fn run(a: &ProfileArgs) -> Result<()> {
         &counts.helpers_by_caller(),
         (a.top, nf, total),
     );
+    if a.lines > 0 {
+        let lines = source_lines(&elf, &counts.by_address())?;
+        println!("\nsource lines (innermost inlined location in the tracker's own sources):");
+        print_table("file:line", &lines, (a.lines, nf, total));
+    }
     Ok(())
+}
+
+/// Instructions per `file:line` (`arm-none-eabi-addr2line`, addresses on its stdin), largest
+/// first; paths shortened to the part from `src/` (or the crate directory) on.
+fn source_lines(elf: &std::path::Path, per: &HashMap<u32, u64>) -> Result<Vec<(String, u64)>> {
+    use std::io::Write;
+    let addrs: Vec<(u32, u64)> = per.iter().map(|(a, n)| (*a, *n)).collect();
+    let mut child = Command::new("arm-none-eabi-addr2line")
+        .args(["-a", "-i", "-e"])
+        .arg(elf)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .context("arm-none-eabi-addr2line (binutils-arm-none-eabi)")?;
+    let input: String = addrs.iter().map(|(a, _)| format!("{a:#x}\n")).collect();
+    let mut stdin = child.stdin.take().context("addr2line stdin")?;
+    let writer = std::thread::spawn(move || stdin.write_all(input.as_bytes()));
+    let out = child.wait_with_output().context("addr2line")?;
+    writer
+        .join()
+        .map_err(|_| anyhow::anyhow!("the addr2line writer panicked"))?
+        .context("writing to addr2line")?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    // With `-a -i`: each address's "0x…" line, then its inlined frames, innermost first.
+    let mut frames: Vec<Vec<String>> = Vec::new();
+    for l in text.lines() {
+        if l.starts_with("0x") {
+            frames.push(Vec::new());
+        } else if let Some(f) = frames.last_mut() {
+            f.push(short_path(l));
+        }
+    }
+    ensure!(
+        frames.len() == addrs.len(),
+        "addr2line answered {} addresses of {}",
+        frames.len(),
+        addrs.len()
+    );
+    let mut lines: HashMap<String, u64> = HashMap::new();
+    for ((_, n), f) in addrs.iter().zip(frames) {
+        let own = f.iter().find(|l| l.starts_with("src/")).or(f.first());
+        let key = own.cloned().unwrap_or_else(|| "??".to_string());
+        *lines.entry(key).or_default() += n;
+    }
+    Ok(sorted(lines))
+}
+
+/// `…/registry/src/…/nalgebra-0.33.2/src/base/ops.rs:42 (discriminator 3)` →
+/// `nalgebra-0.33.2/src/base/ops.rs:42`; `/work/main/src/persist/mod.rs:7` → `src/persist/mod.rs:7`
+/// (the workspace root); `/work/main/bench/firmware/src/lib.rs:9` → `bench/firmware/src/lib.rs:9`.
+fn short_path(loc: &str) -> String {
+    let loc = loc.split(" (").next().unwrap_or(loc).trim();
+    match loc.rfind("/src/") {
+        Some(i) => {
+            let head = &loc[..i];
+            let krate = head.rsplit('/').next().unwrap_or("");
+            let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+            let own = std::path::Path::new(head).join("Cargo.toml").exists()
+                && !head.contains("/registry/");
+            let rel = std::fs::canonicalize(head).ok().and_then(|h| {
+                let r = std::fs::canonicalize(root).ok()?;
+                Some(h.strip_prefix(r).ok()?.to_string_lossy().into_owned())
+            });
+            match rel {
+                // The workspace root (the core): `src/…`; a member: `bench/firmware/src/…`.
+                Some(r) if own && r.is_empty() => loc[i + 1..].to_string(),
+                Some(r) if own => format!("{r}{}", &loc[i..]),
+                _ => format!("{krate}{}", &loc[i..]),
+            }
+        }
+        None => loc.to_string(),
+    }
 }
 
 /// The first `top` rows: instructions per frame (`frames` frames), share of `total`, name.
@@ -312,5 +429,12 @@ Trace 0: 0x7fc0 [00800408/00000600/00000110/ff020200] __aeabi_memclr4
             c.helpers_by_caller(),
             vec![("foo::bar → __aeabi_memclr4".to_string(), 2)]
         );
+        // Per address: the first block's 3 instructions twice, then its first only (limit 1).
+        let a = c.by_address();
+        assert_eq!(a.get(&0x400), Some(&3));
+        assert_eq!(a.get(&0x402), Some(&2));
+        assert_eq!(a.get(&0x404), Some(&2));
+        assert_eq!(a.get(&0x500), Some(&1));
+        assert_eq!(a.values().sum::<u64>(), total);
     }
 }
