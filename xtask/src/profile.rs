@@ -47,7 +47,8 @@ pub struct ProfileArgs {
     /// instruction's address weighed by its block's executions, mapped to `file:line` by
     /// `arm-none-eabi-addr2line -i`: the innermost inlined location in this workspace's own
     /// sources (else the innermost one), so that library code (`core` iterators, nalgebra)
-    /// counts at the tracker line that calls it.
+    /// counts at the tracker line that calls it; and the helpers (`memclr`, `memcpy`, `sqrtf`,
+    /// …) by the line that calls them.
     #[arg(long, default_value_t = 0)]
     pub lines: usize,
     /// Skip `cargo build` (use the binary already built).
@@ -87,6 +88,8 @@ struct Counts {
     execs: HashMap<(u32, u32), u64>,
     /// Instruction addresses per translated block start (the largest translation seen).
     insns: HashMap<u32, Vec<u32>>,
+    /// Instructions of helpers per (the calling block's start, helper): the call site.
+    helper_sites: HashMap<(u32, String), u64>,
 }
 
 impl Counts {
@@ -98,6 +101,7 @@ impl Counts {
         let mut addrs: Vec<u32> = Vec::new();
         // The symbol of the last block outside the helpers: a helper's caller.
         let mut caller = String::new();
+        let mut caller_pc = 0u32;
         for line in r.lines() {
             let line = line.context("reading the QEMU log")?;
             if let Some(rest) = line.strip_prefix("Trace ") {
@@ -126,8 +130,14 @@ impl Counts {
                     *c.helpers
                         .entry((caller.clone(), name.to_string()))
                         .or_default() += w;
-                } else if name != caller {
-                    caller = name.to_string();
+                    *c.helper_sites
+                        .entry((caller_pc, name.to_string()))
+                        .or_default() += w;
+                } else {
+                    caller_pc = pc;
+                    if name != caller {
+                        caller = name.to_string();
+                    }
                 }
             } else if let Some(addr) = line.strip_prefix("0x").and_then(|l| l.split_once(':')) {
                 if let Ok(a) = u32::from_str_radix(addr.0, 16) {
@@ -301,6 +311,25 @@ pub fn run(a: &ProfileArgs) -> Result<()> {
         let lines = source_lines(&elf, &counts.by_address())?;
         println!("\nsource lines (innermost inlined location in the tracker's own sources):");
         print_table("file:line", &lines, (a.lines, nf, total));
+        // The helpers' call sites: the last instruction of the block before the helper.
+        let sites: Vec<((u32, String), u64)> = counts
+            .helper_sites
+            .iter()
+            .filter_map(|((pc, h), n)| {
+                let call = *counts.insns.get(pc)?.last()?;
+                Some(((call, h.clone()), *n))
+            })
+            .collect();
+        let at = locate(
+            &elf,
+            &sites.iter().map(|((a, _), _)| *a).collect::<Vec<_>>(),
+        )?;
+        let mut per: HashMap<String, u64> = HashMap::new();
+        for (((_, h), n), loc) in sites.iter().zip(at) {
+            *per.entry(format!("{loc} → {}", demangle(h))).or_default() += n;
+        }
+        println!("\nhelpers by call site:");
+        print_table("file:line → helper", &sorted(per), (a.lines, nf, total));
     }
     Ok(())
 }
@@ -308,8 +337,19 @@ pub fn run(a: &ProfileArgs) -> Result<()> {
 /// Instructions per `file:line` (`arm-none-eabi-addr2line`, addresses on its stdin), largest
 /// first; paths shortened to the part from `src/` (or the crate directory) on.
 fn source_lines(elf: &std::path::Path, per: &HashMap<u32, u64>) -> Result<Vec<(String, u64)>> {
-    use std::io::Write;
     let addrs: Vec<(u32, u64)> = per.iter().map(|(a, n)| (*a, *n)).collect();
+    let at = locate(elf, &addrs.iter().map(|(a, _)| *a).collect::<Vec<_>>())?;
+    let mut lines: HashMap<String, u64> = HashMap::new();
+    for ((_, n), loc) in addrs.iter().zip(at) {
+        *lines.entry(loc).or_default() += n;
+    }
+    Ok(sorted(lines))
+}
+
+/// Each address's `file:line`: the innermost inlined frame in the core's own sources (`src/`),
+/// else the innermost frame (`arm-none-eabi-addr2line -a -i`).
+fn locate(elf: &std::path::Path, addrs: &[u32]) -> Result<Vec<String>> {
+    use std::io::Write;
     let mut child = Command::new("arm-none-eabi-addr2line")
         .args(["-a", "-i", "-e"])
         .arg(elf)
@@ -317,7 +357,7 @@ fn source_lines(elf: &std::path::Path, per: &HashMap<u32, u64>) -> Result<Vec<(S
         .stdout(std::process::Stdio::piped())
         .spawn()
         .context("arm-none-eabi-addr2line (binutils-arm-none-eabi)")?;
-    let input: String = addrs.iter().map(|(a, _)| format!("{a:#x}\n")).collect();
+    let input: String = addrs.iter().map(|a| format!("{a:#x}\n")).collect();
     let mut stdin = child.stdin.take().context("addr2line stdin")?;
     let writer = std::thread::spawn(move || stdin.write_all(input.as_bytes()));
     let out = child.wait_with_output().context("addr2line")?;
@@ -341,13 +381,13 @@ fn source_lines(elf: &std::path::Path, per: &HashMap<u32, u64>) -> Result<Vec<(S
         frames.len(),
         addrs.len()
     );
-    let mut lines: HashMap<String, u64> = HashMap::new();
-    for ((_, n), f) in addrs.iter().zip(frames) {
-        let own = f.iter().find(|l| l.starts_with("src/")).or(f.first());
-        let key = own.cloned().unwrap_or_else(|| "??".to_string());
-        *lines.entry(key).or_default() += n;
-    }
-    Ok(sorted(lines))
+    Ok(frames
+        .into_iter()
+        .map(|f| {
+            let own = f.iter().find(|l| l.starts_with("src/")).or(f.first());
+            own.cloned().unwrap_or_else(|| "??".to_string())
+        })
+        .collect())
 }
 
 /// `…/registry/src/…/nalgebra-0.33.2/src/base/ops.rs:42 (discriminator 3)` →
