@@ -384,10 +384,21 @@ fn locate(elf: &std::path::Path, addrs: &[u32]) -> Result<Vec<String>> {
     Ok(frames
         .into_iter()
         .map(|f| {
-            let own = f.iter().find(|l| l.starts_with("src/")).or(f.first());
-            own.cloned().unwrap_or_else(|| "??".to_string())
+            let mut own = f.iter().filter(|l| l.starts_with("src/"));
+            match (own.next(), own.next()) {
+                // A one-line helper (`linalg::get`, `math::max`, …): and where it is called.
+                (Some(h), Some(c)) if is_small_helper(h) => format!("{h} ← {c}"),
+                (Some(h), _) => h.clone(),
+                (None, _) => f.first().cloned().unwrap_or_else(|| "??".to_string()),
+            }
         })
         .collect())
+}
+
+/// The core's small inlined helpers (bounds-checked element access, `math` wrappers): their
+/// lines are split by the line that calls them.
+fn is_small_helper(loc: &str) -> bool {
+    loc.starts_with("src/linalg.rs:") || loc.starts_with("src/math.rs:")
 }
 
 /// `…/registry/src/…/nalgebra-0.33.2/src/base/ops.rs:42 (discriminator 3)` →

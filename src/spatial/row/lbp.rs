@@ -38,8 +38,9 @@ const LN_PSI_MAX: f32 = 60.0;
 /// marginals are the same bits either way.
 ///
 /// # Complexity
-/// `O(n · m)` exponentials once, then at most [`MAX_ITERATIONS`] × `2 n m` multiply-adds and
-/// `2 n m` divisions; `2 · LANES · 32` f32 of stack for the messages.
+/// `O(n · m)` exponentials and one `ln` per track with a gated point once, then at most
+/// [`MAX_ITERATIONS`] × `2 n m` multiply-adds and `2 n m` divisions; `2 · LANES · 32` f32 of
+/// stack for the messages.
 // Not inlined: its frame replaces the event pass's, it does not add to it.
 #[inline(never)]
 #[allow(clippy::too_many_arguments)]
@@ -61,6 +62,10 @@ pub(super) fn marginals<const LANES: usize>(
         let st = get(sdiag, t);
         let zt = get(zhat, t);
         let mask = get(&out.valid, t);
+        if mask == 0 {
+            // No gated point: its row of ψ stays 0, and no `ln`.
+            continue;
+        }
         let ln_norm = lg.ln_pd_lambda - lg.ln_miss - 0.5 * (lg.ln_2pi + math::ln(st));
         for (j, (p, z)) in row.iter_mut().zip(points.iter()).enumerate() {
             if mask & (1 << j) != 0 {
