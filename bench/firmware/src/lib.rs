@@ -46,7 +46,7 @@ use stjpdacf::probe::{Probe, Stage};
 use stjpdacf::spatial::filter::{Config as SpatialConfig, LaneObservation, SpatialFilter};
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
-use stjpdacf::tracker::{LaneEstimate, ReferenceTracker, StepOutput, TrackerConfig};
+use stjpdacf::tracker::{LaneEstimate, StepOutput, Tracker, TrackerConfig};
 use stjpdacf::wire::{self, frame_len, Receiver};
 
 /// Instructions per SysTick tick: `-icount shift=3` makes an instruction 8 ns of virtual time and
@@ -141,11 +141,34 @@ const CONFIG: TrackerConfig = TrackerConfig {
     TrackerConfig::DEFAULT.spatial.rows_per_interval,
 ));
 
-/// The tracker (≈148 KB) lives in a static, never on the stack; all zero
-/// ([`ReferenceTracker::UNINIT`]), so it is in `.bss` and takes no flash. [`run_tracker_with`]
+/// Whether `STJPDACF_FW_RANK_CAP` is `1`.
+const fn rank_cap_override() -> bool {
+    match option_env!("STJPDACF_FW_RANK_CAP") {
+        Some(s) => matches!(s.as_bytes(), [b'1']),
+        None => false,
+    }
+}
+
+/// The tracker's Gram-rank capacity, its const `RANK`: the reference configuration's 7, or,
+/// when the build-time variable `STJPDACF_FW_RANK_CAP` is `1`, the rank the tables are
+/// truncated to (`STJPDACF_FW_RANK`): the tracker compiled for the model it runs, so every
+/// per-lane loop, state vector and covariance is sized by that rank (docs/measurements.md
+/// "Fitting the MCU").
+pub const CAP_RANK: usize = if rank_cap_override() {
+    rank_override(7) as usize
+} else {
+    7
+};
+
+/// The firmware's tracker: [`stjpdacf::tracker::ReferenceTracker`] (D = 6, N = 16, M = 256,
+/// E = 512, L = 4) with the Gram-rank capacity [`CAP_RANK`] (7 unless `STJPDACF_FW_RANK_CAP`).
+pub type FwTracker =
+    Tracker<2, 3, 6, 16, 64, 16, 256, CAP_RANK, { 2 * 6 * CAP_RANK }, { 6 * CAP_RANK }, 4>;
+
+/// The tracker (≈148 KB at rank capacity 7) lives in a static, never on the stack; all zero
+/// ([`Tracker::UNINIT`]), so it is in `.bss` and takes no flash. [`run_tracker_with`]
 /// initialises it in place.
-static TRACKER: Mutex<RefCell<ReferenceTracker>> =
-    Mutex::new(RefCell::new(ReferenceTracker::UNINIT));
+static TRACKER: Mutex<RefCell<FwTracker>> = Mutex::new(RefCell::new(FwTracker::UNINIT));
 
 /// Starts SysTick free-running on the CPU clock (no interrupt), reload `2²⁴ − 1`.
 pub fn start_systick(mut syst: SYST) {
@@ -350,7 +373,7 @@ fn calibration() -> u32 {
 }
 
 /// Runs the scenario `frames` (wire-format frames back to back) through the whole tracker (the
-/// `static` [`ReferenceTracker`], initialised in place), prints the figures and exits QEMU with
+/// `static` [`FwTracker`], initialised in place), prints the figures and exits QEMU with
 /// success, or failure when a frame is rejected or a step fails.
 pub fn run_tracker(name: &str, frames: &[u8], syst: SYST) -> ! {
     run_tracker_with(name, frames, syst, |_, _| {})
