@@ -18,7 +18,9 @@
 use stjpdacf::persist::PersistConfig;
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
-use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, Tracker, TrackerConfig};
+use stjpdacf::tracker::{
+    Instant, LaneEstimate, Rank4Tracker, ReferenceTracker, Tracker, TrackerConfig,
+};
 use stjpdacf_tools::fwscenario::{scenarios, STEP_US};
 
 /// A lane as its exact bits: every float by `to_bits`.
@@ -74,7 +76,6 @@ fn lbp() -> TrackerConfig {
     }
 }
 
-type Rank4 = Tracker<2, 3, 6, 16, 64, 16, 256, 4, 48, 24, 4>;
 type Rank3 = Tracker<2, 3, 6, 16, 64, 16, 256, 3, 36, 18, 4>;
 
 /// Compares two runs frame by frame; returns the lanes compared.
@@ -106,12 +107,18 @@ fn rank_capacity_changes_no_published_bit() {
             4,
         ),
     ];
+    println!(
+        "size_of: ReferenceTracker {} B, Rank4Tracker {} B, rank 3 {} B",
+        std::mem::size_of::<ReferenceTracker>(),
+        std::mem::size_of::<Rank4Tracker>(),
+        std::mem::size_of::<Rank3>()
+    );
     for s in scenarios().unwrap() {
         for (name, tables, cfg, rank) in cases {
             let label = format!("{} / {name}", s.name);
             let reference = run!(ReferenceTracker, tables, cfg, s.frames);
             let compact = match rank {
-                4 => run!(Rank4, tables, cfg, s.frames),
+                4 => run!(Rank4Tracker, tables, cfg, s.frames),
                 _ => run!(Rank3, tables, cfg, s.frames),
             };
             let lanes = same(&label, &reference, &compact);
@@ -130,7 +137,7 @@ fn rank_capacity_changes_no_published_bit() {
 #[test]
 fn rank_capacity_below_the_tables_rank_truncates() {
     let s = scenarios().unwrap().into_iter().next().unwrap();
-    let full = run!(Rank4, &UNCOUPLED, lbp(), s.frames);
+    let full = run!(Rank4Tracker, &UNCOUPLED, lbp(), s.frames);
     let cut = run!(ReferenceTracker, truncated(&UNCOUPLED, 4), lbp(), s.frames);
     assert!(same("typical / capacity 4 on rank-7 tables", &full, &cut) > 0);
 }

@@ -121,6 +121,14 @@ pub struct Tracker<
 /// E = 512, L = 4, spatial order 2, Gram rank ≤ 7.
 pub type ReferenceTracker = Tracker<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>;
 
+/// The reference configuration compiled for Gram rank 4 (`RANK` = 4, `NX` = 48, `NA` = 24): the
+/// tracker of the smallest model measured on the Cortex-M4F (with [`crate::tables::UNCOUPLED`]
+/// and LBP on every known-lane row, docs/measurements.md "Fitting the MCU"), about 60 % of
+/// [`ReferenceTracker`]'s memory and 9 % fewer instructions a frame. On any tables it runs
+/// `r = min(gram_rank, 4)` components, bit for bit what [`ReferenceTracker`] publishes on the
+/// same tables truncated to rank 4 (host test `rank_capacity`).
+pub type Rank4Tracker = Tracker<2, 3, 6, 16, 64, 16, 256, 4, 48, 24, 4>;
+
 /// An `impl` block of [`Tracker`] over all its parameters: the eleven-parameter header is written
 /// once, here, for the files of this module (`impl_tracker! { fn … }`).
 macro_rules! impl_tracker {
