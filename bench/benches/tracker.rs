@@ -16,7 +16,9 @@
 //! Inputs: `stjpdacf_bench::inputs` (`typical`, `worst`, `adversarial`); a bench iteration is
 //! one frame, the sequence is cycled with frames 50 ms apart, after warm-up passes. Groups:
 //! * `tracker_step_typical` — core (also with the counting and the timing probe: the probe's
-//!   overhead) and reference, step + fixed-lag output;
+//!   overhead) and reference, step + fixed-lag output; every sequence also runs the core on the
+//!   uncoupled tables (`core_f32_uncoupled`) and the smallest model (`core_f32_smallest_rank4`:
+//!   uncoupled tables, LBP on every known-lane row, `Rank4Tracker`);
 //! * `tracker_step_worst_6lanes_256points` — core and reference;
 //! * `tracker_step_adversarial_256points` — core only (its rows exceed E: the reference would
 //!   enumerate every event of them);
@@ -38,11 +40,13 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::DVector;
+use stjpdacf::persist::PersistConfig;
 use stjpdacf::probe::NoProbe;
 use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
+use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::smoother::Temporal;
-use stjpdacf::tracker::ReferenceTracker;
+use stjpdacf::tracker::{Rank4Tracker, ReferenceTracker, TrackerConfig};
 use stjpdacf_bench::cputime::{self, ThreadCpuTime};
 use stjpdacf_bench::harness::Driver;
 use stjpdacf_bench::inputs::{self, Frame, STEP_US};
@@ -302,6 +306,23 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         uncoupled.warm_up(frames, WARM);
         g.bench_function("core_f32_uncoupled", |b| {
             b.iter(|| black_box(uncoupled.step(frames, &mut NoProbe)))
+        });
+        // The smallest model measured on the MCU (docs/measurements.md "Fitting the MCU"): the
+        // uncoupled tables, LBP on every known-lane row, in a tracker compiled for Gram rank 4
+        // (`Rank4Tracker`; the same bits as rank-4 tables in the reference tracker).
+        let mut smallest = Driver::new(Box::new(Rank4Tracker::with_config(
+            &UNCOUPLED,
+            TrackerConfig {
+                persist: PersistConfig {
+                    association: Association::Lbp,
+                    ..PersistConfig::DEFAULT
+                },
+                ..TrackerConfig::DEFAULT
+            },
+        )));
+        smallest.warm_up(frames, WARM);
+        g.bench_function("core_f32_smallest_rank4", |b| {
+            b.iter(|| black_box(smallest.step(frames, &mut NoProbe)))
         });
         if name == "typical" {
             g.bench_function("core_f32_count_probe", |b| {
