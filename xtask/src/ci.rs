@@ -214,7 +214,7 @@ pub fn run() -> Result<()> {
         budget: None,
     })?;
 
-    step("firmware: the smallest measured model (uncoupled B, LBP on every row, Gram rank 4), check bench/firmware/budget-mcu.json");
+    step("firmware: the smallest measured model (uncoupled B, LBP on every row, Gram rank 4, compiled at rank 4), check bench/firmware/budget-mcu.json");
     crate::firmware::run(crate::firmware::RunArgs {
         json: Some(crate::firmware::fw_dir().join("target/report-mcu.json")),
         check: true,

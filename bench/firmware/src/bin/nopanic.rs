@@ -26,7 +26,7 @@ use stjpdacf::tables::{ReferenceTables, DEFAULT};
 use stjpdacf::temporal::filter::TemporalFilter;
 use stjpdacf::temporal::identity::{pair_cost, IdentityConfig, LanePrediction, LaneTable};
 use stjpdacf::temporal::smoother::Temporal;
-use stjpdacf::tracker::{Instant, ReferenceTracker, TrackerConfig};
+use stjpdacf::tracker::{Instant, Rank4Tracker, ReferenceTracker, TrackerConfig};
 use stjpdacf::wire::{self, Receiver};
 
 /// With `trace-panics`: a plain handler, so the binary links and its panics can be located.
@@ -243,6 +243,10 @@ fn main() -> ! {
     let _ = black_box(tr.step_probed(now, pts, &mut NoProbe));
     black_box((tr.lane_at(u(), f()), tr.frames(), now.as_micros()));
     black_box(ReferenceTracker::new(tables).frames());
+    // The smallest model's capacity (Gram rank 4): another instantiation of every stage.
+    let mut small = Rank4Tracker::with_config(tables, black_box(TrackerConfig::DEFAULT));
+    let _ = black_box(small.step_probed(now, pts, &mut counter));
+    black_box((small.lane_at(u(), f()), small.frames()));
 
     // The wire format: encoder, decoder, receiver, SPI reader.
     let mut bytes: [u8; wire::frame_len(300)] = black_box([0; wire::frame_len(300)]);
