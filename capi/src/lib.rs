@@ -1,6 +1,15 @@
-//! C API of the stjpdacf lane tracker (the reference configuration, [`ReferenceTracker`] on the
-//! built-in tables): the header is `capi/include/stjpdacf.h`, generated from this file by
-//! cbindgen (`capi/cbindgen.toml`).
+//! C API of the stjpdacf lane tracker: the header is `capi/include/stjpdacf.h`, generated from
+//! this file by cbindgen (`capi/cbindgen.toml`). Two models, each with its own handle type:
+//! * `stjpdacf_tracker` (`stjpdacf_init`, `stjpdacf_step`, …): the reference configuration,
+//!   [`ReferenceTracker`] on the built-in coupled tables ([`DEFAULT`]) with the default
+//!   configuration;
+//! * `stjpdacf_small_tracker` (`stjpdacf_small_init`, `stjpdacf_small_step`, …): the smallest
+//!   model measured on the Cortex-M4F, [`Rank4Tracker`] on the uncoupled tables ([`UNCOUPLED`])
+//!   with LBP on every known-lane row (about 60 % of the memory and a fifth of the instructions
+//!   of the reference model; docs/measurements.md "Fitting the MCU").
+//!
+//! Both take the same frames and publish the same lane records; every function of one has its
+//! `small` twin with the same contract.
 //!
 //! # Contract
 //! * **Caller-owned memory.** The tracker lives in a buffer the caller provides, of at least
@@ -29,9 +38,12 @@
 #[cfg(not(target_os = "none"))]
 extern crate std;
 
-use stjpdacf::tables::DEFAULT;
+use stjpdacf::persist::PersistConfig;
+use stjpdacf::spatial::row::Association;
+use stjpdacf::tables::{DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::{
-    Instant, LaneEstimate, ReferenceTracker, StepError, StepReport, TrackerConfig,
+    Instant, LaneEstimate, Rank4Tracker, ReferenceTracker, StepError, StepOutput, StepReport,
+    TrackerConfig,
 };
 use stjpdacf::wire::{self, WireError};
 
@@ -51,9 +63,16 @@ pub const STJPDACF_LAG: usize = 4;
 pub const STJPDACF_TRACKER_SIZE: usize = 155_480;
 /// Alignment of the tracker buffer, bytes.
 pub const STJPDACF_TRACKER_ALIGN: usize = 8;
+/// Bytes of the small model's tracker buffer (`stjpdacf_small_init`; at least `sizeof` of its
+/// tracker on every supported target: checked at compile time). Aligned as
+/// `STJPDACF_TRACKER_ALIGN`.
+pub const STJPDACF_SMALL_TRACKER_SIZE: usize = 93_224;
 
 const _: () = assert!(core::mem::size_of::<stjpdacf_tracker>() <= STJPDACF_TRACKER_SIZE);
 const _: () = assert!(core::mem::align_of::<stjpdacf_tracker>() <= STJPDACF_TRACKER_ALIGN);
+const _: () =
+    assert!(core::mem::size_of::<stjpdacf_small_tracker>() <= STJPDACF_SMALL_TRACKER_SIZE);
+const _: () = assert!(core::mem::align_of::<stjpdacf_small_tracker>() <= STJPDACF_TRACKER_ALIGN);
 const _: () = assert!(STJPDACF_MAX_LANES == 6 && STJPDACF_INDEX_POINTS == 16);
 const _: () = assert!(STJPDACF_MAX_POINTS == 256 && STJPDACF_LAG == 4);
 
@@ -76,7 +95,8 @@ pub enum stjpdacf_status {
     STJPDACF_NULL_POINTER = -1,
     /// A pointer is not aligned for its type (the tracker: `STJPDACF_TRACKER_ALIGN`).
     STJPDACF_MISALIGNED = -2,
-    /// The tracker buffer is smaller than `STJPDACF_TRACKER_SIZE`.
+    /// The tracker buffer is smaller than `STJPDACF_TRACKER_SIZE` (`STJPDACF_SMALL_TRACKER_SIZE`
+    /// for the small model).
     STJPDACF_BUFFER_TOO_SMALL = -3,
     /// `n_points` exceeds `STJPDACF_MAX_POINTS_IN`.
     STJPDACF_TOO_MANY_POINTS = -4,
@@ -240,15 +260,116 @@ pub struct stjpdacf_frame_info {
     pub len: usize,
 }
 
-/// The tracker (opaque to C): the Rust tracker and the lanes of the last frame.
-#[allow(non_camel_case_types)]
-pub struct stjpdacf_tracker {
+/// A handle's storage: the Rust tracker `T` and the lanes of the last frame.
+struct Handle<T> {
     magic: u32,
-    tracker: ReferenceTracker,
+    tracker: T,
     filtered: [stjpdacf_lane; STJPDACF_MAX_LANES],
     smoothed: [stjpdacf_lane; STJPDACF_MAX_LANES],
     n_filtered: u8,
     n_smoothed: u8,
+}
+
+/// The reference model's tracker (opaque to C): [`ReferenceTracker`] on the coupled tables and
+/// the lanes of the last frame.
+#[allow(non_camel_case_types)]
+pub struct stjpdacf_tracker {
+    h: Handle<ReferenceTracker>,
+}
+
+/// The small model's tracker (opaque to C): [`Rank4Tracker`] on the uncoupled tables with LBP on
+/// every known-lane row, and the lanes of the last frame.
+#[allow(non_camel_case_types)]
+pub struct stjpdacf_small_tracker {
+    h: Handle<Rank4Tracker>,
+}
+
+/// The small model's configuration: LBP on every known-lane row.
+const SMALL_CONFIG: TrackerConfig = TrackerConfig {
+    persist: PersistConfig {
+        association: Association::Lbp,
+        ..PersistConfig::DEFAULT
+    },
+    ..TrackerConfig::DEFAULT
+};
+
+/// What the entry points need of a model: its tracker type, start, step and GP read-out.
+trait Model: Sized + 'static {
+    /// The Rust tracker.
+    type T;
+    /// The all-zero handle (see [`ZEROED`]).
+    const ZEROED: Self;
+    /// The buffer size the C caller must give.
+    const SIZE: usize;
+    fn handle(&self) -> &Handle<Self::T>;
+    fn handle_mut(&mut self) -> &mut Handle<Self::T>;
+    /// Initialises the tracker in place with the model's tables and configuration.
+    fn start(t: &mut Self::T);
+    fn step(
+        t: &mut Self::T,
+        now: Instant,
+        pts: &[[f32; 2]],
+    ) -> Result<StepOutput<STJPDACF_MAX_LANES, STJPDACF_INDEX_POINTS>, StepError>;
+    fn lane_at(t: &Self::T, slot: usize, u: f32) -> Option<(f32, f32)>;
+}
+
+impl Model for stjpdacf_tracker {
+    type T = ReferenceTracker;
+    const ZEROED: Self = ZEROED;
+    const SIZE: usize = STJPDACF_TRACKER_SIZE;
+    fn handle(&self) -> &Handle<ReferenceTracker> {
+        &self.h
+    }
+    fn handle_mut(&mut self) -> &mut Handle<ReferenceTracker> {
+        &mut self.h
+    }
+    fn start(t: &mut ReferenceTracker) {
+        t.init(&DEFAULT, TrackerConfig::DEFAULT);
+    }
+    fn step(
+        t: &mut ReferenceTracker,
+        now: Instant,
+        pts: &[[f32; 2]],
+    ) -> Result<StepOutput<STJPDACF_MAX_LANES, STJPDACF_INDEX_POINTS>, StepError> {
+        t.step(now, pts)
+    }
+    fn lane_at(t: &ReferenceTracker, slot: usize, u: f32) -> Option<(f32, f32)> {
+        t.lane_at(slot, u)
+    }
+}
+
+impl Model for stjpdacf_small_tracker {
+    type T = Rank4Tracker;
+    const ZEROED: Self = stjpdacf_small_tracker {
+        h: Handle {
+            magic: 0,
+            tracker: Rank4Tracker::UNINIT,
+            filtered: [NO_LANE; STJPDACF_MAX_LANES],
+            smoothed: [NO_LANE; STJPDACF_MAX_LANES],
+            n_filtered: 0,
+            n_smoothed: 0,
+        },
+    };
+    const SIZE: usize = STJPDACF_SMALL_TRACKER_SIZE;
+    fn handle(&self) -> &Handle<Rank4Tracker> {
+        &self.h
+    }
+    fn handle_mut(&mut self) -> &mut Handle<Rank4Tracker> {
+        &mut self.h
+    }
+    fn start(t: &mut Rank4Tracker) {
+        t.init(&UNCOUPLED, SMALL_CONFIG);
+    }
+    fn step(
+        t: &mut Rank4Tracker,
+        now: Instant,
+        pts: &[[f32; 2]],
+    ) -> Result<StepOutput<STJPDACF_MAX_LANES, STJPDACF_INDEX_POINTS>, StepError> {
+        t.step(now, pts)
+    }
+    fn lane_at(t: &Rank4Tracker, slot: usize, u: f32) -> Option<(f32, f32)> {
+        t.lane_at(slot, u)
+    }
 }
 
 const NO_LANE: stjpdacf_lane = stjpdacf_lane {
@@ -269,22 +390,22 @@ const NO_LANE: stjpdacf_lane = stjpdacf_lane {
 /// Neither the ~148 KB value nor an image of it exists anywhere else (not on the stack, not in
 /// flash).
 const ZEROED: stjpdacf_tracker = stjpdacf_tracker {
-    magic: 0,
-    tracker: ReferenceTracker::UNINIT,
-    filtered: [NO_LANE; STJPDACF_MAX_LANES],
-    smoothed: [NO_LANE; STJPDACF_MAX_LANES],
-    n_filtered: 0,
-    n_smoothed: 0,
+    h: Handle {
+        magic: 0,
+        tracker: ReferenceTracker::UNINIT,
+        filtered: [NO_LANE; STJPDACF_MAX_LANES],
+        smoothed: [NO_LANE; STJPDACF_MAX_LANES],
+        n_filtered: 0,
+        n_smoothed: 0,
+    },
 };
 
 /// Checks a tracker pointer: non-null, aligned, initialised.
 ///
 /// # Safety
-/// A non-null, aligned `t` must point to `STJPDACF_TRACKER_SIZE` readable bytes that no one
-/// writes during `'a`.
-unsafe fn tracker_ref<'a>(
-    t: *const stjpdacf_tracker,
-) -> Result<&'a stjpdacf_tracker, stjpdacf_status> {
+/// A non-null, aligned `t` must point to `M::SIZE` readable bytes that no one writes during
+/// `'a`.
+unsafe fn tracker_ref<'a, M: Model>(t: *const M) -> Result<&'a Handle<M::T>, stjpdacf_status> {
     if t.is_null() {
         return Err(STJPDACF_NULL_POINTER);
     }
@@ -293,7 +414,7 @@ unsafe fn tracker_ref<'a>(
     }
     // SAFETY: non-null and aligned (checked); the caller guarantees the memory is readable and
     // not written during 'a. The magic check below rejects buffers `stjpdacf_init` never wrote.
-    let r = unsafe { &*t };
+    let r = unsafe { &*t }.handle();
     if r.magic == MAGIC {
         Ok(r)
     } else {
@@ -304,11 +425,9 @@ unsafe fn tracker_ref<'a>(
 /// [`tracker_ref`], mutable.
 ///
 /// # Safety
-/// A non-null, aligned `t` must point to `STJPDACF_TRACKER_SIZE` writable bytes that nothing
-/// else accesses during `'a`.
-unsafe fn tracker_mut<'a>(
-    t: *mut stjpdacf_tracker,
-) -> Result<&'a mut stjpdacf_tracker, stjpdacf_status> {
+/// A non-null, aligned `t` must point to `M::SIZE` writable bytes that nothing else accesses
+/// during `'a`.
+unsafe fn tracker_mut<'a, M: Model>(t: *mut M) -> Result<&'a mut Handle<M::T>, stjpdacf_status> {
     if t.is_null() {
         return Err(STJPDACF_NULL_POINTER);
     }
@@ -316,7 +435,7 @@ unsafe fn tracker_mut<'a>(
         return Err(STJPDACF_MISALIGNED);
     }
     // SAFETY: non-null and aligned (checked); the caller guarantees exclusive access during 'a.
-    let r = unsafe { &mut *t };
+    let r = unsafe { &mut *t }.handle_mut();
     if r.magic == MAGIC {
         Ok(r)
     } else {
@@ -412,6 +531,42 @@ fn checked(f: impl FnOnce() -> Result<stjpdacf_status, stjpdacf_status>) -> stjp
     f().unwrap_or_else(|e| e)
 }
 
+/// Initialises a tracker of model `M` in `memory` (see [`stjpdacf_init`]).
+///
+/// # Safety
+/// As [`stjpdacf_init`], with `M::SIZE` for the size.
+unsafe fn init_model<M: Model>(
+    memory: *mut core::ffi::c_void,
+    size: usize,
+    tracker: *mut *mut M,
+) -> stjpdacf_status {
+    let t = memory.cast::<M>();
+    let out = match required(tracker) {
+        Ok(o) => o,
+        Err(e) => return e,
+    };
+    if t.is_null() {
+        return STJPDACF_NULL_POINTER;
+    }
+    if !t.is_aligned() {
+        return STJPDACF_MISALIGNED;
+    }
+    if size < M::SIZE {
+        return STJPDACF_BUFFER_TOO_SMALL;
+    }
+    // SAFETY: `t` is non-null, aligned and has room for a tracker (checked: `size ≥ M::SIZE ≥
+    // size_of`, asserted at compile time); the caller guarantees it is writable and unshared.
+    // The tracker has no `Drop`, so overwriting whatever was there leaks nothing.
+    unsafe { t.write(M::ZEROED) };
+    // SAFETY: `t` now holds a valid handle (written above) that nothing else accesses.
+    let h = unsafe { &mut *t }.handle_mut();
+    M::start(&mut h.tracker);
+    h.magic = MAGIC;
+    // SAFETY: `out` is non-null and aligned (checked), writable (the caller).
+    unsafe { out.write(t) };
+    STJPDACF_OK
+}
+
 /// Initialises a tracker in the caller's buffer `memory` of `size` bytes and stores the tracker
 /// handle (`memory` itself) in `*tracker`. Call it again on the same buffer to start afresh
 /// (a new clip).
@@ -431,31 +586,70 @@ pub unsafe extern "C" fn stjpdacf_init(
     size: usize,
     tracker: *mut *mut stjpdacf_tracker,
 ) -> stjpdacf_status {
-    let t = memory.cast::<stjpdacf_tracker>();
-    let out = match required(tracker) {
-        Ok(o) => o,
-        Err(e) => return e,
-    };
-    if t.is_null() {
-        return STJPDACF_NULL_POINTER;
-    }
-    if !t.is_aligned() {
-        return STJPDACF_MISALIGNED;
-    }
-    if size < STJPDACF_TRACKER_SIZE {
-        return STJPDACF_BUFFER_TOO_SMALL;
-    }
-    // SAFETY: `t` is non-null, aligned and has room for a tracker (checked: `size ≥
-    // STJPDACF_TRACKER_SIZE ≥ size_of`); the caller guarantees it is writable and unshared.
-    // The tracker has no `Drop`, so overwriting whatever was there leaks nothing.
-    unsafe { t.write(ZEROED) };
-    // SAFETY: `t` now holds a valid handle (written above) that nothing else accesses.
-    let h = unsafe { &mut *t };
-    h.tracker.init(&DEFAULT, TrackerConfig::DEFAULT);
-    h.magic = MAGIC;
-    // SAFETY: `out` is non-null and aligned (checked), writable (the caller).
-    unsafe { out.write(t) };
-    STJPDACF_OK
+    // SAFETY: the caller's contract above.
+    unsafe { init_model(memory, size, tracker) }
+}
+
+/// [`stjpdacf_init`] for the small model: a buffer of at least `STJPDACF_SMALL_TRACKER_SIZE`
+/// bytes (else `STJPDACF_BUFFER_TOO_SMALL`), aligned to `STJPDACF_TRACKER_ALIGN`.
+///
+/// # Safety
+/// As [`stjpdacf_init`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_small_init(
+    memory: *mut core::ffi::c_void,
+    size: usize,
+    tracker: *mut *mut stjpdacf_small_tracker,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    unsafe { init_model(memory, size, tracker) }
+}
+
+/// One frame of a tracker of model `M` (see [`stjpdacf_step`]).
+///
+/// # Safety
+/// As [`stjpdacf_step`].
+unsafe fn step_model<M: Model>(
+    tracker: *mut M,
+    time_us: i64,
+    points: *const f32,
+    n_points: usize,
+    out_lanes: *mut stjpdacf_lane,
+    capacity: usize,
+    report: *mut stjpdacf_report,
+) -> stjpdacf_status {
+    checked(|| {
+        // SAFETY: the caller's contract: `tracker` from `stjpdacf_init`, not shared.
+        let t = unsafe { tracker_mut(tracker) }?;
+        // `{u, x}` pairs: `[f32; 2]` has the alignment of `f32`.
+        // SAFETY: the caller's contract: `points` holds `2 · n_points` floats.
+        let pts = unsafe { slice_in(points.cast::<[f32; 2]>(), n_points, STJPDACF_MAX_POINTS_IN) }?;
+        // SAFETY: the caller's contract: room for `capacity` lanes.
+        let lanes = unsafe { slice_out(out_lanes, capacity) }?;
+        let report = if report.is_null() {
+            None
+        } else {
+            Some(required(report)?)
+        };
+        let out = M::step(&mut t.tracker, Instant::from_micros(time_us), pts)?;
+        t.n_filtered = copy_lanes(&out.filtered, &mut t.filtered);
+        t.n_smoothed = copy_lanes(&out.smoothed, &mut t.smoothed);
+        if let Some(l) = lanes {
+            for (d, s) in l.iter_mut().zip(&t.filtered) {
+                *d = *s;
+            }
+        }
+        let rep = stjpdacf_report {
+            filtered_lanes: out.filtered.len() as u32,
+            smoothed_lanes: out.smoothed.len() as u32,
+            step: out.report,
+        };
+        if let Some(p) = report {
+            // SAFETY: non-null and aligned (checked by `required`), writable (the caller).
+            unsafe { write_out(p, rep) }?;
+        }
+        Ok(rep.status())
+    })
 }
 
 /// One frame: `n_points` BEV feature points `{u, x}` (metres ahead, metres lateral) at
@@ -486,38 +680,34 @@ pub unsafe extern "C" fn stjpdacf_step(
     capacity: usize,
     report: *mut stjpdacf_report,
 ) -> stjpdacf_status {
-    checked(|| {
-        // SAFETY: the caller's contract: `tracker` from `stjpdacf_init`, not shared.
-        let t = unsafe { tracker_mut(tracker) }?;
-        // `{u, x}` pairs: `[f32; 2]` has the alignment of `f32`.
-        // SAFETY: the caller's contract: `points` holds `2 · n_points` floats.
-        let pts = unsafe { slice_in(points.cast::<[f32; 2]>(), n_points, STJPDACF_MAX_POINTS_IN) }?;
-        // SAFETY: the caller's contract: room for `capacity` lanes.
-        let lanes = unsafe { slice_out(out_lanes, capacity) }?;
-        let report = if report.is_null() {
-            None
-        } else {
-            Some(required(report)?)
-        };
-        let out = t.tracker.step(Instant::from_micros(time_us), pts)?;
-        t.n_filtered = copy_lanes(&out.filtered, &mut t.filtered);
-        t.n_smoothed = copy_lanes(&out.smoothed, &mut t.smoothed);
-        if let Some(l) = lanes {
-            for (d, s) in l.iter_mut().zip(&t.filtered) {
-                *d = *s;
-            }
-        }
-        let rep = stjpdacf_report {
-            filtered_lanes: out.filtered.len() as u32,
-            smoothed_lanes: out.smoothed.len() as u32,
-            step: out.report,
-        };
-        if let Some(p) = report {
-            // SAFETY: non-null and aligned (checked by `required`), writable (the caller).
-            unsafe { write_out(p, rep) }?;
-        }
-        Ok(rep.status())
-    })
+    // SAFETY: the caller's contract above.
+    unsafe {
+        step_model(
+            tracker, time_us, points, n_points, out_lanes, capacity, report,
+        )
+    }
+}
+
+/// [`stjpdacf_step`] for the small model (`tracker` from `stjpdacf_small_init`).
+///
+/// # Safety
+/// As [`stjpdacf_step`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_small_step(
+    tracker: *mut stjpdacf_small_tracker,
+    time_us: i64,
+    points: *const f32,
+    n_points: usize,
+    out_lanes: *mut stjpdacf_lane,
+    capacity: usize,
+    report: *mut stjpdacf_report,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    unsafe {
+        step_model(
+            tracker, time_us, points, n_points, out_lanes, capacity, report,
+        )
+    }
 }
 
 fn copy_lanes(src: &[LaneEstimate<16>], dst: &mut [stjpdacf_lane; STJPDACF_MAX_LANES]) -> u8 {
@@ -533,8 +723,8 @@ fn copy_lanes(src: &[LaneEstimate<16>], dst: &mut [stjpdacf_lane; STJPDACF_MAX_L
 ///
 /// # Safety
 /// As [`stjpdacf_filtered`].
-unsafe fn read_lanes(
-    tracker: *const stjpdacf_tracker,
+unsafe fn read_lanes<M: Model>(
+    tracker: *const M,
     out_lanes: *mut stjpdacf_lane,
     capacity: usize,
     count: *mut usize,
@@ -594,6 +784,64 @@ pub unsafe extern "C" fn stjpdacf_smoothed(
     checked(|| unsafe { read_lanes(tracker, out_lanes, capacity, count, true) })
 }
 
+/// [`stjpdacf_filtered`] for the small model (`tracker` from `stjpdacf_small_init`).
+///
+/// # Safety
+/// As [`stjpdacf_filtered`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_small_filtered(
+    tracker: *const stjpdacf_small_tracker,
+    out_lanes: *mut stjpdacf_lane,
+    capacity: usize,
+    count: *mut usize,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    checked(|| unsafe { read_lanes(tracker, out_lanes, capacity, count, false) })
+}
+
+/// [`stjpdacf_smoothed`] for the small model (`tracker` from `stjpdacf_small_init`).
+///
+/// # Safety
+/// As [`stjpdacf_filtered`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_small_smoothed(
+    tracker: *const stjpdacf_small_tracker,
+    out_lanes: *mut stjpdacf_lane,
+    capacity: usize,
+    count: *mut usize,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    checked(|| unsafe { read_lanes(tracker, out_lanes, capacity, count, true) })
+}
+
+/// A lane's GP read-out for a tracker of model `M` (see [`stjpdacf_lane_at`]).
+///
+/// # Safety
+/// As [`stjpdacf_lane_at`].
+unsafe fn lane_at_model<M: Model>(
+    tracker: *const M,
+    slot: u32,
+    u: f32,
+    x: *mut f32,
+    var: *mut f32,
+) -> stjpdacf_status {
+    checked(|| {
+        // SAFETY: the caller's contract: `tracker` from `stjpdacf_init`, not written meanwhile.
+        let t = unsafe { tracker_ref(tracker) }?;
+        let x = required(x)?;
+        if !var.is_null() {
+            required(var)?;
+        }
+        let (m, v) = M::lane_at(&t.tracker, slot as usize, u).ok_or(STJPDACF_NO_LANE)?;
+        // SAFETY: the caller's contract: `x` and `var` (when not null) are writable.
+        unsafe {
+            write_out(x, m)?;
+            write_out(var, v)?;
+        }
+        Ok(STJPDACF_OK)
+    })
+}
+
 /// A lane's lateral position `*x` (metres) and its variance `*var` (m²) at `u` metres ahead,
 /// anywhere inside the BEV window: the GP evaluation of the lane in `slot` (Rust
 /// `Tracker::lane_at`). `var` may be NULL.
@@ -615,24 +863,24 @@ pub unsafe extern "C" fn stjpdacf_lane_at(
     x: *mut f32,
     var: *mut f32,
 ) -> stjpdacf_status {
-    checked(|| {
-        // SAFETY: the caller's contract: `tracker` from `stjpdacf_init`, not written meanwhile.
-        let t = unsafe { tracker_ref(tracker) }?;
-        let x = required(x)?;
-        if !var.is_null() {
-            required(var)?;
-        }
-        let (m, v) = t
-            .tracker
-            .lane_at(slot as usize, u)
-            .ok_or(STJPDACF_NO_LANE)?;
-        // SAFETY: the caller's contract: `x` and `var` (when not null) are writable.
-        unsafe {
-            write_out(x, m)?;
-            write_out(var, v)?;
-        }
-        Ok(STJPDACF_OK)
-    })
+    // SAFETY: the caller's contract above.
+    unsafe { lane_at_model(tracker, slot, u, x, var) }
+}
+
+/// [`stjpdacf_lane_at`] for the small model (`tracker` from `stjpdacf_small_init`).
+///
+/// # Safety
+/// As [`stjpdacf_lane_at`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_small_lane_at(
+    tracker: *const stjpdacf_small_tracker,
+    slot: u32,
+    u: f32,
+    x: *mut f32,
+    var: *mut f32,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    unsafe { lane_at_model(tracker, slot, u, x, var) }
 }
 
 /// The BEV window and index points of the built-in model.

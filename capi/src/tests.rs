@@ -159,7 +159,7 @@ fn step_rejects_bad_arguments_and_leaves_the_tracker_untouched() {
         );
         assert_eq!(lanes, [NO_LANE; STJPDACF_MAX_LANES], "no lane written");
         assert_eq!(rep, zero_report(), "no report written");
-        assert_eq!((*t).tracker.frames(), 0, "tracker untouched");
+        assert_eq!((*t).h.tracker.frames(), 0, "tracker untouched");
         // The first valid frame, then the same time again.
         assert_eq!(
             step(t, 1_000, pts.as_ptr(), n, lp, 6, &mut rep),
@@ -172,7 +172,7 @@ fn step_rejects_bad_arguments_and_leaves_the_tracker_untouched() {
             STJPDACF_NON_INCREASING_TIME
         );
         assert_eq!(rep, before, "no report written on refusal");
-        assert_eq!((*t).tracker.frames(), 1);
+        assert_eq!((*t).h.tracker.frames(), 1);
     }
     raw.clear();
 }
@@ -360,4 +360,146 @@ fn over_budget_points_are_degraded_not_refused() {
     let st = unsafe { stjpdacf_step(t, 0, pts.as_ptr(), pts.len() / 2, null_mut(), 0, &mut rep) };
     assert_eq!(st, STJPDACF_DEGRADED);
     assert_eq!(rep.step.over_budget_points, 10);
+}
+
+#[test]
+fn the_small_size_constant_covers_its_tracker() {
+    let size = core::mem::size_of::<stjpdacf_small_tracker>();
+    std::println!("size_of::<stjpdacf_small_tracker>() = {size}");
+    assert!(size <= STJPDACF_SMALL_TRACKER_SIZE);
+    assert!(STJPDACF_SMALL_TRACKER_SIZE - size < 1024);
+}
+
+#[test]
+fn small_init_and_readouts_reject_bad_arguments() {
+    let mut buf = vec![0u64; STJPDACF_SMALL_TRACKER_SIZE / 8 + 1];
+    let mut t = null_mut();
+    // SAFETY: `buf` holds more than the sizes given; `t` is writable.
+    unsafe {
+        assert_eq!(
+            stjpdacf_small_init(
+                buf.as_mut_ptr().cast(),
+                STJPDACF_SMALL_TRACKER_SIZE - 1,
+                &mut t
+            ),
+            STJPDACF_BUFFER_TOO_SMALL
+        );
+        assert!(t.is_null(), "nothing written");
+        assert_eq!(
+            stjpdacf_small_init(
+                buf.as_mut_ptr().cast::<u8>().add(4).cast(),
+                STJPDACF_SMALL_TRACKER_SIZE,
+                &mut t
+            ),
+            STJPDACF_MISALIGNED
+        );
+        assert_eq!(
+            stjpdacf_small_init(null_mut(), STJPDACF_SMALL_TRACKER_SIZE, &mut t),
+            STJPDACF_NULL_POINTER
+        );
+    }
+    // A buffer never initialised is refused by every entry point.
+    let raw = buf.as_mut_ptr().cast::<stjpdacf_small_tracker>();
+    let pts = two_lanes();
+    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
+    let mut n = 0usize;
+    let (mut x, mut var) = (0.0f32, 0.0f32);
+    // SAFETY: `raw` points to writable, aligned memory of the small tracker's size; the arrays
+    // are valid for their sizes.
+    unsafe {
+        let st = stjpdacf_small_step(raw, 0, pts.as_ptr(), 60, null_mut(), 0, null_mut());
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+        let st = stjpdacf_small_filtered(raw, lanes.as_mut_ptr(), lanes.len(), &mut n);
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+        let st = stjpdacf_small_smoothed(raw, lanes.as_mut_ptr(), lanes.len(), &mut n);
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+        let st = stjpdacf_small_lane_at(raw, 0, 30.0, &mut x, &mut var);
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+    }
+    let mut t = null_mut();
+    // SAFETY: as above, the full size.
+    let st = unsafe {
+        stjpdacf_small_init(buf.as_mut_ptr().cast(), STJPDACF_SMALL_TRACKER_SIZE, &mut t)
+    };
+    assert_eq!(st, STJPDACF_OK);
+    // SAFETY: `t` from `stjpdacf_small_init`; the arrays are valid for their sizes.
+    unsafe {
+        let st = stjpdacf_small_step(t, 0, pts.as_ptr(), 60, lanes.as_mut_ptr(), 5, null_mut());
+        assert_eq!(st, STJPDACF_CAPACITY_TOO_SMALL);
+        assert_eq!((*t).h.tracker.frames(), 0, "tracker untouched");
+        let st = stjpdacf_small_step(t, 0, pts.as_ptr(), 60, null_mut(), 0, null_mut());
+        assert_eq!(st, STJPDACF_OK);
+        let st = stjpdacf_small_step(t, 0, pts.as_ptr(), 60, null_mut(), 0, null_mut());
+        assert_eq!(st, STJPDACF_NON_INCREASING_TIME);
+        assert_eq!((*t).h.tracker.frames(), 1);
+    }
+}
+
+/// The small model through the C API equals `Rank4Tracker` on the uncoupled tables with LBP on
+/// every row, frame by frame: filtered and smoothed lanes, the report and the GP read-out.
+#[test]
+fn small_lanes_match_the_rust_tracker() {
+    let pts = two_lanes();
+    let pairs: Vec<[f32; 2]> = pts.chunks(2).map(|c| [c[0], c[1]]).collect();
+    let mut rust = Box::new(Rank4Tracker::with_config(&UNCOUPLED, SMALL_CONFIG));
+    let mut buf = vec![0u64; STJPDACF_SMALL_TRACKER_SIZE / 8 + 1];
+    let mut t = null_mut();
+    // SAFETY: `buf` holds `STJPDACF_SMALL_TRACKER_SIZE` writable, aligned bytes.
+    let st = unsafe {
+        stjpdacf_small_init(buf.as_mut_ptr().cast(), STJPDACF_SMALL_TRACKER_SIZE, &mut t)
+    };
+    assert_eq!(st, STJPDACF_OK);
+    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
+    let mut rep = zero_report();
+    let mut published = 0;
+    for k in 0..8i64 {
+        let time = k * 50_000;
+        let want = rust.step(Instant::from_micros(time), &pairs).unwrap();
+        // SAFETY: `t` from `stjpdacf_small_init`; the arrays are valid for their sizes.
+        let st = unsafe {
+            stjpdacf_small_step(
+                t,
+                time,
+                pts.as_ptr(),
+                pairs.len(),
+                lanes.as_mut_ptr(),
+                lanes.len(),
+                &mut rep,
+            )
+        };
+        assert_eq!(st, STJPDACF_OK);
+        assert_eq!(rep.filtered_lanes as usize, want.filtered.len());
+        assert_eq!(rep.smoothed_lanes as usize, want.smoothed.len());
+        assert_eq!(rep.step, want.report);
+        let mut got = [NO_LANE; STJPDACF_MAX_LANES];
+        let mut n = 0;
+        // SAFETY: as above.
+        let st = unsafe { stjpdacf_small_filtered(t, got.as_mut_ptr(), got.len(), &mut n) };
+        assert_eq!(st, STJPDACF_OK);
+        assert_eq!(n, want.filtered.len());
+        for ((c, g), r) in lanes.iter().zip(&got).zip(&want.filtered) {
+            assert_eq!(*c, stjpdacf_lane::from(r));
+            assert_eq!(*g, *c);
+            let (mut x, mut var) = (0.0, 0.0);
+            // SAFETY: as above.
+            let st = unsafe { stjpdacf_small_lane_at(t, c.slot, 30.0, &mut x, &mut var) };
+            assert_eq!(st, STJPDACF_OK);
+            assert_eq!(Some((x, var)), rust.lane_at(usize::from(r.slot), 30.0));
+            published += 1;
+        }
+        let mut sm = [NO_LANE; STJPDACF_MAX_LANES];
+        // SAFETY: as above.
+        let st = unsafe { stjpdacf_small_smoothed(t, sm.as_mut_ptr(), sm.len(), &mut n) };
+        assert_eq!(st, STJPDACF_OK);
+        assert_eq!(n, want.smoothed.len());
+        for (c, r) in sm.iter().zip(&want.smoothed) {
+            assert_eq!(*c, stjpdacf_lane::from(r));
+        }
+    }
+    assert!(published >= 8, "lanes were published ({published})");
+    // `stjpdacf_model_info` describes both models: the same window and index points.
+    assert_eq!(UNCOUPLED.index_u, DEFAULT.index_u);
+    assert_eq!(UNCOUPLED.hyper.u_min, DEFAULT.hyper.u_min);
+    assert_eq!(UNCOUPLED.hyper.u_max, DEFAULT.hyper.u_max);
+    assert_eq!(rep.smoothed_lanes, 2, "the smoother window is full");
 }
