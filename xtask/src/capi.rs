@@ -10,7 +10,9 @@
 //! 4. the Cortex-M4F C example (`capi/examples/m4f`), built with `arm-none-eabi-gcc` and run under
 //!    the firmware's QEMU machine, prints the same lanes as the Rust firmware's `lanes_typical`
 //!    on the same frames; its link keeps no panic path (no `rust_begin_unwind`); the sizes and
-//!    stack high-water marks of both are printed side by side;
+//!    stack high-water marks of both are printed side by side. Twice: the reference model, and
+//!    the small model (`stjpdacf_small_*`, `-DSTJPDACF_EXAMPLE_SMALL`) against the firmware
+//!    built with the smallest model's variables;
 //! 5. the board example (`board/`, see [`crate::board`]) reads the same frames over an emulated
 //!    SPI front end and writes the same lanes to its UART.
 //!
@@ -79,7 +81,8 @@ pub fn run_all() -> Result<()> {
     header()?;
     staticlibs()?;
     host_example()?;
-    let rust_out = m4f_example()?;
+    let rust_out = m4f_example(Model::Reference)?;
+    m4f_example(Model::Small)?;
     crate::board::run(FRAMES, &lane_lines(&rust_out))
 }
 
@@ -348,9 +351,41 @@ fn stack_used(out: &str) -> u64 {
         .unwrap_or(0)
 }
 
-/// The Cortex-M4F C example against the Rust firmware; returns the firmware's output.
-fn m4f_example() -> Result<String> {
-    let elf = out_dir().join("m4f.elf");
+/// The C API's two models.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Model {
+    /// `stjpdacf_init`, … (the Rust firmware's default build).
+    Reference,
+    /// `stjpdacf_small_init`, … (the C example with `-DSTJPDACF_EXAMPLE_SMALL`; the Rust firmware
+    /// built with the smallest model's variables, as `bench/firmware/budget-mcu.json`).
+    Small,
+}
+
+impl Model {
+    /// The firmware's build-time model variables for this model.
+    fn firmware_env(self) -> &'static [(&'static str, &'static str)] {
+        match self {
+            Model::Reference => &[],
+            Model::Small => &[
+                ("STJPDACF_FW_TABLES", "uncoupled"),
+                ("STJPDACF_FW_ASSOC", "lbp"),
+                ("STJPDACF_FW_RANK", "4"),
+                ("STJPDACF_FW_RANK_CAP", "1"),
+            ],
+        }
+    }
+}
+
+/// The Cortex-M4F C example against the Rust firmware, for one model; returns the firmware's
+/// output.
+fn m4f_example(model: Model) -> Result<String> {
+    let (elf, define) = match model {
+        Model::Reference => (out_dir().join("m4f.elf"), None),
+        Model::Small => (
+            out_dir().join("m4f_small.elf"),
+            Some("-DSTJPDACF_EXAMPLE_SMALL"),
+        ),
+    };
     run(Command::new("arm-none-eabi-gcc")
         .args([
             "-mcpu=cortex-m4",
@@ -368,6 +403,7 @@ fn m4f_example() -> Result<String> {
         ])
         .args(["-nostdlib", "-ffunction-sections", "-fdata-sections"])
         .args(["-Icapi/include", &format!("-DFRAMES_FILE=\"{FRAMES}\"")])
+        .args(define)
         .args([
             "-T",
             "capi/examples/m4f/link.ld",
@@ -389,7 +425,12 @@ fn m4f_example() -> Result<String> {
     println!("no-panic: the M4F C example's link keeps no panic path");
     let c_out = qemu(&elf)?;
 
-    let st = firmware::cargo()
+    let mut build = firmware::cargo();
+    for (k, _) in Model::Small.firmware_env() {
+        build.env_remove(k);
+    }
+    let st = build
+        .envs(model.firmware_env().iter().copied())
         .args(["build", "--release", "--bin", firmware::LANES])
         .status()
         .context("cargo build (firmware)")?;
@@ -422,12 +463,15 @@ fn m4f_example() -> Result<String> {
         );
     }
     println!(
-        "M4F C example: {} lane lines over the `typical` frames, identical to the Rust firmware's",
+        "M4F C example ({model:?} model): {} lane lines over the `typical` frames, identical to \
+         the Rust firmware's",
         c_lanes.len()
     );
     let (cs, rs) = (firmware::sizes(&elf)?, firmware::sizes(&rust_elf)?);
     let frames = std::fs::metadata(repo_root().join(FRAMES))?.len();
-    println!("\nCortex-M4F (QEMU mps2-an386), the same frames, every lane printed:");
+    println!(
+        "\nCortex-M4F (QEMU mps2-an386), {model:?} model, the same frames, every lane printed:"
+    );
     println!("| program | text | data | bss | stack high-water |");
     println!("|---|---|---|---|---|");
     for (name, s, out) in [

@@ -1,7 +1,7 @@
 /* Cortex-M4F C example of the stjpdacf C API, bare metal under QEMU mps2-an386 (the machine of
  * the Rust firmware, bench/firmware): the frames of the firmware's `typical` scenario in the SPI
  * wire format (embedded with .incbin), decoded with stjpdacf_decode_frame, tracked with
- * stjpdacf_step, every filtered and smoothed lane printed exactly as the Rust firmware's
+ * stjpdacf_step (stjpdacf_small_step with -DSTJPDACF_EXAMPLE_SMALL), every filtered and smoothed lane printed exactly as the Rust firmware's
  * `lanes_typical` binary prints it (`cargo xtask capi` compares the two), then the stack
  * high-water mark. No C library: semihosting by hand, the tracker in a static buffer.
  *
@@ -15,6 +15,22 @@
 #include <stdint.h>
 
 #include "stjpdacf.h"
+
+/* With -DSTJPDACF_EXAMPLE_SMALL the small model (stjpdacf_small_*); `cargo xtask capi` builds
+ * both and compares each with the Rust firmware built for the same model. */
+#ifdef STJPDACF_EXAMPLE_SMALL
+#define TRACKER stjpdacf_small_tracker
+#define TRACKER_SIZE STJPDACF_SMALL_TRACKER_SIZE
+#define TRACKER_INIT stjpdacf_small_init
+#define TRACKER_STEP stjpdacf_small_step
+#define TRACKER_SMOOTHED stjpdacf_small_smoothed
+#else
+#define TRACKER stjpdacf_tracker
+#define TRACKER_SIZE STJPDACF_TRACKER_SIZE
+#define TRACKER_INIT stjpdacf_init
+#define TRACKER_STEP stjpdacf_step
+#define TRACKER_SMOOTHED stjpdacf_smoothed
+#endif
 
 #ifndef FRAMES_FILE
 #error "define FRAMES_FILE as the quoted path of a .stjf file"
@@ -107,7 +123,7 @@ static void flush(void) {
 }
 
 /* ---- the tracker ---- */
-static _Alignas(STJPDACF_TRACKER_ALIGN) unsigned char memory[STJPDACF_TRACKER_SIZE];
+static _Alignas(STJPDACF_TRACKER_ALIGN) unsigned char memory[TRACKER_SIZE];
 static float points[2 * STJPDACF_MAX_POINTS];
 static stjpdacf_lane lanes[STJPDACF_MAX_LANES];
 
@@ -157,9 +173,9 @@ static uint32_t stack_used(void) {
 }
 
 static int run(void) {
-    stjpdacf_tracker *t = NULL;
-    stjpdacf_status st = stjpdacf_init(memory, sizeof memory, &t);
-    if (st != STJPDACF_OK) fail("stjpdacf_init", st);
+    struct TRACKER *t = NULL;
+    stjpdacf_status st = TRACKER_INIT(memory, sizeof memory, &t);
+    if (st != STJPDACF_OK) fail("init", st);
     const uint8_t *f = frames_start;
     uint32_t k = 0;
     while (f < frames_end) {
@@ -168,12 +184,12 @@ static int run(void) {
                                    &info);
         if (st != STJPDACF_OK) fail("stjpdacf_decode_frame", st);
         stjpdacf_report rep;
-        st = stjpdacf_step(t, info.time_us, points, info.count, lanes, STJPDACF_MAX_LANES, &rep);
-        if (st < 0) fail("stjpdacf_step", st);
+        st = TRACKER_STEP(t, info.time_us, points, info.count, lanes, STJPDACF_MAX_LANES, &rep);
+        if (st < 0) fail("step", st);
         for (uint32_t i = 0; i < rep.filtered_lanes; i++) print_lane("F", k, &lanes[i]);
         size_t n = 0;
-        st = stjpdacf_smoothed(t, lanes, STJPDACF_MAX_LANES, &n);
-        if (st != STJPDACF_OK) fail("stjpdacf_smoothed", st);
+        st = TRACKER_SMOOTHED(t, lanes, STJPDACF_MAX_LANES, &n);
+        if (st != STJPDACF_OK) fail("smoothed", st);
         for (size_t i = 0; i < n; i++) print_lane("S", k, &lanes[i]);
         f += info.len;
         k++;
