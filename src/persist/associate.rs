@@ -419,15 +419,21 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                     *iv += om * zt * cj;
                     *o = om * cj;
                 }
-                // J is column-major: column k holds (om c_j) c_k down j.
-                for (col, ck) in
-                    e.j.as_mut_slice()
-                        .chunks_exact_mut(RANK)
-                        .zip(at.c.iter())
-                        .take(ru)
-                {
-                    for (jv, o) in col.iter_mut().zip(oc.iter()).take(ru) {
-                        *jv += o * ck;
+                // J is column-major: column k holds (om c_j) c_k down j. Each entry is its own
+                // sum, so the fixed trip counts at `ru = RANK` (a tracker compiled at its
+                // model's rank) give the same bits, unrolled.
+                let cols = e.j.as_mut_slice().chunks_exact_mut(RANK).zip(at.c.iter());
+                if ru >= RANK {
+                    for (col, ck) in cols {
+                        for (jv, o) in col.iter_mut().zip(oc.iter()) {
+                            *jv += o * ck;
+                        }
+                    }
+                } else {
+                    for (col, ck) in cols.take(ru) {
+                        for (jv, o) in col.iter_mut().zip(oc.iter()).take(ru) {
+                            *jv += o * ck;
+                        }
                     }
                 }
                 e.weight += w;

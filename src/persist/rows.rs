@@ -253,6 +253,10 @@ impl<const RANK: usize> OwnBlock<RANK> {
 
     /// `cᵀ a_s` over the first `r` components ([`mean_at`]).
     pub(super) fn mean(&self, c: &[f32; RANK], r: usize) -> f32 {
+        if r >= RANK {
+            // As in `quad`: the same terms, fixed trip count.
+            return c.iter().zip(self.a.iter()).map(|(cj, aj)| cj * aj).sum();
+        }
         c.iter()
             .zip(self.a.iter())
             .take(r)
@@ -263,6 +267,16 @@ impl<const RANK: usize> OwnBlock<RANK> {
     /// `cᵀ P[a_s, a_s] c` over the first `r` components ([`quad`]`(s, s)`): `r²`
     /// multiply-adds.
     pub(super) fn quad(&self, c: &[f32; RANK], r: usize) -> f32 {
+        if r >= RANK {
+            // The same terms in the same order with fixed trip counts (a tracker compiled at
+            // its model's rank, e.g. `Rank4Tracker`): unrolled.
+            let mut acc = 0.0;
+            for (cj, col) in c.iter().zip(self.p.iter()) {
+                let inner: f32 = col.iter().zip(c.iter()).map(|(pv, ck)| pv * ck).sum();
+                acc += cj * inner;
+            }
+            return acc;
+        }
         let mut acc = 0.0;
         for (cj, col) in c.iter().zip(self.p.iter()).take(r) {
             let inner: f32 = col

@@ -190,7 +190,6 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     ///
     /// # Complexity
     /// `O(r³)` (three `r×r` factorisations and products) plus `G` (`n_act·r`).
-    #[allow(non_snake_case)]
     #[inline(never)]
     pub(crate) fn prepare_info_update<const NT: usize>(
         &self,
@@ -204,6 +203,26 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
             return Err(TemporalError::BadSlot);
         }
         let r = Self::r_used(tables);
+        // The same code with `r` a constant where it is the capacity (a tracker compiled at its
+        // model's rank): fixed trip counts, the same operations in the same order.
+        if r >= RANK {
+            self.prepare_info_update_r(RANK, s, jm, iv, parts)
+        } else {
+            self.prepare_info_update_r(r, s, jm, iv, parts)
+        }
+    }
+
+    /// [`Self::prepare_info_update`] over the first `r` components.
+    #[allow(non_snake_case)]
+    #[inline(always)]
+    fn prepare_info_update_r(
+        &self,
+        r: usize,
+        s: usize,
+        jm: &SMatrix<f32, RANK, RANK>,
+        iv: &SVector<f32, RANK>,
+        parts: &mut UpdateParts<RANK, NX>,
+    ) -> Result<(), TemporalError> {
         let jr = |j: usize, k: usize| {
             if j < r && k < r {
                 jm.get((j, k)).copied().unwrap_or(0.0)
