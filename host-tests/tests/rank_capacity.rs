@@ -19,7 +19,7 @@ use stjpdacf::persist::PersistConfig;
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::{
-    Instant, LaneEstimate, Rank4Tracker, ReferenceTracker, Tracker, TrackerConfig,
+    Instant, LaneEstimate, Rank3Tracker, Rank4Tracker, ReferenceTracker, TrackerConfig,
 };
 use stjpdacf_tools::fwscenario::{scenarios, STEP_US};
 
@@ -76,8 +76,6 @@ fn lbp() -> TrackerConfig {
     }
 }
 
-type Rank3 = Tracker<2, 3, 6, 16, 64, 16, 256, 3, 36, 18, 4>;
-
 /// Compares two runs frame by frame; returns the lanes compared.
 fn same(
     label: &str,
@@ -111,7 +109,7 @@ fn rank_capacity_changes_no_published_bit() {
         "size_of: ReferenceTracker {} B, Rank4Tracker {} B, rank 3 {} B",
         std::mem::size_of::<ReferenceTracker>(),
         std::mem::size_of::<Rank4Tracker>(),
-        std::mem::size_of::<Rank3>()
+        std::mem::size_of::<Rank3Tracker>()
     );
     for s in scenarios().unwrap() {
         for (name, tables, cfg, rank) in cases {
@@ -119,7 +117,7 @@ fn rank_capacity_changes_no_published_bit() {
             let reference = run!(ReferenceTracker, tables, cfg, s.frames);
             let compact = match rank {
                 4 => run!(Rank4Tracker, tables, cfg, s.frames),
-                _ => run!(Rank3, tables, cfg, s.frames),
+                _ => run!(Rank3Tracker, tables, cfg, s.frames),
             };
             let lanes = same(&label, &reference, &compact);
             // The comparison has something to compare: lanes are published in these scenes.

@@ -129,6 +129,13 @@ pub type ReferenceTracker = Tracker<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>;
 /// same tables truncated to rank 4 (host test `rank_capacity`).
 pub type Rank4Tracker = Tracker<2, 3, 6, 16, 64, 16, 256, 4, 48, 24, 4>;
 
+/// The reference configuration compiled for Gram rank 3 (`RANK` = 3, `NX` = 36, `NA` = 18): with
+/// [`crate::tables::UNCOUPLED`] and LBP on every known-lane row, the model measured under the
+/// 1 M-instruction typical frame on the Cortex-M4F (docs/measurements.md "Fitting the MCU"), at
+/// a further accuracy cost against [`Rank4Tracker`]'s. Bit for bit [`ReferenceTracker`] on the
+/// same tables truncated to rank 3 (host test `rank_capacity`).
+pub type Rank3Tracker = Tracker<2, 3, 6, 16, 64, 16, 256, 3, 36, 18, 4>;
+
 /// An `impl` block of [`Tracker`] over all its parameters: the eleven-parameter header is written
 /// once, here, for the files of this module (`impl_tracker! { fn … }`).
 macro_rules! impl_tracker {

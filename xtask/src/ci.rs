@@ -225,6 +225,17 @@ pub fn run() -> Result<()> {
         budget: Some(crate::firmware::fw_dir().join("budget-mcu.json")),
     })?;
 
+    step("firmware: the model that meets the typical 1 M target (the smallest model at Gram rank 3, compiled at rank 3), check bench/firmware/budget-rank3.json");
+    crate::firmware::run(crate::firmware::RunArgs {
+        json: Some(crate::firmware::fw_dir().join("target/report-rank3.json")),
+        check: true,
+        update_budget: false,
+        qemu_ram: false,
+        timeout: 300,
+        no_build: false,
+        budget: Some(crate::firmware::fw_dir().join("budget-rank3.json")),
+    })?;
+
     step("firmware: no-panic proof");
     crate::firmware::nopanic()?;
 
