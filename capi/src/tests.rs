@@ -293,21 +293,71 @@ fn decode_maps_every_wire_error() {
     }
 }
 
-#[test]
-fn lanes_match_the_rust_tracker() {
+/// One frame of a Rust tracker, as the C API should give it back.
+struct Want {
+    filtered: Vec<stjpdacf_lane>,
+    smoothed: Vec<stjpdacf_lane>,
+    report: StepReport,
+    /// `lane_at(slot, 30 m)` of each filtered lane.
+    at_30: Vec<Option<(f32, f32)>>,
+}
+
+/// A Rust tracker's step on `two_lanes`, as a [`Want`].
+macro_rules! want_of {
+    ($rust:expr, $time:expr, $pairs:expr) => {{
+        let out = $rust.step(Instant::from_micros($time), $pairs).unwrap();
+        Want {
+            filtered: out.filtered.iter().map(stjpdacf_lane::from).collect(),
+            smoothed: out.smoothed.iter().map(stjpdacf_lane::from).collect(),
+            report: out.report,
+            at_30: out
+                .filtered
+                .iter()
+                .map(|r| $rust.lane_at(usize::from(r.slot), 30.0))
+                .collect(),
+        }
+    }};
+}
+
+/// The C entry points of one model.
+struct Entry<H> {
+    step: unsafe extern "C" fn(
+        *mut H,
+        i64,
+        *const f32,
+        usize,
+        *mut stjpdacf_lane,
+        usize,
+        *mut stjpdacf_report,
+    ) -> stjpdacf_status,
+    filtered:
+        unsafe extern "C" fn(*const H, *mut stjpdacf_lane, usize, *mut usize) -> stjpdacf_status,
+    smoothed:
+        unsafe extern "C" fn(*const H, *mut stjpdacf_lane, usize, *mut usize) -> stjpdacf_status,
+    lane_at: unsafe extern "C" fn(*const H, u32, f32, *mut f32, *mut f32) -> stjpdacf_status,
+}
+
+/// Steps the C tracker `t` through 8 frames of `two_lanes` and checks every frame against
+/// `rust` (the same model's Rust tracker, stepped by the closure): the step's lanes and report,
+/// the filtered and smoothed read-outs and `lane_at` at 30 m. Returns the last report and the
+/// lanes published over the run.
+fn lanes_match<H>(
+    t: *mut H,
+    api: &Entry<H>,
+    mut rust: impl FnMut(i64, &[[f32; 2]]) -> Want,
+) -> (stjpdacf_report, usize) {
     let pts = two_lanes();
     let pairs: Vec<[f32; 2]> = pts.chunks(2).map(|c| [c[0], c[1]]).collect();
-    let mut rust = Box::new(ReferenceTracker::new(&DEFAULT));
-    let mut buf = buffer();
-    let t = init(&mut buf);
-    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
     let mut rep = zero_report();
+    let mut published = 0;
     for k in 0..8i64 {
         let time = k * 50_000;
-        let want = rust.step(Instant::from_micros(time), &pairs).unwrap();
-        // SAFETY: `t` from `init`; the arrays are valid for their sizes.
+        let want = rust(time, &pairs);
+        let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
+        // SAFETY: `t` is an initialised tracker of this model; the arrays are valid for their
+        // sizes.
         let st = unsafe {
-            stjpdacf_step(
+            (api.step)(
                 t,
                 time,
                 pts.as_ptr(),
@@ -326,24 +376,46 @@ fn lanes_match_the_rust_tracker() {
                 step: want.report,
             }
         );
-        for (c, r) in lanes.iter().zip(&want.filtered) {
-            assert_eq!(*c, stjpdacf_lane::from(r));
-            let (mut x, mut var) = (0.0, 0.0);
-            // SAFETY: as above.
-            let st = unsafe { stjpdacf_lane_at(t, c.slot, 30.0, &mut x, &mut var) };
-            assert_eq!(st, STJPDACF_OK);
-            assert_eq!(Some((x, var)), rust.lane_at(usize::from(r.slot), 30.0));
-        }
-        let mut sm = [NO_LANE; STJPDACF_MAX_LANES];
+        assert_eq!(&lanes[..want.filtered.len()], &want.filtered[..]);
+        let mut got = [NO_LANE; STJPDACF_MAX_LANES];
         let mut n = 0;
         // SAFETY: as above.
-        let st = unsafe { stjpdacf_smoothed(t, sm.as_mut_ptr(), sm.len(), &mut n) };
+        let st = unsafe { (api.filtered)(t, got.as_mut_ptr(), got.len(), &mut n) };
         assert_eq!(st, STJPDACF_OK);
-        assert_eq!(n, want.smoothed.len());
-        for (c, r) in sm.iter().zip(&want.smoothed) {
-            assert_eq!(*c, stjpdacf_lane::from(r));
+        assert_eq!(&got[..n], &want.filtered[..]);
+        for (c, at) in want.filtered.iter().zip(&want.at_30) {
+            let (mut x, mut var) = (0.0, 0.0);
+            // SAFETY: as above.
+            let st = unsafe { (api.lane_at)(t, c.slot, 30.0, &mut x, &mut var) };
+            assert_eq!(st, STJPDACF_OK);
+            assert_eq!(Some((x, var)), *at);
+            published += 1;
         }
+        let mut sm = [NO_LANE; STJPDACF_MAX_LANES];
+        // SAFETY: as above.
+        let st = unsafe { (api.smoothed)(t, sm.as_mut_ptr(), sm.len(), &mut n) };
+        assert_eq!(st, STJPDACF_OK);
+        assert_eq!(&sm[..n], &want.smoothed[..]);
     }
+    (rep, published)
+}
+
+/// The reference model through the C API equals `ReferenceTracker` on the default tables,
+/// frame by frame.
+#[test]
+fn lanes_match_the_rust_tracker() {
+    let mut rust = Box::new(ReferenceTracker::new(&DEFAULT));
+    let mut buf = buffer();
+    let api = Entry {
+        step: stjpdacf_step,
+        filtered: stjpdacf_filtered,
+        smoothed: stjpdacf_smoothed,
+        lane_at: stjpdacf_lane_at,
+    };
+    let (rep, published) = lanes_match(init(&mut buf), &api, |time, pairs| {
+        want_of!(rust, time, pairs)
+    });
+    assert!(published >= 8, "lanes were published ({published})");
     assert_eq!(
         rep.smoothed_lanes, 2,
         "the smoother window is full after 5 frames"
@@ -439,8 +511,6 @@ fn small_init_and_readouts_reject_bad_arguments() {
 /// every row, frame by frame: filtered and smoothed lanes, the report and the GP read-out.
 #[test]
 fn small_lanes_match_the_rust_tracker() {
-    let pts = two_lanes();
-    let pairs: Vec<[f32; 2]> = pts.chunks(2).map(|c| [c[0], c[1]]).collect();
     let mut rust = Box::new(Rank4Tracker::with_config(&UNCOUPLED, SMALL_CONFIG));
     let mut buf = vec![0u64; STJPDACF_SMALL_TRACKER_SIZE / 8 + 1];
     let mut t = null_mut();
@@ -449,53 +519,13 @@ fn small_lanes_match_the_rust_tracker() {
         stjpdacf_small_init(buf.as_mut_ptr().cast(), STJPDACF_SMALL_TRACKER_SIZE, &mut t)
     };
     assert_eq!(st, STJPDACF_OK);
-    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
-    let mut rep = zero_report();
-    let mut published = 0;
-    for k in 0..8i64 {
-        let time = k * 50_000;
-        let want = rust.step(Instant::from_micros(time), &pairs).unwrap();
-        // SAFETY: `t` from `stjpdacf_small_init`; the arrays are valid for their sizes.
-        let st = unsafe {
-            stjpdacf_small_step(
-                t,
-                time,
-                pts.as_ptr(),
-                pairs.len(),
-                lanes.as_mut_ptr(),
-                lanes.len(),
-                &mut rep,
-            )
-        };
-        assert_eq!(st, STJPDACF_OK);
-        assert_eq!(rep.filtered_lanes as usize, want.filtered.len());
-        assert_eq!(rep.smoothed_lanes as usize, want.smoothed.len());
-        assert_eq!(rep.step, want.report);
-        let mut got = [NO_LANE; STJPDACF_MAX_LANES];
-        let mut n = 0;
-        // SAFETY: as above.
-        let st = unsafe { stjpdacf_small_filtered(t, got.as_mut_ptr(), got.len(), &mut n) };
-        assert_eq!(st, STJPDACF_OK);
-        assert_eq!(n, want.filtered.len());
-        for ((c, g), r) in lanes.iter().zip(&got).zip(&want.filtered) {
-            assert_eq!(*c, stjpdacf_lane::from(r));
-            assert_eq!(*g, *c);
-            let (mut x, mut var) = (0.0, 0.0);
-            // SAFETY: as above.
-            let st = unsafe { stjpdacf_small_lane_at(t, c.slot, 30.0, &mut x, &mut var) };
-            assert_eq!(st, STJPDACF_OK);
-            assert_eq!(Some((x, var)), rust.lane_at(usize::from(r.slot), 30.0));
-            published += 1;
-        }
-        let mut sm = [NO_LANE; STJPDACF_MAX_LANES];
-        // SAFETY: as above.
-        let st = unsafe { stjpdacf_small_smoothed(t, sm.as_mut_ptr(), sm.len(), &mut n) };
-        assert_eq!(st, STJPDACF_OK);
-        assert_eq!(n, want.smoothed.len());
-        for (c, r) in sm.iter().zip(&want.smoothed) {
-            assert_eq!(*c, stjpdacf_lane::from(r));
-        }
-    }
+    let api = Entry {
+        step: stjpdacf_small_step,
+        filtered: stjpdacf_small_filtered,
+        smoothed: stjpdacf_small_smoothed,
+        lane_at: stjpdacf_small_lane_at,
+    };
+    let (rep, published) = lanes_match(t, &api, |time, pairs| want_of!(rust, time, pairs));
     assert!(published >= 8, "lanes were published ({published})");
     // `stjpdacf_model_info` describes both models: the same window and index points.
     assert_eq!(UNCOUPLED.index_u, DEFAULT.index_u);

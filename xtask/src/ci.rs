@@ -203,38 +203,34 @@ pub fn run() -> Result<()> {
         &["clippy", "--release", "--bins", "--", "-D", "warnings"],
     )?;
 
-    step("firmware: build, run every binary under QEMU, check bench/firmware/budget.json");
-    crate::firmware::run(crate::firmware::RunArgs {
-        json: None,
-        check: true,
-        update_budget: false,
-        qemu_ram: false,
-        timeout: 300,
-        no_build: false,
-        budget: None,
-    })?;
-
-    step("firmware: the smallest measured model (uncoupled B, LBP on every row, Gram rank 4, compiled at rank 4), check bench/firmware/budget-mcu.json");
-    crate::firmware::run(crate::firmware::RunArgs {
-        json: Some(crate::firmware::fw_dir().join("target/report-mcu.json")),
-        check: true,
-        update_budget: false,
-        qemu_ram: false,
-        timeout: 300,
-        no_build: false,
-        budget: Some(crate::firmware::fw_dir().join("budget-mcu.json")),
-    })?;
-
-    step("firmware: the model that meets the typical 1 M target (the smallest model at Gram rank 3, compiled at rank 3), check bench/firmware/budget-rank3.json");
-    crate::firmware::run(crate::firmware::RunArgs {
-        json: Some(crate::firmware::fw_dir().join("target/report-rank3.json")),
-        check: true,
-        update_budget: false,
-        qemu_ram: false,
-        timeout: 300,
-        no_build: false,
-        budget: Some(crate::firmware::fw_dir().join("budget-rank3.json")),
-    })?;
+    // Each budget records the model it was measured with (tables, association, rank, capacity);
+    // `firmware::run` builds that model for its check.
+    let budgets: [(&str, Option<(&str, &str)>); 3] = [
+        ("the default model, check bench/firmware/budget.json", None),
+        (
+            "the smallest measured model (uncoupled B, LBP on every row, Gram rank 4, compiled at rank 4), check bench/firmware/budget-mcu.json",
+            Some(("budget-mcu.json", "target/report-mcu.json")),
+        ),
+        (
+            "the model that meets the typical 1 M target (the smallest model at Gram rank 3, compiled at rank 3), check bench/firmware/budget-rank3.json",
+            Some(("budget-rank3.json", "target/report-rank3.json")),
+        ),
+    ];
+    for (what, files) in budgets {
+        step(&format!(
+            "firmware: build, run every binary under QEMU: {what}"
+        ));
+        let dir = crate::firmware::fw_dir();
+        crate::firmware::run(crate::firmware::RunArgs {
+            json: files.map(|(_, report)| dir.join(report)),
+            check: true,
+            update_budget: false,
+            qemu_ram: false,
+            timeout: 300,
+            no_build: false,
+            budget: files.map(|(budget, _)| dir.join(budget)),
+        })?;
+    }
 
     step("firmware: no-panic proof");
     crate::firmware::nopanic()?;
