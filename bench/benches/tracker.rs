@@ -18,7 +18,8 @@
 //! * `tracker_step_typical` — core (also with the counting and the timing probe: the probe's
 //!   overhead) and reference, step + fixed-lag output; every sequence also runs the core on the
 //!   uncoupled tables (`core_f32_uncoupled`) and the smallest model (`core_f32_smallest_rank4`:
-//!   uncoupled tables, LBP on every known-lane row, `Rank4Tracker`);
+//!   uncoupled tables, LBP on every known-lane row, `Rank4Tracker`; `core_f32_smallest_rank3`:
+//!   the same in `Rank3Tracker`);
 //! * `tracker_step_worst_6lanes_256points` — core and reference;
 //! * `tracker_step_adversarial_256points` — core only (its rows exceed E: the reference would
 //!   enumerate every event of them);
@@ -46,7 +47,7 @@ use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::smoother::Temporal;
-use stjpdacf::tracker::{Rank4Tracker, ReferenceTracker, TrackerConfig};
+use stjpdacf::tracker::{Rank3Tracker, Rank4Tracker, ReferenceTracker, TrackerConfig};
 use stjpdacf_bench::cputime::{self, ThreadCpuTime};
 use stjpdacf_bench::harness::Driver;
 use stjpdacf_bench::inputs::{self, Frame, STEP_US};
@@ -323,6 +324,22 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         smallest.warm_up(frames, WARM);
         g.bench_function("core_f32_smallest_rank4", |b| {
             b.iter(|| black_box(smallest.step(frames, &mut NoProbe)))
+        });
+        // The same at Gram rank 3 (`Rank3Tracker`): the model that meets the MCU's typical
+        // 1 M-instruction frame.
+        let mut rank3 = Driver::new(Box::new(Rank3Tracker::with_config(
+            &UNCOUPLED,
+            TrackerConfig {
+                persist: PersistConfig {
+                    association: Association::Lbp,
+                    ..PersistConfig::DEFAULT
+                },
+                ..TrackerConfig::DEFAULT
+            },
+        )));
+        rank3.warm_up(frames, WARM);
+        g.bench_function("core_f32_smallest_rank3", |b| {
+            b.iter(|| black_box(rank3.step(frames, &mut NoProbe)))
         });
         if name == "typical" {
             g.bench_function("core_f32_count_probe", |b| {
