@@ -27,7 +27,7 @@
 
 // Bytes of the tracker buffer (at least `sizeof` of the tracker on every supported target:
 // checked at compile time).
-#define STJPDACF_TRACKER_SIZE 155480
+#define STJPDACF_TRACKER_SIZE 155496
 
 // Alignment of the tracker buffer, bytes.
 #define STJPDACF_TRACKER_ALIGN 8
@@ -35,7 +35,7 @@
 // Bytes of the small model's tracker buffer (`stjpdacf_small_init`; at least `sizeof` of its
 // tracker on every supported target: checked at compile time). Aligned as
 // `STJPDACF_TRACKER_ALIGN`.
-#define STJPDACF_SMALL_TRACKER_SIZE 93224
+#define STJPDACF_SMALL_TRACKER_SIZE 93240
 
 // Number of stages.
 #define Stage_COUNT 13
@@ -98,6 +98,13 @@ typedef int32_t stjpdacf_status;
 // How [`associate`] weighs a row's joint events (the known-lane stage, docs/design.md §11.3;
 // the spatial row step always enumerates).
 typedef struct Association Association;
+
+// A lane's rows as a two-state chain, paint and gap (docs/design.md §11.5): on paint a row
+// detects the marking with probability `p_on`, in a gap not at all; painted stretches and gaps
+// have mean lengths `paint` and `gap` metres (exponential), so that hits in runs count fully
+// and an isolated hit pays for a switch onto paint. The rows' likelihood ratio against "its
+// gated points are clutter or other lanes'" is the forward recursion's total.
+typedef struct PaintGap PaintGap;
 
 // The small model's tracker (opaque to C): [`Rank4Tracker`] on the uncoupled tables with LBP on
 // every known-lane row, and the lanes of the last frame.
@@ -300,6 +307,8 @@ typedef struct stjpdacf_frame_info {
   // Bytes the frame took (the next frame starts there).
   size_t len;
 } stjpdacf_frame_info;
+
+
 
 
 

@@ -20,7 +20,9 @@ use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use stjpdacf::persist::{self, Evidence, Explained, Lanes, Pass, PassMemory, Persist, RowBasis};
+use stjpdacf::persist::{
+    self, Evidence, Explained, Lanes, PaintGap, Pass, PassMemory, Persist, RowBasis,
+};
 use stjpdacf::probe::NoProbe;
 use stjpdacf::spatial::row::{MissModel, RowParams};
 use stjpdacf::tables::{Tables, DEFAULT, UNCOUPLED};
@@ -495,11 +497,13 @@ struct PassDev {
 fn compare_pass(
     (tables, hyper): (&'static Tables<2, LANES, POINTS>, &str),
     (seed, warmup, clutter, restrict): (u64, usize, f64, bool),
+    paint_gap: Option<PaintGap>,
     dev: &mut PassDev,
 ) {
     let m = model_of(hyper);
     let r = rank_used(&m);
-    let cfg = TrackerConfig::DEFAULT;
+    let mut cfg = TrackerConfig::DEFAULT;
+    cfg.persist.paint_gap = paint_gap;
     let mut tracker = Box::new(ReferenceTracker::new(tables));
     let dt_us = 50_000i64;
     for k in 0..warmup {
@@ -635,6 +639,12 @@ fn compare_pass(
             },
             explained: f64::from(pcfg.explained),
         },
+        paint_gap: paint_gap.map(|c| refp::PaintGap {
+            p_on: f64::from(c.p_on),
+            paint: f64::from(c.paint),
+            gap: f64::from(c.gap),
+            du: f64::from(pass.du),
+        }),
     };
     let want = refp::known_lane_pass(&m, &input)
         .unwrap_or_else(|e| panic!("seed {seed}: reference pass: {e:#}"));
@@ -805,7 +815,11 @@ fn known_lane_pass_matches_the_reference() {
             (3, 8, 0.05, false),
             (4, 5, 0.05, true),
         ] {
-            compare_pass(model, case, &mut dev);
+            // The existence evidence of the design's default (1/K Σ_r ln Λ_r) and of the
+            // paint / gap chain (§11.5).
+            for paint_gap in [None, Some(PaintGap::HIGHWAY)] {
+                compare_pass(model, case, paint_gap, &mut dev);
+            }
         }
     }
     assert!(

@@ -185,6 +185,21 @@ pub struct PassParams {
     pub explained: f64,
 }
 
+/// The paint / gap chain of a lane's rows for its existence evidence (docs/design.md §11.5):
+/// on paint a row detects the marking with probability `p_on`, in a gap not at all; paint and
+/// gap stretches of mean lengths `paint` and `gap` metres; rows `du` metres apart.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PaintGap {
+    /// Detection probability of a row on paint.
+    pub p_on: f64,
+    /// Mean length of a painted stretch, m.
+    pub paint: f64,
+    /// Mean length of a gap, m.
+    pub gap: f64,
+    /// Row spacing, m.
+    pub du: f64,
+}
+
 /// Everything [`known_lane_pass`] reads.
 #[derive(Debug, Clone, Copy)]
 pub struct PassInput<'a> {
@@ -201,6 +216,9 @@ pub struct PassInput<'a> {
     pub bands: &'a [Band],
     /// Association constants.
     pub params: PassParams,
+    /// `None`: the lanes' `llr` is `Σ_r ln Λ_r` at their `P_D,b`; `Some`: the log-likelihood
+    /// ratio of their rows in view under the paint / gap chain (§11.5).
+    pub paint_gap: Option<PaintGap>,
 }
 
 /// One lane in one row of the pass.
@@ -330,6 +348,22 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             rows: Vec::new(),
         })
         .collect();
+    // The chain (§11.5) in the log domain: per lane `[ln α_paint, ln α_gap]`, from the stationary
+    // shares; one transition and one emission per row in view.
+    let chain = input.paint_gap.map(|c| {
+        let to_off = (c.du / c.paint).min(0.95);
+        let to_on = (c.du / c.gap).min(0.95);
+        let pi_on = c.paint / (c.paint + c.gap);
+        (c.p_on, to_off, to_on, pi_on)
+    });
+    let lse = |a: f64, b: f64| {
+        let m = a.max(b);
+        m + ((a - m).exp() + (b - m).exp()).ln()
+    };
+    let mut alpha: Vec<[f64; 2]> = match chain {
+        Some((_, _, _, pi_on)) => vec![[pi_on.ln(), (1.0 - pi_on).ln()]; n],
+        None => Vec::new(),
+    };
     let mut explained = Vec::with_capacity(input.rows.len());
     let mut beta_sum = Vec::with_capacity(input.rows.len());
     for (ri, row) in input.rows.iter().enumerate() {
@@ -426,7 +460,18 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
                 ev.weight += w;
             }
             if in_view {
-                ev.llr += log_lr;
+                match chain {
+                    None => ev.llr += log_lr,
+                    Some((p_on, to_off, to_on, _)) => {
+                        let on_lr =
+                            log_likelihood_ratio(p_on, prm.pg, band.clutter, gated_likelihood);
+                        let [on, off] = alpha[s];
+                        alpha[s] = [
+                            lse(on + (1.0 - to_off).ln(), off + to_on.ln()) + on_lr,
+                            lse(on + to_off.ln(), off + (1.0 - to_on).ln()),
+                        ];
+                    }
+                }
             }
             ev.rows.push(LaneRow {
                 row: ri,
@@ -447,6 +492,9 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
         }
         explained.push(sums.iter().map(|&b| b >= prm.explained).collect());
         beta_sum.push(sums);
+    }
+    for (ev, a) in lanes.iter_mut().zip(&alpha) {
+        ev.llr = lse(a[0], a[1]);
     }
     Ok(PassOutput {
         lanes,

@@ -9,7 +9,7 @@ use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 
 use super::rows::{band, quad, PassMemory, RowBasis};
-use super::{Evidence, Pass, PassCounts, Persist, PersistConfig};
+use super::{ChainRates, Evidence, Pass, PassCounts, Persist, PersistConfig};
 
 /// The rows' points a known lane explains, per row (bit `j` = point `j`).
 pub type Explained<const ROWS: usize> = [u32; ROWS];
@@ -39,6 +39,8 @@ struct RowAt<const RANK: usize> {
     r: usize,
     b: usize,
     u: f32,
+    /// The paint / gap chain's constants when it scores the existence evidence.
+    chain: Option<ChainRates>,
     c: [f32; RANK],
     r_used: usize,
     params: RowParams,
@@ -208,6 +210,15 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             tables.coreg.get((a, b)).copied().unwrap_or(0.0)
         };
         let uncoupled = filter.uncoupled();
+        // The paint / gap chain (§11.5): every lane of the pass starts at its stationary share.
+        let chain = cfg.paint_gap.and_then(|c| c.rates(pass.du));
+        if let Some(c) = chain {
+            for &s in slot.iter().take(n) {
+                if let Some(e) = ev.get_mut(s) {
+                    e.chain = [c.pi_on, 1.0 - c.pi_on];
+                }
+            }
+        }
         // Each lane's own block, read once for all rows.
         mem.load(filter, lanes.slots, r_used);
         let mut unexplained = [0.0f32; POINTS];
@@ -258,6 +269,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 r,
                 b,
                 u,
+                chain,
                 c,
                 r_used,
                 params: RowParams {
@@ -390,9 +402,25 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         // IPDA likelihood ratio of the row, each gated point against clutter and the other
         // lanes' detections ([`joint_density`]).
         let lambda = at.params.clutter_density;
-        let lr = 1.0 - pd * at.params.pg + pd * get(&out.dens, a) / lambda;
-        if in_view && lr.is_finite() && lr > 0.0 {
-            e.llr += math::ln(lr);
+        if let Some(c) = at.chain {
+            // One forward step of the paint / gap chain: on paint the row's ratio at `p_on`, in
+            // a gap 1 (no detection expected); normalised, the scale into `llr`.
+            if in_view {
+                let lr_on = 1.0 - c.p_on * at.params.pg + c.p_on * get(&out.dens, a) / lambda;
+                let [on, off] = e.chain;
+                let a_on = (on * (1.0 - c.to_off) + off * c.to_on) * lr_on;
+                let a_off = on * c.to_off + off * (1.0 - c.to_on);
+                let sum = a_on + a_off;
+                if sum.is_finite() && sum > 0.0 {
+                    e.chain = [a_on / sum, a_off / sum];
+                    e.llr += math::ln(sum);
+                }
+            }
+        } else {
+            let lr = 1.0 - pd * at.params.pg + pd * get(&out.dens, a) / lambda;
+            if in_view && lr.is_finite() && lr > 0.0 {
+                e.llr += math::ln(lr);
+            }
         }
         if let Some(rw) = self.rows.get_mut(s).and_then(|rs| rs.get_mut(r)) {
             *rw = [0.0; 2];

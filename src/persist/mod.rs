@@ -128,6 +128,71 @@ pub struct PersistConfig {
     /// a transient mis-association; chosen on the replay's robustness curve and the soak's
     /// drives, docs/design.md §11.11).
     pub connector_frames: u8,
+    /// The existence evidence of a known lane's rows (docs/design.md §11.5): `None` (the
+    /// default), `(1/K) Σ_r ln Λ_r` at the lane's learned `P_D,b`, the K rows of an index
+    /// interval counted as one look; `Some`, the likelihood ratio of the rows under a paint /
+    /// gap chain along the lane ([`PaintGap`]), not discounted. Opt-in while it is measured
+    /// (docs/measurements.md, "Held-out check", stop 40).
+    pub paint_gap: Option<PaintGap>,
+}
+
+/// A lane's rows as a two-state chain, paint and gap (docs/design.md §11.5): on paint a row
+/// detects the marking with probability `p_on`, in a gap not at all; painted stretches and gaps
+/// have mean lengths `paint` and `gap` metres (exponential), so that hits in runs count fully
+/// and an isolated hit pays for a switch onto paint. The rows' likelihood ratio against "its
+/// gated points are clutter or other lanes'" is the forward recursion's total.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PaintGap {
+    /// Detection probability of a row on paint.
+    pub p_on: f32,
+    /// Mean length of a painted stretch, m.
+    pub paint: f32,
+    /// Mean length of a gap, m.
+    pub gap: f32,
+}
+
+impl PaintGap {
+    /// US highway dashes, 10 ft of paint and 30 ft of gap (3 m / 9 m, 25 % paint), seen by a
+    /// detector that finds 80 % of the painted rows: the assumptions behind `pd_floor` = 0.2
+    /// (docs/design.md §11.5). A solid line is a long run of paint. Not fitted to any data.
+    pub const HIGHWAY: Self = Self {
+        p_on: 0.8,
+        paint: 3.0,
+        gap: 9.0,
+    };
+
+    /// The chain's per-row constants for rows `du` metres apart, or `None` when a parameter is
+    /// not a finite positive number (`p_on` in (0, 1]): the pass then uses the per-interval
+    /// evidence.
+    pub fn rates(&self, du: f32) -> Option<ChainRates> {
+        let ok = |v: f32| v.is_finite() && v > 0.0;
+        if !(ok(self.p_on) && self.p_on <= 1.0 && ok(self.paint) && ok(self.gap) && ok(du)) {
+            return None;
+        }
+        let to_off = (du / self.paint).min(0.95);
+        let to_on = (du / self.gap).min(0.95);
+        Some(ChainRates {
+            p_on: self.p_on,
+            to_off,
+            to_on,
+            pi_on: self.paint / (self.paint + self.gap),
+        })
+    }
+}
+
+/// [`PaintGap`]'s per-row constants: the transition probabilities between neighbouring rows in
+/// view (`du/paint` and `du/gap`, at most 0.95) and the stationary share of paint.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChainRates {
+    /// Detection probability of a row on paint.
+    pub p_on: f32,
+    /// P(gap at the next row | paint).
+    pub to_off: f32,
+    /// P(paint at the next row | gap).
+    pub to_on: f32,
+    /// Stationary P(paint), the chain's start.
+    pub pi_on: f32,
 }
 
 impl PersistConfig {
@@ -157,6 +222,7 @@ impl PersistConfig {
         ray_resolution: 0.5,
         connectors: true,
         connector_frames: 2,
+        paint_gap: None,
     };
 
     /// The round-1 pipeline (ablation "no temporal prior").
@@ -232,10 +298,14 @@ pub struct Evidence<const RANK: usize> {
     pub i: SVector<f32, RANK>,
     /// `Σ_r W_r` (expected detected rows).
     pub weight: f32,
-    /// `Σ_r ln Λ_r`.
+    /// `Σ_r ln Λ_r`, or with [`PersistConfig::paint_gap`] the log-likelihood ratio of the rows
+    /// under the chain.
     pub llr: f32,
     /// `u` of the first and last rows with `W_r ≥ 0.5` (`[+∞, −∞]` when none).
     pub extent: [f32; 2],
+    /// With [`PersistConfig::paint_gap`]: the chain's forward probabilities (paint, gap) after
+    /// the rows so far, normalised to sum 1 (their scale is in `llr`).
+    pub chain: [f32; 2],
 }
 
 impl<const RANK: usize> Evidence<RANK> {
@@ -246,6 +316,7 @@ impl<const RANK: usize> Evidence<RANK> {
         weight: 0.0,
         llr: 0.0,
         extent: [f32::INFINITY, f32::NEG_INFINITY],
+        chain: [0.0, 1.0],
     };
 }
 
@@ -459,5 +530,47 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     /// Clears slot `s`.
     pub fn remove(&mut self, s: usize) {
         set(&mut self.lanes, s, LaneState::NEW);
+    }
+}
+
+#[cfg(test)]
+mod paint_gap_tests {
+    use super::PaintGap;
+
+    #[test]
+    fn highway_rates_and_refused_parameters() {
+        let c = PaintGap::HIGHWAY.rates(1.5).expect("valid");
+        assert_eq!(
+            (c.p_on, c.to_off, c.to_on, c.pi_on),
+            (0.8, 0.5, 1.5 / 9.0, 0.25)
+        );
+        // Rows farther apart than a dash: the transitions are capped below 1.
+        let far = PaintGap::HIGHWAY.rates(10.0).expect("valid");
+        assert_eq!((far.to_off, far.to_on), (0.95, 0.95));
+        for bad in [
+            PaintGap {
+                p_on: 1.5,
+                ..PaintGap::HIGHWAY
+            },
+            PaintGap {
+                p_on: 0.0,
+                ..PaintGap::HIGHWAY
+            },
+            PaintGap {
+                paint: f32::NAN,
+                ..PaintGap::HIGHWAY
+            },
+            PaintGap {
+                gap: 0.0,
+                ..PaintGap::HIGHWAY
+            },
+            PaintGap {
+                gap: f32::INFINITY,
+                ..PaintGap::HIGHWAY
+            },
+        ] {
+            assert_eq!(bad.rates(1.5), None, "{bad:?}");
+        }
+        assert_eq!(PaintGap::HIGHWAY.rates(0.0), None);
     }
 }

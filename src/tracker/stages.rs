@@ -152,6 +152,12 @@ impl_tracker! {
         }
         let mut seen = 0u32;
         let k = pass.k_rows as f32;
+        let chain = self
+            .cfg
+            .persist
+            .paint_gap
+            .and_then(|c| c.rates(pass.du))
+            .is_some();
         for (s, e) in ev.iter().enumerate() {
             if live & (1 << s) == 0 {
                 continue;
@@ -170,8 +176,10 @@ impl_tracker! {
                 }
                 probe.enter(Stage::Known);
             }
+            // The chain's ratio is not discounted (§11.5): it models the runs of rows itself.
+            let looks = if chain { 1.0 } else { k };
             self.persist
-                .update_existence(s, e.llr, k, self.cfg.persist.p_visible);
+                .update_existence(s, e.llr, looks, self.cfg.persist.p_visible);
             let seen_now = e.extent[0] <= e.extent[1];
             if let Some(info) = self.info.get_mut(s) {
                 info.existence = self.persist.lanes.get(s).map_or(0.0, |l| l.existence);

@@ -156,6 +156,7 @@ impl TrackerConfig {
             ray_resolution: 0.0,
             connectors: false,
             connector_frames: 0,
+            paint_gap: None,
         },
         smoother_per_lane: false,
     };

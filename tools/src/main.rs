@@ -75,6 +75,11 @@ enum Command {
         /// input of the C example `capi/examples/track.c` (format: `track::write_points_header`).
         #[arg(long)]
         export_points: Option<PathBuf>,
+        /// Score each lane's existence with the paint / gap chain along its rows
+        /// (`PersistConfig::paint_gap = PaintGap::HIGHWAY`, docs/design.md §11.5; opt-in: more
+        /// dashed lanes found in clutter, more short-lived false lanes).
+        #[arg(long)]
+        paint_gap: bool,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -296,6 +301,7 @@ fn main() -> Result<()> {
             scale,
             space,
             export_points,
+            paint_gap,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -329,7 +335,16 @@ fn main() -> Result<()> {
                 tables,
                 &cam,
                 space,
-                stjpdacf::tracker::TrackerConfig::DEFAULT,
+                {
+                    let d = stjpdacf::tracker::TrackerConfig::DEFAULT;
+                    stjpdacf::tracker::TrackerConfig {
+                        persist: stjpdacf::persist::PersistConfig {
+                            paint_gap: paint_gap.then_some(stjpdacf::persist::PaintGap::HIGHWAY),
+                            ..d.persist
+                        },
+                        ..d
+                    }
+                },
                 |v| {
                     bar.set_position(v.index as u64 + 1);
                     let Some(w) = export.as_mut() else { return };
