@@ -13,6 +13,52 @@ const CROSS_TARGETS: [&str; 1] = ["thumbv7em-none-eabihf"];
 
 fn step(title: &str) {
     println!("\n=== {title}");
+    if let Some(free) = free_disk() {
+        println!("(disk: {:.1} GiB free)", free as f64 / GIB);
+    }
+}
+
+const GIB: f64 = 1024.0 * 1024.0 * 1024.0;
+
+/// Free bytes on the file system of the repository (`df -Pk`), `None` where `df` is missing.
+fn free_disk() -> Option<u64> {
+    let out = Command::new("df")
+        .arg("-Pk")
+        .arg(repo_root())
+        .output()
+        .ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let kib: u64 = text
+        .lines()
+        .nth(1)?
+        .split_whitespace()
+        .nth(3)?
+        .parse()
+        .ok()?;
+    Some(kib * 1024)
+}
+
+/// Removes build outputs no later step reads (paths relative to the repository root): CI
+/// builds four workspaces for three targets and three profiles, more than some CI machines'
+/// disks hold at once (stop 40's CI ran out of space in the last step). Later steps that need
+/// one of them rebuild it.
+fn reclaim(dirs: &[&str]) -> Result<()> {
+    let before = free_disk();
+    for d in dirs {
+        let p = repo_root().join(d);
+        if p.exists() {
+            std::fs::remove_dir_all(&p).with_context(|| format!("removing {}", p.display()))?;
+        }
+    }
+    if let (Some(b), Some(a)) = (before, free_disk()) {
+        println!(
+            "reclaimed {:.1} GiB ({}): {:.1} GiB free",
+            a.saturating_sub(b) as f64 / GIB,
+            dirs.join(", "),
+            a as f64 / GIB
+        );
+    }
+    Ok(())
 }
 
 /// Runs `program args…` in `dir` (relative to the repository root), with extra environment.
@@ -110,6 +156,14 @@ pub fn run() -> Result<()> {
 
     step("README command 2: tests");
     cargo(&["test", "--workspace"])?;
+    // The debug test binaries and their dependencies (`cargo doc` and the xtask binary, which
+    // is running and stays, need none of them).
+    reclaim(&[
+        "target/debug/deps",
+        "target/debug/build",
+        "target/debug/incremental",
+        "target/debug/examples",
+    ])?;
 
     step("reliability in release: soak against the f64 reference, fuzz corpora, connectors on the soak drives");
     cargo(&[
@@ -129,6 +183,7 @@ pub fn run() -> Result<()> {
 
     step("fuzz smoke: cargo-fuzz, seeded, a fixed number of executions a target");
     crate::fuzz_smoke::run(&crate::fuzz_smoke::SmokeArgs { cap: 60 })?;
+    reclaim(&["fuzz/target"])?;
 
     step("no_std core cross-builds (built alone: no feature unification)");
     for t in CROSS_TARGETS {
