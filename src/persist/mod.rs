@@ -128,11 +128,12 @@ pub struct PersistConfig {
     /// a transient mis-association; chosen on the replay's robustness curve and the soak's
     /// drives, docs/design.md §11.11).
     pub connector_frames: u8,
-    /// The existence evidence of a known lane's rows (docs/design.md §11.5): `None` (the
-    /// default), `(1/K) Σ_r ln Λ_r` at the lane's learned `P_D,b`, the K rows of an index
-    /// interval counted as one look; `Some`, the likelihood ratio of the rows under a paint /
-    /// gap chain along the lane ([`PaintGap`]), not discounted. Opt-in while it is measured
-    /// (docs/measurements.md, "Held-out check", stop 40).
+    /// The existence evidence of a known lane's rows (docs/design.md §11.5): `Some` (the
+    /// default, [`PaintGap::HIGHWAY`]), the likelihood ratio of the rows under a paint / gap
+    /// chain along the lane ([`PaintGap`]), not discounted; `None`, `(1/K) Σ_r ln Λ_r` at the
+    /// lane's learned `P_D,b`, the K rows of an index interval counted as one look (the
+    /// default until stop 41: fewer lane ids on structured clutter, fewer sparse dashed lanes
+    /// found in dense clutter; docs/measurements.md, "Held-out check").
     pub paint_gap: Option<PaintGap>,
 }
 
@@ -199,7 +200,8 @@ impl PersistConfig {
     /// The defaults: 10 frames of detection memory, 5 of clutter memory, clutter floor
     /// 0.005 /m, `τ_s` = 10 s, `P_birth` = 0.1, publish at 0.5, delete below 0.01, a point
     /// explained at 0.5, the ray test at 3σ and 0.5 m, new lanes' dash gaps of 11 rows and their
-    /// row noise scaled by 0.043 (fitted, design §11.12).
+    /// row noise scaled by 0.043 (fitted, design §11.12), the rows' existence evidence under the
+    /// highway paint / gap chain.
     pub const DEFAULT: Self = Self {
         enabled: true,
         pd_memory: 10.0,
@@ -222,7 +224,7 @@ impl PersistConfig {
         ray_resolution: 0.5,
         connectors: true,
         connector_frames: 2,
-        paint_gap: None,
+        paint_gap: Some(PaintGap::HIGHWAY),
     };
 
     /// The round-1 pipeline (ablation "no temporal prior").

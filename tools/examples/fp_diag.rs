@@ -1,6 +1,6 @@
 //! Why predictions are false positives: the replay of `stjpdacf demo` (40 bundled labels × 20
-//! frames, seed 1, coupled B, default configuration) scored on every labelled frame; each
-//! unmatched prediction is classified against the ground-truth lane it fits best:
+//! frames, seed 1, coupled B, default configuration; `FP_DIAG_INTERVAL=1`: the 1/K evidence)
+//! scored on every labelled frame; each unmatched prediction is classified against the ground-truth lane it fits best:
 //! * `spurious`: fewer than half of the rows both have are within the threshold (no marking
 //!   there: clutter, a distractor, a lane on the wrong side);
 //! * `lateral`: at least half, but fewer than 85 %, of the common rows are within the threshold
@@ -101,6 +101,12 @@ fn main() -> anyhow::Result<()> {
             .collect();
         let last: std::collections::HashSet<&str> =
             o.gt_last.iter().map(|g| g.raw_file.as_str()).collect();
+        // FP_DIAG_INTERVAL=1: the existence evidence discounted 1/K per index interval instead
+        // of the default paint / gap chain (design §11.5).
+        let mut config = TrackerConfig::DEFAULT;
+        if std::env::var("FP_DIAG_INTERVAL").is_ok_and(|v| v == "1") {
+            config.persist.paint_gap = None;
+        }
         let mut tallies = [Tally::default(), Tally::default()];
         let mut spur = Spurious::default();
         // FP_DIAG_DUMP=file: every scored frame's points, lanes and labels in BEV (JSON lines).
@@ -113,7 +119,7 @@ fn main() -> anyhow::Result<()> {
             &stjpdacf::tables::DEFAULT,
             &cam,
             Space::Image,
-            TrackerConfig::DEFAULT,
+            config,
             |v| {
                 let (Some(p), Some(out)) = (v.prediction, v.output) else {
                     return;

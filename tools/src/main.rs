@@ -75,11 +75,12 @@ enum Command {
         /// input of the C example `capi/examples/track.c` (format: `track::write_points_header`).
         #[arg(long)]
         export_points: Option<PathBuf>,
-        /// Score each lane's existence with the paint / gap chain along its rows
-        /// (`PersistConfig::paint_gap = PaintGap::HIGHWAY`, docs/design.md §11.5; opt-in: more
-        /// dashed lanes found in clutter, more short-lived false lanes).
+        /// Score each lane's existence with its rows discounted 1/K per index interval
+        /// (`PersistConfig::paint_gap = None`, docs/design.md §11.5) instead of the default paint /
+        /// gap chain along its rows: fewer lane ids on structured clutter, fewer sparse dashed
+        /// lanes found in dense clutter.
         #[arg(long)]
-        paint_gap: bool,
+        interval_evidence: bool,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -301,7 +302,7 @@ fn main() -> Result<()> {
             scale,
             space,
             export_points,
-            paint_gap,
+            interval_evidence,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -339,7 +340,11 @@ fn main() -> Result<()> {
                     let d = stjpdacf::tracker::TrackerConfig::DEFAULT;
                     stjpdacf::tracker::TrackerConfig {
                         persist: stjpdacf::persist::PersistConfig {
-                            paint_gap: paint_gap.then_some(stjpdacf::persist::PaintGap::HIGHWAY),
+                            paint_gap: if interval_evidence {
+                                None
+                            } else {
+                                d.persist.paint_gap
+                            },
                             ..d.persist
                         },
                         ..d
