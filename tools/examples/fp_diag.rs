@@ -1,6 +1,7 @@
 //! Why predictions are false positives: the replay of `stjpdacf demo` (40 bundled labels × 20
 //! frames, seed 1, coupled B, default configuration; `FP_DIAG_INTERVAL=1`: the 1/K evidence)
-//! scored on every labelled frame; each unmatched prediction is classified against the ground-truth lane it fits best:
+//! scored on every labelled frame; each unmatched prediction is classified against the
+//! ground-truth lane it fits best:
 //! * `spurious`: fewer than half of the rows both have are within the threshold (no marking
 //!   there: clutter, a distractor, a lane on the wrong side);
 //! * `lateral`: at least half, but fewer than 85 %, of the common rows are within the threshold

@@ -156,8 +156,8 @@ pub fn run() -> Result<()> {
 
     step("README command 2: tests");
     cargo(&["test", "--workspace"])?;
-    // The debug test binaries and their dependencies (`cargo doc` and the xtask binary, which
-    // is running and stays, need none of them).
+    // The debug test binaries and their dependencies: no later step runs them (`cargo doc`
+    // rebuilds the metadata it needs; the running xtask binary is outside these folders).
     reclaim(&[
         "target/debug/deps",
         "target/debug/build",
