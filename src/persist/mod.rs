@@ -44,7 +44,7 @@ pub mod ray;
 mod rows;
 
 pub use associate::{Explained, Lanes};
-pub use ray::{parallel, ray_stat, RayStat, RayVerdict};
+pub use ray::{parallel, ray_stat, vertical, RayStat, RayVerdict};
 pub use rows::{row_basis, PassMemory, RowBasis};
 
 /// Tuning of the known-lane stage. Values are model constants, not fitted to a data set
@@ -120,6 +120,13 @@ pub struct PersistConfig {
     /// deviation or better, metres: 0.5, a third of 1.5 m, the smallest offset of a marking
     /// from a camera inside its lane.
     pub ray_resolution: f32,
+    /// A lane consistent with a ray whose test is not decisive ([`RayVerdict::Aligned`]) is a
+    /// vertical structure when it runs parallel to none of the lanes found to be paint and is
+    /// tested against one at least ([`vertical`], docs/design.md §11.10): markings are
+    /// parallel, a vehicle's side seen from 8 m or more is a ray whose offset at the foot point
+    /// is not resolved to 0.5 m. `true` by default; `false` acts on decisive rays only (before
+    /// stop 42).
+    pub ray_aligned: bool,
     /// Lanes do not cross, and no marking joins two others (docs/design.md §11.11): a live lane
     /// that crosses or touches two published lanes which do not meet each other is the track
     /// of no marking and is removed. `true` by default.
@@ -222,6 +229,7 @@ impl PersistConfig {
         association: Association::ExactOrLbp,
         ray_z: 3.0,
         ray_resolution: 0.5,
+        ray_aligned: true,
         connectors: true,
         connector_frames: 2,
         paint_gap: Some(PaintGap::HIGHWAY),

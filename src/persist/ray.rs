@@ -51,7 +51,10 @@ pub enum RayVerdict {
     Ray,
     /// Decisive and not a ray: a marking on the road.
     Paint,
-    /// Not decisive (too short or too uncertain), or no statistic.
+    /// Consistent with a ray but not decisive: a ray or a marking near the foot point, which the
+    /// lane's direction against the markings decides ([`vertical`]).
+    Aligned,
+    /// Not decisive and not consistent with a ray, or no statistic.
     #[default]
     Undecided,
 }
@@ -61,13 +64,50 @@ impl RayStat {
     pub fn verdict(&self, z: f32, resolution: f32) -> RayVerdict {
         // NaN is not decisive.
         let decisive = self.sd_a <= resolution;
-        if !decisive {
-            RayVerdict::Undecided
-        } else if self.chi2 <= z * z && self.chi2_curvature <= z * z {
-            RayVerdict::Ray
-        } else {
-            RayVerdict::Paint
+        let consistent = self.chi2 <= z * z && self.chi2_curvature <= z * z;
+        match (decisive, consistent) {
+            (true, true) => RayVerdict::Ray,
+            (true, false) => RayVerdict::Paint,
+            (false, true) => RayVerdict::Aligned,
+            (false, false) => RayVerdict::Undecided,
         }
+    }
+}
+
+/// Whether a lane (or an observation) of ray verdict `verdict` is the image of a vertical
+/// structure (docs/design.md §11.10), from its parallel tests against the lanes found to be
+/// paint (`Some(true)`: parallel, `Some(false)`: not parallel, `None`: no test, fewer than 3
+/// common index points):
+/// * a [`RayVerdict::Ray`] is vertical unless it runs parallel to a paint lane (the marking
+///   under the camera in a lane change);
+/// * an [`RayVerdict::Aligned`] lane, with `aligned` set, is vertical when it is tested against
+///   at least one paint lane and runs parallel to none: a marking runs parallel to the
+///   markings, a vehicle's side, a ray from the foot point, does not;
+/// * nothing else is.
+///
+/// Evaluates the tests lazily, at most one pass.
+pub fn vertical(
+    verdict: RayVerdict,
+    aligned: bool,
+    paint_tests: impl Iterator<Item = Option<bool>>,
+) -> bool {
+    match verdict {
+        RayVerdict::Ray => {
+            let mut tests = paint_tests;
+            !tests.any(|t| t == Some(true))
+        }
+        RayVerdict::Aligned if aligned => {
+            let mut tested = false;
+            for t in paint_tests {
+                match t {
+                    Some(true) => return false,
+                    Some(false) => tested = true,
+                    None => {}
+                }
+            }
+            tested
+        }
+        _ => false,
     }
 }
 
@@ -174,8 +214,9 @@ pub fn ray_stat<const POINTS: usize>(
 
 /// The parallel test of docs/design.md §11.10: the weighted least-squares slope `b̂ = f_bᵀ d` of
 /// the difference `d = z_s − z_t` of two lanes over the index points where `present`, with
-/// `var(p) = pᵀ Cov(d) p`. `true` when `b̂² ≤ z²·var(f_b)`: the two run parallel. `false` with
-/// fewer than 3 usable points, a singular fit or a variance that is not positive and finite.
+/// `var(p) = pᵀ Cov(d) p`. `Some(true)` when `b̂² ≤ z²·var(f_b)`: the two run parallel;
+/// `Some(false)` when not; `None` (no test) with fewer than 3 usable points, a singular fit or a
+/// variance that is not positive and finite.
 #[inline(never)]
 pub fn parallel<const POINTS: usize>(
     u: &SVector<f32, POINTS>,
@@ -184,7 +225,7 @@ pub fn parallel<const POINTS: usize>(
     weight: &[f32; POINTS],
     z: f32,
     var: &dyn Fn(&[f32; POINTS]) -> f32,
-) -> bool {
+) -> Option<bool> {
     let ok: [bool; POINTS] = core::array::from_fn(|i| {
         get(present, i)
             && get(weight, i) > 0.0
@@ -193,16 +234,13 @@ pub fn parallel<const POINTS: usize>(
             && u.get(i).is_some_and(|v| v.is_finite())
     });
     let usable = |i: usize| get(&ok, i);
-    let Some(LineMoments {
+    let LineMoments {
         scale,
         m0,
         m1,
         m2: _,
         det,
-    }) = line_moments(u, weight, &usable)
-    else {
-        return false;
-    };
+    } = line_moments(u, weight, &usable)?;
     let t = |i: usize| u.get(i).copied().unwrap_or(0.0) / scale;
     let mut fb = [0.0f32; POINTS];
     let mut b = 0.0f32;
@@ -212,7 +250,7 @@ pub fn parallel<const POINTS: usize>(
         b += f * get(d, i);
     }
     let v = var(&fb);
-    v.is_finite() && v > 0.0 && b * b <= z * z * v
+    (v.is_finite() && v > 0.0 && b.is_finite()).then_some(b * b <= z * z * v)
 }
 
 /// The weighted normal matrix `[[m0, m1], [m1, m2]] = [[Σw, Σwt], [Σwt, Σwt²]]` of the line
@@ -257,4 +295,65 @@ fn line_moments<const POINTS: usize>(
         m2,
         det,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stat(sd_a: f32, chi2: f32, chi2_curvature: f32) -> RayStat {
+        RayStat {
+            a: 0.0,
+            sd_a,
+            chi2,
+            chi2_curvature,
+        }
+    }
+
+    #[test]
+    fn verdicts() {
+        assert_eq!(stat(0.4, 1.0, 1.0).verdict(3.0, 0.5), RayVerdict::Ray);
+        assert_eq!(stat(0.4, 10.0, 1.0).verdict(3.0, 0.5), RayVerdict::Paint);
+        assert_eq!(stat(0.4, 1.0, 10.0).verdict(3.0, 0.5), RayVerdict::Paint);
+        assert_eq!(stat(0.6, 1.0, 1.0).verdict(3.0, 0.5), RayVerdict::Aligned);
+        assert_eq!(
+            stat(0.6, 10.0, 1.0).verdict(3.0, 0.5),
+            RayVerdict::Undecided
+        );
+        assert_eq!(
+            stat(f32::NAN, 1.0, 1.0).verdict(3.0, 0.5),
+            RayVerdict::Aligned
+        );
+        assert_eq!(
+            stat(f32::NAN, f32::NAN, 1.0).verdict(3.0, 0.5),
+            RayVerdict::Undecided
+        );
+    }
+
+    #[test]
+    fn vertical_needs_a_paint_lane_for_an_aligned_one() {
+        use RayVerdict::*;
+        let t = |v: &[Option<bool>]| v.to_vec();
+        // A ray: vertical unless parallel to a paint lane, with or without tests.
+        assert!(vertical(Ray, true, t(&[]).into_iter()));
+        assert!(vertical(Ray, true, t(&[None, Some(false)]).into_iter()));
+        assert!(!vertical(
+            Ray,
+            true,
+            t(&[Some(false), Some(true)]).into_iter()
+        ));
+        // Aligned: only when tested against a paint lane and parallel to none.
+        assert!(!vertical(Aligned, true, t(&[]).into_iter()));
+        assert!(!vertical(Aligned, true, t(&[None]).into_iter()));
+        assert!(vertical(Aligned, true, t(&[None, Some(false)]).into_iter()));
+        assert!(!vertical(
+            Aligned,
+            true,
+            t(&[Some(false), Some(true)]).into_iter()
+        ));
+        assert!(!vertical(Aligned, false, t(&[Some(false)]).into_iter()));
+        // Paint and undecided lanes never are.
+        assert!(!vertical(Paint, true, t(&[Some(false)]).into_iter()));
+        assert!(!vertical(Undecided, true, t(&[Some(false)]).into_iter()));
+    }
 }

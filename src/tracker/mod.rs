@@ -428,14 +428,22 @@ impl_tracker! {
         let obs = self.obs.get(..n_obs).unwrap_or(&[]);
         let mut may_start = [true; LANES];
         if self.cfg.persist.enabled {
-            // A ray starts no lane unless it runs parallel to a lane that is paint (the marking
-            // under the camera, docs/design.md §11.10).
+            // A vertical structure starts no lane: a ray unless it runs parallel to a lane
+            // that is paint (the marking under the camera), an aligned observation when it runs
+            // parallel to none of them (docs/design.md §11.10).
             let mut verdicts = None;
+            let aligned = self.cfg.persist.ray_aligned;
             for (m, ob) in may_start.iter_mut().zip(obs) {
-                if self.ray_verdict_obs(ob) == RayVerdict::Ray {
+                let own = self.ray_verdict_obs(ob);
+                if matches!(own, RayVerdict::Ray | RayVerdict::Aligned) {
                     let v = *verdicts.get_or_insert_with(|| self.lane_ray_verdicts());
-                    *m = (0..LANES)
-                        .any(|t| get(&v, t) == RayVerdict::Paint && self.obs_parallel(ob, t));
+                    *m = !crate::persist::vertical(
+                        own,
+                        aligned,
+                        (0..LANES)
+                            .filter(|&t| get(&v, t) == RayVerdict::Paint)
+                            .map(|t| self.obs_parallel(ob, t)),
+                    );
                 }
             }
         }

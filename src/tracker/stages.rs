@@ -583,13 +583,17 @@ impl_tracker! {
         // point is a vertical structure, unless it runs parallel to a lane shown to be paint
         // (the marking under the camera in a lane change does; a vehicle's edge does not).
         let verdicts = self.lane_ray_verdicts();
+        let aligned = self.cfg.persist.ray_aligned;
         let (mut any, mut rays) = (0u32, 0u32);
         for s in 0..LANES {
             let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
-            let ray = get(&verdicts, s) == RayVerdict::Ray
-                && !(0..LANES).any(|t| {
-                    t != s && get(&verdicts, t) == RayVerdict::Paint && self.parallel(s, t)
-                });
+            let ray = persist::vertical(
+                get(&verdicts, s),
+                aligned,
+                (0..LANES)
+                    .filter(|&t| t != s && get(&verdicts, t) == RayVerdict::Paint)
+                    .map(|t| self.parallel(s, t)),
+            );
             if self.ids.lane(s).is_some() && (p < self.cfg.persist.p_delete || ray) {
                 self.remove_slot(s);
                 any += 1;
@@ -695,14 +699,12 @@ impl_tracker! {
     /// Lanes `s` and `t` run parallel over the index points both observed this frame: the slope
     /// of their difference `z_s − z_t` (weighted line fit) is within `ray_z` standard deviations
     /// of zero, with `Cov(z_s − z_t)` from the temporal covariance plus `2r` per index point.
-    /// `false` with fewer than 3 common points.
+    /// `None` (no test) with fewer than 3 common points ([`persist::parallel`]).
     #[inline(never)]
-    fn parallel(&self, s: usize, t: usize) -> bool {
-        let Some(tables) = self.tables else {
-            return false;
-        };
+    fn parallel(&self, s: usize, t: usize) -> Option<bool> {
+        let tables = self.tables?;
         let (Some((zs, vs)), Some((zt, vt))) = (self.view(s), self.view(t)) else {
-            return false;
+            return None;
         };
         let (os, ot) = (self.observed(s), self.observed(t));
         let rr = tables.hyper.meas_noise;
@@ -722,13 +724,9 @@ impl_tracker! {
     /// the observation's covariance plus the lane's plus `2r` per point (independent: the
     /// observation is this frame's points, the prediction the frames before).
     #[inline(never)]
-    pub(super) fn obs_parallel(&self, ob: &LaneObservation<POINTS>, t: usize) -> bool {
-        let Some(tables) = self.tables else {
-            return false;
-        };
-        let Some((zt, vt)) = self.view(t) else {
-            return false;
-        };
+    pub(super) fn obs_parallel(&self, ob: &LaneObservation<POINTS>, t: usize) -> Option<bool> {
+        let tables = self.tables?;
+        let (zt, vt) = self.view(t)?;
         let rr = tables.hyper.meas_noise;
         let at = |v: &SVector<f32, POINTS>, i: usize| v.get(i).copied().unwrap_or(f32::NAN);
         let d: [f32; POINTS] = core::array::from_fn(|i| at(&ob.z, i) - at(&zt, i));

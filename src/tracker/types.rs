@@ -154,6 +154,7 @@ impl TrackerConfig {
             association: Association::Exact,
             ray_z: 0.0,
             ray_resolution: 0.0,
+            ray_aligned: false,
             connectors: false,
             connector_frames: 0,
             paint_gap: None,
