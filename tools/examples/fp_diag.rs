@@ -108,6 +108,13 @@ fn main() -> anyhow::Result<()> {
         if std::env::var("FP_DIAG_INTERVAL").is_ok_and(|v| v == "1") {
             config.persist.paint_gap = None;
         }
+        // FP_DIAG_RAY_RES=m: the ray test's resolution (design §11.10; `inf`: every test decisive).
+        if let Some(r) = std::env::var("FP_DIAG_RAY_RES")
+            .ok()
+            .and_then(|v| v.parse::<f32>().ok())
+        {
+            config.persist.ray_resolution = r;
+        }
         let mut tallies = [Tally::default(), Tally::default()];
         let mut spur = Spurious::default();
         // FP_DIAG_DUMP=file: every scored frame's points, lanes and labels in BEV (JSON lines).

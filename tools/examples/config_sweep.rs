@@ -1,0 +1,36 @@
+//! The demo's tables (replay, identity, robustness curve of seed 1, held-out check) for one
+//! configuration given on the command line, without images: how a design choice moves every
+//! figure the issues quote, in one run (~4 min on one core).
+//!
+//! `cargo run --release -p stjpdacf-tools --example config_sweep -- [field=value ...]`
+//! with fields of `PersistConfig`: `ray_z`, `ray_resolution` (`inf` allowed),
+//! `ray_aligned` (0 or 1).
+use stjpdacf::tracker::TrackerConfig;
+use stjpdacf_tools::demo::{self, DemoOptions, Variant};
+
+fn main() -> anyhow::Result<()> {
+    let mut config = TrackerConfig::DEFAULT;
+    for arg in std::env::args().skip(1) {
+        let (k, v) = arg
+            .split_once('=')
+            .ok_or_else(|| anyhow::anyhow!("expected field=value, got {arg}"))?;
+        let x: f32 = v.parse()?;
+        match k {
+            "ray_z" => config.persist.ray_z = x,
+            "ray_resolution" => config.persist.ray_resolution = x,
+            "ray_aligned" => config.persist.ray_aligned = x != 0.0,
+            _ => anyhow::bail!("unknown field {k}"),
+        }
+    }
+    let opts = DemoOptions {
+        out: std::env::temp_dir().join("stjpdacf_config_sweep"),
+        images: false,
+        score_run_time: false,
+        robustness_variants: vec![Variant::new("tracker", config)],
+        config,
+        ..DemoOptions::default()
+    };
+    let report = demo::run(&opts, |_, _, _| {})?;
+    println!("{}", demo::render_markdown(&report));
+    Ok(())
+}
