@@ -81,6 +81,11 @@ enum Command {
         /// lanes found in dense clutter.
         #[arg(long)]
         interval_evidence: bool,
+        /// Act only on decisive rays (`PersistConfig::ray_aligned = false`, docs/design.md
+        /// §11.10): a lane consistent with a ray whose offset at the camera's foot point is not
+        /// resolved is kept even when it runs parallel to no marking (before stop 42).
+        #[arg(long)]
+        decisive_rays_only: bool,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -303,6 +308,7 @@ fn main() -> Result<()> {
             space,
             export_points,
             interval_evidence,
+            decisive_rays_only,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -345,6 +351,7 @@ fn main() -> Result<()> {
                             } else {
                                 d.persist.paint_gap
                             },
+                            ray_aligned: d.persist.ray_aligned && !decisive_rays_only,
                             ..d.persist
                         },
                         ..d
