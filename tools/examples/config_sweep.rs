@@ -4,7 +4,7 @@
 //!
 //! `cargo run --release -p stjpdacf-tools --example config_sweep -- [field=value ...]`
 //! with fields of `PersistConfig`: `ray_z`, `ray_resolution` (`inf` allowed),
-//! `ray_aligned` (0 or 1).
+//! `ray_aligned` (0 or 1); of the spatial `Config`: `max_tentative`.
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::demo::{self, DemoOptions, Variant};
 
@@ -19,6 +19,7 @@ fn main() -> anyhow::Result<()> {
             "ray_z" => config.persist.ray_z = x,
             "ray_resolution" => config.persist.ray_resolution = x,
             "ray_aligned" => config.persist.ray_aligned = x != 0.0,
+            "max_tentative" => config.spatial.max_tentative = x as u8,
             _ => anyhow::bail!("unknown field {k}"),
         }
     }
