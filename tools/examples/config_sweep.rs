@@ -2,7 +2,8 @@
 //! configuration given on the command line, without images: how a design choice moves every
 //! figure the issues quote, in one run (~4 min on one core).
 //!
-//! `cargo run --release -p stjpdacf-tools --example config_sweep -- [field=value ...]`
+//! `cargo run --release -p stjpdacf-tools --example config_sweep -- [seed=N] [field=value ...]`
+//! (`seed`: the replay's and the robustness curve's synth seed, default 1)
 //! with fields of `PersistConfig`: `ray_z`, `ray_resolution` (`inf` allowed),
 //! `ray_aligned` (0 or 1); of the spatial `Config`: `max_tentative`.
 use stjpdacf::tracker::TrackerConfig;
@@ -10,12 +11,14 @@ use stjpdacf_tools::demo::{self, DemoOptions, Variant};
 
 fn main() -> anyhow::Result<()> {
     let mut config = TrackerConfig::DEFAULT;
+    let mut seed = 1u64;
     for arg in std::env::args().skip(1) {
         let (k, v) = arg
             .split_once('=')
             .ok_or_else(|| anyhow::anyhow!("expected field=value, got {arg}"))?;
         let x: f32 = v.parse()?;
         match k {
+            "seed" => seed = v.parse()?,
             "ray_z" => config.persist.ray_z = x,
             "ray_resolution" => config.persist.ray_resolution = x,
             "ray_aligned" => config.persist.ray_aligned = x != 0.0,
@@ -27,6 +30,7 @@ fn main() -> anyhow::Result<()> {
         out: std::env::temp_dir().join("stjpdacf_config_sweep"),
         images: false,
         score_run_time: false,
+        seed,
         robustness_variants: vec![Variant::new("tracker", config)],
         config,
         ..DemoOptions::default()
