@@ -206,9 +206,9 @@ pub struct ChainRates {
 impl PersistConfig {
     /// The defaults: 10 frames of detection memory, 5 of clutter memory, clutter floor
     /// 0.005 /m, `τ_s` = 10 s, `P_birth` = 0.1, publish at 0.5, delete below 0.01, a point
-    /// explained at 0.5, the ray test at 3σ and 0.5 m, new lanes' dash gaps of 11 rows and their
-    /// row noise scaled by 0.043 (fitted, design §11.12), the rows' existence evidence under the
-    /// highway paint / gap chain.
+    /// explained at 0.5, the ray test at 3σ and 0.5 m with aligned lanes decided by their
+    /// direction, new lanes' dash gaps of 11 rows and their row noise scaled by 0.043 (fitted,
+    /// design §11.12), the rows' existence evidence under the highway paint / gap chain.
     pub const DEFAULT: Self = Self {
         enabled: true,
         pd_memory: 10.0,
