@@ -141,39 +141,14 @@ fn lane_near(
 /// 20 Hz. Without the test the edge is published as a lane on most frames; with it, on none.
 #[test]
 fn a_vertical_structure_is_not_published() {
-    let run = |cfg: TrackerConfig| {
-        let mut t = Box::new(ReferenceTracker::with_config(&DEFAULT, cfg));
-        let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let (mut ray_frames, mut lane_frames) = (0, 0);
-        for k in 0..40i64 {
-            let mut pts = Vec::new();
-            line_points(&mut rng, &mut pts, (3.0, 77.0), |_| -1.8, 0.05);
-            line_points(&mut rng, &mut pts, (3.0, 77.0), |_| 1.8, 0.05);
-            // The edge from its base at 20 m: noise σ = 0.002·u (2 px at f ≈ 1000 px).
-            let mut u = 20.0;
-            while u <= 77.0 {
-                if rng.random_bool(0.9) {
-                    let n = Normal::new(0.0, 0.002 * u).unwrap();
-                    pts.push([u as f32, (0.12 * u + n.sample(&mut rng)) as f32]);
-                }
-                u += 1.25;
-            }
-            pts.sort_by(|a, b| a[0].total_cmp(&b[0]));
-            let out = t
-                .step(Instant::from_micros(50_000 * (k + 1)), &pts)
-                .unwrap();
-            ray_frames += usize::from(lane_near(&out.filtered, |u| 0.12 * u).is_some());
-            lane_frames += usize::from(
-                lane_near(&out.filtered, |_| -1.8).is_some()
-                    && lane_near(&out.filtered, |_| 1.8).is_some(),
-            );
-        }
-        (ray_frames, lane_frames)
+    // The edge from its base at 20 m: noise σ = 0.002·u (2 px at f ≈ 1000 px).
+    let edge = |rng: &mut ChaCha8Rng, pts: &mut Vec<[f32; 2]>| {
+        far_points(rng, pts, 20.0, 0.9, 0.002, |u| 0.12 * u)
     };
     let mut off = TrackerConfig::DEFAULT;
     off.persist.ray_z = 0.0;
-    let (ray_on, lanes_on) = run(TrackerConfig::DEFAULT);
-    let (ray_off, lanes_off) = run(off);
+    let (ray_on, lanes_on) = scene(TrackerConfig::DEFAULT, 5, &edge, &|u| 0.12 * u);
+    let (ray_off, lanes_off) = scene(off, 5, &edge, &|u| 0.12 * u);
     println!("frames with the edge published: {ray_on} (test on), {ray_off} (off); both markings: {lanes_on} / {lanes_off}");
     assert!(
         ray_off >= 20,
@@ -230,10 +205,31 @@ fn the_marking_under_the_camera_in_a_lane_change_keeps_its_id() {
     assert!(ids.iter().all(|&i| i == ids[0]), "{ids:?}");
 }
 
-/// One scene of the aligned tests: two markings at ±1.8 m, plus the points `extra` adds each
-/// frame, 40 frames at 20 Hz; returns on how many frames a lane near `near` was published, and
-/// on how many both markings were.
-fn aligned_scene(
+/// Points of the curve `x(u)` from `u0` to the end of the window, one per row of 1.25 m detected
+/// with probability `detect`, with Gaussian noise σ = `sigma_per_m`·u (pixel noise grows with
+/// the distance).
+fn far_points(
+    rng: &mut ChaCha8Rng,
+    pts: &mut Vec<[f32; 2]>,
+    u0: f64,
+    detect: f64,
+    sigma_per_m: f64,
+    x: impl Fn(f64) -> f64,
+) {
+    let mut u = u0;
+    while u <= 77.0 {
+        if rng.random_bool(detect) {
+            let n = Normal::new(0.0, sigma_per_m * u).unwrap();
+            pts.push([u as f32, (x(u) + n.sample(rng)) as f32]);
+        }
+        u += 1.25;
+    }
+}
+
+/// A scene: two markings at ±1.8 m, plus the points `extra` adds each frame, 40 frames at
+/// 20 Hz; returns on how many frames a lane near `near` was published, and on how many both
+/// markings were.
+fn scene(
     cfg: TrackerConfig,
     seed: u64,
     extra: &dyn Fn(&mut ChaCha8Rng, &mut Vec<[f32; 2]>),
@@ -270,20 +266,13 @@ fn aligned_scene(
 #[test]
 fn an_unresolved_vertical_structure_is_not_published_when_it_crosses_the_markings_direction() {
     let edge = |rng: &mut ChaCha8Rng, pts: &mut Vec<[f32; 2]>| {
-        let mut u = 30.0;
-        while u <= 77.0 {
-            if rng.random_bool(0.7) {
-                let n = Normal::new(0.0, 0.006 * u).unwrap();
-                pts.push([u as f32, (0.15 * u + n.sample(rng)) as f32]);
-            }
-            u += 1.25;
-        }
+        far_points(rng, pts, 30.0, 0.7, 0.006, |u| 0.15 * u)
     };
     let near = |u: f64| 0.15 * u;
     let mut before = TrackerConfig::DEFAULT;
     before.persist.ray_aligned = false;
-    let (on, lanes_on) = aligned_scene(TrackerConfig::DEFAULT, 21, &edge, &near);
-    let (off, lanes_off) = aligned_scene(before, 21, &edge, &near);
+    let (on, lanes_on) = scene(TrackerConfig::DEFAULT, 21, &edge, &near);
+    let (off, lanes_off) = scene(before, 21, &edge, &near);
     println!("frames with the far edge published: {on} (aligned rule), {off} (decisive rays only); both markings {lanes_on} / {lanes_off}");
     assert!(
         off >= 20,
@@ -299,20 +288,13 @@ fn an_unresolved_vertical_structure_is_not_published_when_it_crosses_the_marking
 #[test]
 fn a_far_marking_parallel_to_the_others_is_kept() {
     let marking = |rng: &mut ChaCha8Rng, pts: &mut Vec<[f32; 2]>| {
-        let mut u = 35.0;
-        while u <= 77.0 {
-            if rng.random_bool(0.7) {
-                let n = Normal::new(0.0, 0.006 * u).unwrap();
-                pts.push([u as f32, (7.5 + n.sample(rng)) as f32]);
-            }
-            u += 1.25;
-        }
+        far_points(rng, pts, 35.0, 0.7, 0.006, |_| 7.5)
     };
     let near = |_: f64| 7.5;
     let mut before = TrackerConfig::DEFAULT;
     before.persist.ray_aligned = false;
-    let (on, _) = aligned_scene(TrackerConfig::DEFAULT, 23, &marking, &near);
-    let (off, _) = aligned_scene(before, 23, &marking, &near);
+    let (on, _) = scene(TrackerConfig::DEFAULT, 23, &marking, &near);
+    let (off, _) = scene(before, 23, &marking, &near);
     println!(
         "frames with the far marking published: {on} (aligned rule), {off} (decisive rays only)"
     );

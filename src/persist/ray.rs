@@ -89,13 +89,10 @@ impl RayStat {
 pub fn vertical(
     verdict: RayVerdict,
     aligned: bool,
-    paint_tests: impl Iterator<Item = Option<bool>>,
+    mut paint_tests: impl Iterator<Item = Option<bool>>,
 ) -> bool {
     match verdict {
-        RayVerdict::Ray => {
-            let mut tests = paint_tests;
-            !tests.any(|t| t == Some(true))
-        }
+        RayVerdict::Ray => !paint_tests.any(|t| t == Some(true)),
         RayVerdict::Aligned if aligned => {
             let mut tested = false;
             for t in paint_tests {
@@ -333,27 +330,23 @@ mod tests {
     #[test]
     fn vertical_needs_a_paint_lane_for_an_aligned_one() {
         use RayVerdict::*;
-        let t = |v: &[Option<bool>]| v.to_vec();
+        let none = core::iter::empty;
         // A ray: vertical unless parallel to a paint lane, with or without tests.
-        assert!(vertical(Ray, true, t(&[]).into_iter()));
-        assert!(vertical(Ray, true, t(&[None, Some(false)]).into_iter()));
-        assert!(!vertical(
-            Ray,
-            true,
-            t(&[Some(false), Some(true)]).into_iter()
-        ));
+        assert!(vertical(Ray, true, none()));
+        assert!(vertical(Ray, true, [None, Some(false)].into_iter()));
+        assert!(!vertical(Ray, true, [Some(false), Some(true)].into_iter()));
         // Aligned: only when tested against a paint lane and parallel to none.
-        assert!(!vertical(Aligned, true, t(&[]).into_iter()));
-        assert!(!vertical(Aligned, true, t(&[None]).into_iter()));
-        assert!(vertical(Aligned, true, t(&[None, Some(false)]).into_iter()));
+        assert!(!vertical(Aligned, true, none()));
+        assert!(!vertical(Aligned, true, [None].into_iter()));
+        assert!(vertical(Aligned, true, [None, Some(false)].into_iter()));
         assert!(!vertical(
             Aligned,
             true,
-            t(&[Some(false), Some(true)]).into_iter()
+            [Some(false), Some(true)].into_iter()
         ));
-        assert!(!vertical(Aligned, false, t(&[Some(false)]).into_iter()));
+        assert!(!vertical(Aligned, false, [Some(false)].into_iter()));
         // Paint and undecided lanes never are.
-        assert!(!vertical(Paint, true, t(&[Some(false)]).into_iter()));
-        assert!(!vertical(Undecided, true, t(&[Some(false)]).into_iter()));
+        assert!(!vertical(Paint, true, [Some(false)].into_iter()));
+        assert!(!vertical(Undecided, true, [Some(false)].into_iter()));
     }
 }
