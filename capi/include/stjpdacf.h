@@ -209,6 +209,9 @@ typedef struct stjpdacf_identity_report {
   uint32_t coasting;
   // Lanes removed this frame.
   uint32_t removed;
+  // Of them, lanes that yielded their slot to a new lane (slots by existence,
+  // docs/design.md §11.13).
+  uint32_t evicted;
   // Leaves visited by the assignment search.
   uint32_t leaves;
   // Total cost of the chosen assignment (the minimised objective).

@@ -127,6 +127,11 @@ pub struct PersistConfig {
     /// is not resolved to 0.5 m. `true` by default; `false` acts on decisive rays only (before
     /// stop 42).
     pub ray_aligned: bool,
+    /// Slots by existence (docs/design.md §11.13): a new lane whose track's evidence is
+    /// positive and that finds every slot taken takes the slot of the unmatched lane of lowest
+    /// existence below `p_birth`. `true` by default; `false` turns such a lane away (before
+    /// stop 43).
+    pub slot_claims: bool,
     /// Lanes do not cross, and no marking joins two others (docs/design.md §11.11): a live lane
     /// that crosses or touches two published lanes which do not meet each other is the track
     /// of no marking and is removed. `true` by default.
@@ -230,6 +235,7 @@ impl PersistConfig {
         ray_z: 3.0,
         ray_resolution: 0.5,
         ray_aligned: true,
+        slot_claims: true,
         connectors: true,
         connector_frames: 2,
         paint_gap: Some(PaintGap::HIGHWAY),

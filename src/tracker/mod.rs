@@ -447,8 +447,14 @@ impl_tracker! {
                 }
             }
         }
-        self.ids
-            .associate_births(&preds, obs, &self.cfg.identity, &may_start)
+        let hold = self.slot_holds();
+        self.ids.associate_claims(
+            &preds,
+            obs,
+            &self.cfg.identity,
+            &may_start,
+            hold.as_ref(),
+        )
     }
 
     /// Steps 4 and 5: removed lanes leave the temporal filter; new lanes start in rank order among

@@ -263,6 +263,26 @@ impl_tracker! {
         })
     }
 
+    /// Slots by existence (docs/design.md §11.13): a live lane below `p_birth` (the evidence
+    /// since its birth is against it) yields its slot, the lowest existence first, to a
+    /// candidate whose track's evidence is positive (`llr ≥ 0`: a lane started from it begins
+    /// at or above `p_birth`); the other lanes hold theirs (`∞`). `None` without the
+    /// known-lane stage or with `slot_claims` off.
+    #[inline(never)]
+    pub(super) fn slot_holds(&self) -> Option<[f32; LANES]> {
+        let pc = &self.cfg.persist;
+        if !(pc.enabled && pc.slot_claims) {
+            return None;
+        }
+        let mut hold = [f32::INFINITY; LANES];
+        for (h, l) in hold.iter_mut().zip(self.persist.lanes.iter()) {
+            if l.existence < pc.p_birth {
+                *h = l.existence;
+            }
+        }
+        Some(hold)
+    }
+
     /// The existence of lanes started this frame: the birth prior updated by the evidence of
     /// their spatial track over its observed extent (`LaneObservation::llr`: one-step-ahead
     /// predictions along the rows, so the points a track was fitted to do not confirm it).
@@ -1027,6 +1047,48 @@ fn quadratic_form<const N: usize>(m: &SMatrix<f32, N, N>, p: &[f32; N], q: &[f32
 mod tests {
     use crate::tables::{DEFAULT, UNCOUPLED};
     use crate::tracker::{Instant, ReferenceTracker, TrackerConfig};
+
+    /// Slots by existence, wired: in heavy clutter the table fills with lanes the evidence
+    /// turns against, and with `slot_claims` (the default) new candidates take their slots;
+    /// with it off none does.
+    #[test]
+    fn weak_lanes_yield_their_slots_in_heavy_clutter() {
+        let mut evicted = [0u32; 2];
+        for (on, n) in [true, false].into_iter().zip(evicted.iter_mut()) {
+            let mut cfg = TrackerConfig::DEFAULT;
+            cfg.persist.slot_claims = on;
+            let mut t = Box::new(ReferenceTracker::UNINIT);
+            t.init(&DEFAULT, cfg);
+            for k in 0..60u32 {
+                let mut pts = heapless::Vec::<[f32; 2], 256>::new();
+                // Two dashed markings (6 m of paint in 12 m, moving with the car) in dense
+                // uniform clutter.
+                for x0 in [-1.8f32, 1.8] {
+                    for r in 0..40 {
+                        let u = 4.0 + 1.5 * r as f32;
+                        if (u + 1.2 * k as f32) % 12.0 < 6.0 {
+                            let _ = pts.push([u, x0 + 0.03 * ((r * 7 + k as usize) as f32).sin()]);
+                        }
+                    }
+                }
+                for c in 0..200u32 {
+                    let h = (k * 211 + c * 17) as f32;
+                    let u = 4.0 + (h * 0.61).sin().abs() * 58.0;
+                    let _ = pts.push([u, (h * 1.37).sin() * 9.0]);
+                }
+                let out = t.step(Instant::from_micros(i64::from(k) * 50_000), &pts);
+                let Ok(out) = out else {
+                    panic!("frame {k} refused");
+                };
+                let r = out.report.identity;
+                // An evicted lane is a removed one, and its slot went to a started lane.
+                assert!(r.removed >= r.evicted && r.started >= r.evicted);
+                *n += r.evicted;
+            }
+        }
+        assert!(evicted[0] > 0, "no lane yielded its slot: {evicted:?}");
+        assert_eq!(evicted[1], 0);
+    }
 
     /// Every projection the step takes from its views equals a fresh one (the `debug_assert`
     /// in `Tracker::view`, on in tests), over frames that start, update, merge and lose lanes,

@@ -155,6 +155,7 @@ impl TrackerConfig {
             ray_z: 0.0,
             ray_resolution: 0.0,
             ray_aligned: false,
+            slot_claims: false,
             connectors: false,
             connector_frames: 0,
             paint_gap: None,

@@ -86,6 +86,11 @@ enum Command {
         /// resolved is kept even when it runs parallel to no marking (before stop 42).
         #[arg(long)]
         decisive_rays_only: bool,
+        /// Turn a new lane away when every slot is taken (`PersistConfig::slot_claims = false`,
+        /// docs/design.md §11.13) instead of giving it the slot of a lane whose existence fell
+        /// below the birth prior (before stop 43).
+        #[arg(long)]
+        no_slot_claims: bool,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -309,6 +314,7 @@ fn main() -> Result<()> {
             export_points,
             interval_evidence,
             decisive_rays_only,
+            no_slot_claims,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -352,6 +358,7 @@ fn main() -> Result<()> {
                                 d.persist.paint_gap
                             },
                             ray_aligned: d.persist.ray_aligned && !decisive_rays_only,
+                            slot_claims: d.persist.slot_claims && !no_slot_claims,
                             ..d.persist
                         },
                         ..d

@@ -258,6 +258,9 @@ pub struct IdentityReport {
     pub coasting: u32,
     /// Lanes removed this frame.
     pub removed: u32,
+    /// Of them, lanes that yielded their slot to a new lane (slots by existence,
+    /// docs/design.md §11.13).
+    pub evicted: u32,
     /// Leaves visited by the assignment search.
     pub leaves: u32,
     /// Total cost of the chosen assignment (the minimised objective).
@@ -529,6 +532,27 @@ impl<const LANES: usize> LaneTable<LANES> {
         cfg: &IdentityConfig,
         may_start: &[bool; LANES],
     ) -> IdentityOutcome<LANES> {
+        self.associate_claims(preds, obs, cfg, may_start, None)
+    }
+
+    /// [`LaneTable::associate_births`] with slots by existence: an observation `i` that may
+    /// start a lane, has positive evidence (`llr ≥ 0`) and finds no free slot takes the slot of
+    /// the unmatched (coasting) lane of lowest `hold` among those below `∞`; the lane it
+    /// replaces is removed (`SlotFate::New { replaced }`, counted in `removed` and `evicted`).
+    /// Observations are served in input order. `hold = None` is
+    /// [`LaneTable::associate_births`].
+    ///
+    /// # Complexity
+    /// That of [`LaneTable::associate`] plus `LANES` comparisons per observation that finds
+    /// no free slot.
+    pub fn associate_claims<const POINTS: usize>(
+        &mut self,
+        preds: &[LanePrediction<POINTS>; LANES],
+        obs: &[LaneObservation<POINTS>],
+        cfg: &IdentityConfig,
+        may_start: &[bool; LANES],
+        hold: Option<&[f32; LANES]>,
+    ) -> IdentityOutcome<LANES> {
         let gate = if cfg.gate.is_finite() && cfg.gate >= 0.0 {
             cfg.gate
         } else {
@@ -594,7 +618,21 @@ impl<const LANES: usize> LaneTable<LANES> {
                 *fate = ObsFate::Dropped(DropReason::Refused);
                 continue;
             }
-            let Some(free) = self.slots.iter().position(Option::is_none) else {
+            let mut free = self.slots.iter().position(Option::is_none);
+            if let (None, Some(hold), true) = (free, hold, o.llr >= 0.0) {
+                free = yielding_slot(hold, &slot_fates);
+                if let Some(l) = free {
+                    if let (Some(slot), Some(sf)) = (self.slots.get_mut(l), slot_fates.get_mut(l)) {
+                        if let Some(info) = slot.take() {
+                            *sf = SlotFate::Removed { id: info.id };
+                        }
+                    }
+                    report.removed += 1;
+                    report.evicted += 1;
+                    report.coasting = report.coasting.saturating_sub(1);
+                }
+            }
+            let Some(free) = free else {
                 *fate = ObsFate::Dropped(DropReason::NoSlot);
                 report.dropped_no_slot += 1;
                 continue;
@@ -702,6 +740,21 @@ impl<const LANES: usize> LaneTable<LANES> {
             }
         }
     }
+}
+
+/// The coasting slot of lowest finite `hold`, if any ([`LaneTable::associate_claims`]).
+#[inline(never)]
+fn yielding_slot(hold: &[f32], fates: &[SlotFate]) -> Option<usize> {
+    let mut best: Option<(usize, f32)> = None;
+    for (l, (&h, sf)) in hold.iter().zip(fates).enumerate() {
+        if matches!(sf, SlotFate::Coasting { .. })
+            && h < f32::INFINITY
+            && best.is_none_or(|(_, b)| h < b)
+        {
+            best = Some((l, h));
+        }
+    }
+    best.map(|(l, _)| l)
 }
 
 #[cfg(test)]

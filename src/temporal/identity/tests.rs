@@ -194,6 +194,96 @@ fn full_table_drops_and_freed_slot_is_reused_with_replaced() {
     assert_eq!(out.report.dropped_no_slot, 1);
 }
 
+/// Slots by existence: with every slot taken, an observation with positive evidence takes the
+/// slot of the coasting lane of lowest finite hold; matched lanes, lanes that hold (`∞`) and
+/// observations with negative evidence change nothing; without holds the table is
+/// [`LaneTable::associate_births`].
+#[test]
+fn full_table_yields_the_weakest_coasting_slot_to_positive_evidence() {
+    let cfg = IdentityConfig::DEFAULT;
+    let start = |t: &mut LaneTable<3>| {
+        let _ = t.associate(
+            &[LanePrediction::EMPTY; 3],
+            &[flat(-3.6), flat(0.0), flat(3.6)],
+            &cfg,
+        );
+    };
+    let preds = [
+        LanePrediction::from_observation(&flat(-3.6), 0.1),
+        LanePrediction::from_observation(&flat(0.0), 0.1),
+        LanePrediction::from_observation(&flat(3.6), 0.1),
+    ];
+    let strong = LaneObservation {
+        llr: 2.0,
+        ..flat(7.2)
+    };
+    let weak = LaneObservation {
+        llr: -0.5,
+        ..flat(7.2)
+    };
+    // Lane 0 is matched (held low all the same), lanes 1 and 2 coast; 2 is the weakest.
+    let hold = [0.01, 0.05, 0.02];
+    let seen = flat(-3.6);
+    let may = [true; 3];
+
+    let mut t: LaneTable<3> = LaneTable::new();
+    start(&mut t);
+    let out = t.associate_claims(&preds, &[seen, strong], &cfg, &may, Some(&hold));
+    assert_eq!(
+        out.obs_fates(),
+        &[ObsFate::Matched { slot: 0 }, ObsFate::New { slot: 2 }]
+    );
+    assert_eq!(
+        out.slots[2],
+        SlotFate::New {
+            obs: 1,
+            replaced: Some(LaneId(2))
+        }
+    );
+    assert_eq!(out.slots[1], SlotFate::Coasting { misses: 1 });
+    assert_eq!((out.report.evicted, out.report.removed), (1, 1));
+    assert_eq!((out.report.coasting, out.report.started), (1, 1));
+    assert_eq!(t.lane(2).unwrap().id, LaneId(3));
+
+    // Negative evidence, every lane holding, a refused start, no holds: dropped for want of a slot.
+    for (o, hold, may) in [
+        (weak, Some([0.01, 0.05, 0.02]), [true; 3]),
+        (
+            strong,
+            Some([0.01, f32::INFINITY, f32::INFINITY]),
+            [true; 3],
+        ),
+        (strong, Some([0.01, 0.05, 0.02]), [true, false, true]),
+        (strong, None, [true; 3]),
+    ] {
+        let mut t: LaneTable<3> = LaneTable::new();
+        start(&mut t);
+        let out = t.associate_claims(&preds, &[seen, o], &cfg, &may, hold.as_ref());
+        assert_eq!(out.obs_fates()[0], ObsFate::Matched { slot: 0 });
+        assert!(matches!(out.obs_fates()[1], ObsFate::Dropped(_)));
+        assert_eq!((out.report.evicted, out.report.removed), (0, 0));
+        assert!((0..3).all(|s| t.lane(s).unwrap().id == LaneId(s as u32)));
+    }
+
+    // Two claims in one frame take the two weakest slots, in input order.
+    let mut t: LaneTable<3> = LaneTable::new();
+    start(&mut t);
+    let far = LaneObservation {
+        llr: 0.0,
+        ..flat(-7.2)
+    };
+    let out = t.associate_claims(&preds, &[seen, strong, far], &cfg, &may, Some(&hold));
+    assert_eq!(
+        out.obs_fates(),
+        &[
+            ObsFate::Matched { slot: 0 },
+            ObsFate::New { slot: 2 },
+            ObsFate::New { slot: 1 }
+        ]
+    );
+    assert_eq!(out.report.evicted, 2);
+}
+
 #[test]
 fn unusable_and_non_finite_observations_do_not_start_or_match_lanes() {
     let cfg = IdentityConfig::DEFAULT;
