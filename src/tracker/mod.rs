@@ -378,6 +378,14 @@ impl_tracker! {
             .iter()
             .filter(|f| matches!(f, ObsFate::Dropped(DropReason::Refused)))
             .count() as u32;
+        // A slot yielded this frame (docs/design.md §11.13) holds a new lane: the known-lane
+        // pass saw the lane it replaced, not this one.
+        let mut known = known;
+        for (s, fate) in outcome.slots.iter().enumerate() {
+            if matches!(fate, SlotFate::New { replaced: Some(_), .. }) {
+                known &= !(1 << s);
+            }
+        }
         for s in 0..LANES {
             if known & (1 << s) != 0 {
                 let counted = matches!(outcome.slots.get(s), Some(SlotFate::Matched { .. }));

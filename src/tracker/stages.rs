@@ -1081,8 +1081,14 @@ mod tests {
                     panic!("frame {k} refused");
                 };
                 let r = out.report.identity;
-                // An evicted lane is a removed one, and its slot went to a started lane.
+                // An evicted lane is a removed one, and its slot went to a started lane, which
+                // the known-lane pass did not see (one hit: its birth).
                 assert!(r.removed >= r.evicted && r.started >= r.evicted);
+                for s in 0..6 {
+                    if let Some(l) = t.ids.lane(s).filter(|l| l.age == 0) {
+                        assert_eq!(l.hits, 1, "frame {k}, slot {s}");
+                    }
+                }
                 *n += r.evicted;
             }
         }
