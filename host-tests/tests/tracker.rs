@@ -181,6 +181,49 @@ fn new_lane_gets_a_new_id() {
     assert_eq!(seen.len(), 3);
 }
 
+/// A line that appears while two markings are tracked and runs parallel to neither (a straight
+/// line diverging from them at 0.08 rad, 3 m right of the camera at its foot) is published from
+/// its third frame, not its second (`PersistConfig::apart_wait`, docs/design.md §11.5); with
+/// the rule off, from its second.
+#[test]
+fn a_lane_apart_from_the_markings_waits_a_frame() {
+    use stjpdacf::tracker::TrackerConfig;
+    for wait in [true, false] {
+        let mut cfg = TrackerConfig::DEFAULT;
+        cfg.persist.apart_wait = wait;
+        let mut t: Box<ReferenceTracker> = Box::new(ReferenceTracker::with_config(&DEFAULT, cfg));
+        let mut first_published = None;
+        for k in 0..12u64 {
+            let scene = ScenarioConfig {
+                lanes: 2,
+                clutter_density: 0.0,
+                ..ScenarioConfig::default()
+            };
+            let mut pts: Vec<[f32; 2]> = Scenario::generate(&scene, k)
+                .points
+                .iter()
+                .map(|&(u, x)| [u as f32, x as f32])
+                .collect();
+            if k >= 6 {
+                pts.extend((0..50).map(|i| {
+                    let u = 4.0 + 1.2 * i as f32;
+                    [u, 3.0 + 0.08 * u]
+                }));
+            }
+            let out = t
+                .step(Instant::from_micros(50_000 * (k as i64 + 1)), &pts)
+                .unwrap();
+            let apart = out.filtered.iter().any(|l| l.z[0] > 1.0);
+            if apart && first_published.is_none() {
+                first_published = Some(k);
+            }
+            assert!(out.filtered.len() >= 2, "frame {k}: {:?}", out.report);
+        }
+        let expected = if wait { 8 } else { 7 };
+        assert_eq!(first_published, Some(expected), "apart_wait = {wait}");
+    }
+}
+
 #[test]
 fn bad_time_and_bad_points_leave_the_state_intact() {
     let mut t = tracker();

@@ -44,7 +44,7 @@ pub mod ray;
 mod rows;
 
 pub use associate::{Explained, Lanes};
-pub use ray::{parallel, ray_stat, vertical, RayStat, RayVerdict};
+pub use ray::{apart, parallel, ray_stat, vertical, RayStat, RayVerdict};
 pub use rows::{row_basis, PassMemory, RowBasis};
 
 /// Tuning of the known-lane stage. Values are model constants, not fitted to a data set
@@ -140,6 +140,9 @@ pub struct PersistConfig {
     /// a transient mis-association; chosen on the replay's robustness curve and the soak's
     /// drives, docs/design.md §11.11).
     pub connector_frames: u8,
+    /// A lane not yet published that runs parallel to none of the lanes found to be paint is
+    /// first published one frame later (docs/design.md §11.5, §11.10).
+    pub apart_wait: bool,
     /// The existence evidence of a known lane's rows (docs/design.md §11.5): `Some` (the
     /// default, [`PaintGap::HIGHWAY`]), the likelihood ratio of the rows under a paint / gap
     /// chain along the lane ([`PaintGap`]), not discounted; `None`, `(1/K) Σ_r ln Λ_r` at the
@@ -238,6 +241,7 @@ impl PersistConfig {
         slot_claims: true,
         connectors: true,
         connector_frames: 2,
+        apart_wait: true,
         paint_gap: Some(PaintGap::HIGHWAY),
     };
 

@@ -93,19 +93,26 @@ pub fn vertical(
 ) -> bool {
     match verdict {
         RayVerdict::Ray => !paint_tests.any(|t| t == Some(true)),
-        RayVerdict::Aligned if aligned => {
-            let mut tested = false;
-            for t in paint_tests {
-                match t {
-                    Some(true) => return false,
-                    Some(false) => tested = true,
-                    None => {}
-                }
-            }
-            tested
-        }
+        RayVerdict::Aligned if aligned => apart(paint_tests),
         _ => false,
     }
+}
+
+/// Whether a lane runs parallel to none of the lanes found to be paint and is tested against at
+/// least one of them (`paint_tests` as in [`vertical`]): markings are parallel curves, so such a
+/// lane is not (yet) shown to be one (docs/design.md §11.10, §11.5).
+///
+/// Evaluates the tests lazily, at most one pass.
+pub fn apart(paint_tests: impl Iterator<Item = Option<bool>>) -> bool {
+    let mut tested = false;
+    for t in paint_tests {
+        match t {
+            Some(true) => return false,
+            Some(false) => tested = true,
+            None => {}
+        }
+    }
+    tested
 }
 
 /// The ray statistic of positions `z` at the index points `u` where `present`, fitted with

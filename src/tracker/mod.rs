@@ -51,6 +51,8 @@ struct SlotInfo {
     /// A lane started this frame as a duplicate of a live lane (docs/design.md §11.9): not
     /// published this frame.
     held: bool,
+    /// The lane has been published (in a frame's filtered output) since it started.
+    shown: bool,
 }
 
 const NO_INFO: SlotInfo = SlotInfo {
@@ -58,6 +60,7 @@ const NO_INFO: SlotInfo = SlotInfo {
     extent: [f32::INFINITY, f32::NEG_INFINITY],
     seen: false,
     held: false,
+    shown: false,
 };
 
 impl Default for SlotInfo {
@@ -189,6 +192,7 @@ impl_tracker! {
             extent: [0.0; 2],
             seen: false,
             held: false,
+            shown: false,
         };
         Self {
             tables: None,

@@ -605,6 +605,8 @@ impl_tracker! {
         let verdicts = self.lane_ray_verdicts();
         let aligned = self.cfg.persist.ray_aligned;
         let (mut any, mut rays) = (0u32, 0u32);
+        // Bit s: lane s kept and found to be paint / kept, of age ≤ 1 and never published.
+        let (mut paint, mut young) = (0u32, 0u32);
         for s in 0..LANES {
             let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
             let ray = persist::vertical(
@@ -614,13 +616,49 @@ impl_tracker! {
                     .filter(|&t| t != s && get(&verdicts, t) == RayVerdict::Paint)
                     .map(|t| self.parallel(s, t)),
             );
-            if self.ids.lane(s).is_some() && (p < self.cfg.persist.p_delete || ray) {
-                self.remove_slot(s);
-                any += 1;
-                rays += u32::from(ray);
+            if let Some(l) = self.ids.lane(s) {
+                if p < self.cfg.persist.p_delete || ray {
+                    self.remove_slot(s);
+                    any += 1;
+                    rays += u32::from(ray);
+                } else {
+                    paint |= u32::from(get(&verdicts, s) == RayVerdict::Paint) << s;
+                    young |= u32::from(l.age < 2 && !get(&self.info, s).shown) << s;
+                }
             }
         }
+        if self.cfg.persist.apart_wait && young != 0 && self.tracking() {
+            self.hold_lanes_apart(young, paint);
+        }
         (any, rays)
+    }
+
+    /// A lane not yet published that runs parallel to none of the paint lanes is first
+    /// published one frame later than other lanes (docs/design.md §11.5): a vehicle's edge
+    /// joined to a marking's near points is decisive paint for a frame before it is seen as the
+    /// ray it is. `young`: bit s for a kept lane of age ≤ 1 never published; `paint`: bit t for
+    /// a kept lane found to be paint (bits of [`Self::delete_unlikely`]).
+    ///
+    /// # Complexity
+    /// Per such lane, one [`Self::parallel`] test against each paint lane (6 quadratic forms).
+    #[inline(never)]
+    fn hold_lanes_apart(&mut self, young: u32, paint: u32) {
+        // Bit masks walked by their set bits: loops of unknown trip count, which the optimiser
+        // leaves rolled.
+        let bits = |mut m: u32| {
+            core::iter::from_fn(move || {
+                let b = m.trailing_zeros() as usize;
+                m &= m.wrapping_sub(1);
+                (b < 32).then_some(b)
+            })
+        };
+        for s in bits(young) {
+            if persist::apart(bits(paint & !(1 << s)).map(|t| self.parallel(s, t))) {
+                if let Some(info) = self.info.get_mut(s) {
+                    info.held = true;
+                }
+            }
+        }
     }
 
     /// `(V_rᵀ p)ᵀ Cov(a_s, a_t) (V_rᵀ q)`: the covariance of `pᵀ z_s` and `qᵀ z_t` for the
@@ -822,8 +860,14 @@ impl_tracker! {
     /// Step 7: the filtered lanes of this frame and the smoothed lanes `LAG` frames back.
     // Not inlined: its frame must not add to the step's (stack budget).
     #[inline(never)]
+    /// An established picture: a lane through two known-lane passes (docs/design.md §11.5).
+    pub(super) fn tracking(&self) -> bool {
+        (0..LANES).any(|t| self.ids.lane(t).is_some_and(|l| l.age > 1))
+    }
+
+    #[inline(never)]
     pub(super) fn estimates(
-        &self,
+        &mut self,
         filtered: &mut Vec<LaneEstimate<POINTS>, LANES>,
         smoothed: &mut Vec<LaneEstimate<POINTS>, LANES>,
     ) {
@@ -833,7 +877,7 @@ impl_tracker! {
         // An established picture (a lane through two known-lane passes): a lane this frame's
         // points alone started then waits for its first confirming frame (docs/design.md
         // §11.5). In the first two frames after nothing was tracked every lane is published.
-        let tracking = (0..LANES).any(|t| self.ids.lane(t).is_some_and(|l| l.age > 1));
+        let tracking = self.tracking();
         for s in 0..LANES {
             if let (Some(lane), Some((z, var))) = (self.ids.lane(s), self.view(s)) {
                 let (u_first, u_last) = self.extent_of(s, 0);
@@ -844,6 +888,9 @@ impl_tracker! {
                         || (lane.age == 0 && tracking))
                 {
                     continue;
+                }
+                if let Some(info) = self.info.get_mut(s) {
+                    info.shown = true;
                 }
                 // At most one estimate per slot: the vectors hold `LANES`, so no push fails.
                 if filtered

@@ -91,6 +91,11 @@ enum Command {
         /// below the birth prior (before stop 43).
         #[arg(long)]
         no_slot_claims: bool,
+        /// Publish a new lane from its second frame even when it runs parallel to no lane found
+        /// to be paint (`PersistConfig::apart_wait = false`, docs/design.md §11.5; before
+        /// stop 44).
+        #[arg(long)]
+        no_apart_wait: bool,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -315,6 +320,7 @@ fn main() -> Result<()> {
             interval_evidence,
             decisive_rays_only,
             no_slot_claims,
+            no_apart_wait,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -359,6 +365,7 @@ fn main() -> Result<()> {
                             },
                             ray_aligned: d.persist.ray_aligned && !decisive_rays_only,
                             slot_claims: d.persist.slot_claims && !no_slot_claims,
+                            apart_wait: d.persist.apart_wait && !no_apart_wait,
                             ..d.persist
                         },
                         ..d

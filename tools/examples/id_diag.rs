@@ -1,0 +1,173 @@
+//! Where the replay's lane ids come from: the demo's replay (40 bundled labels × 20 frames,
+//! seed 1, coupled B, default configuration) at one noise level; every id the tracker publishes
+//! in a clip (as the demo's identity table counts them: lanes seen within `MAX_REPORT_MISSES`
+//! frames) is "true" when the official metric matched it to a labelled lane on some frame and
+//! "false" (never a true lane) otherwise. Per class: the number of frames it was published on,
+//! the clip frame and the lane's age at its first publication, and its existence then.
+//! `ID_DIAG_LIST=1` prints every false id with its frames, existence, age and hits, and the
+//! step report of the frame after its last publication (what removed it: the ray test,
+//! connectors, merges, a yielded slot).
+//!
+//! `cargo run --release -p stjpdacf-tools --example id_diag [-- low|mid|high]` (default mid;
+//! `apart_wait=0` for the publication rule of before stop 44).
+use std::collections::{BTreeMap, HashMap};
+use stjpdacf::tracker::TrackerConfig;
+use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::metric;
+use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
+use stjpdacf_tools::track::{self, Space, MAX_REPORT_MISSES};
+
+#[derive(Default, Debug)]
+struct Life {
+    frames: Vec<usize>,
+    ex: Vec<f32>,
+    age: Vec<u32>,
+    hits: Vec<u32>,
+    matched: usize,
+}
+
+fn main() -> anyhow::Result<()> {
+    let mut level = NoiseLevel::Mid;
+    let mut config = TrackerConfig::DEFAULT;
+    for a in std::env::args().skip(1) {
+        match a.as_str() {
+            "low" => level = NoiseLevel::Low,
+            "mid" => level = NoiseLevel::Mid,
+            "high" => level = NoiseLevel::High,
+            "apart_wait=0" => config.persist.apart_wait = false,
+            "apart_wait=1" => config.persist.apart_wait = true,
+            _ => anyhow::bail!("unknown argument {a} (low|mid|high, apart_wait=0|1)"),
+        }
+    }
+    let labels = stjpdacf_tools::demo::replay_labels()?;
+    let cam = Camera::tusimple();
+    let params = SynthParams::preset(level);
+    let o = synth::synthesize(&labels, &params, &cam, 1)?;
+    let gt_index: HashMap<&str, usize> = o
+        .gt_all
+        .iter()
+        .enumerate()
+        .map(|(j, g)| (g.raw_file.as_str(), j))
+        .collect();
+    let mut lives: BTreeMap<(String, u32), Life> = BTreeMap::new();
+    let mut k_in_clip = 0usize;
+    let mut reps: HashMap<(String, usize), String> = HashMap::new();
+    track::track_with(
+        &o.frames,
+        &stjpdacf::tables::DEFAULT,
+        &cam,
+        Space::Image,
+        config,
+        |v| {
+            let new_clip =
+                v.index == 0 || o.frames.get(v.index - 1).map(|f| &f.clip) != Some(&v.frame.clip);
+            if new_clip {
+                k_in_clip = 0
+            } else {
+                k_in_clip += 1
+            }
+            let Some(out) = v.output else { return };
+            let r = &out.report;
+            reps.insert(
+                (v.frame.clip.clone(), k_in_clip),
+                format!(
+                    "del {} (ray {}, conn {}) merged {} evicted {} removed {}",
+                    r.known.deleted,
+                    r.known.ray_deleted,
+                    r.known.connectors_deleted,
+                    r.known.merged,
+                    r.identity.evicted,
+                    r.identity.removed
+                ),
+            );
+            let mut matched_ids = Vec::new();
+            if let Some(p) = v.prediction {
+                if let Some(&j) = gt_index.get(p.raw_file.as_str()) {
+                    let g = &o.gt_all[j];
+                    let lanes: Vec<Vec<f64>> = g
+                        .lanes
+                        .iter()
+                        .filter(|l| l.iter().any(|v| *v >= 0.0))
+                        .cloned()
+                        .collect();
+                    let m = metric::match_lanes(&p.lanes, &lanes, &g.h_samples);
+                    for gm in m.gt_match.iter().flatten() {
+                        if let Some(id) = v.prediction_ids.get(*gm) {
+                            matched_ids.push(*id)
+                        }
+                    }
+                }
+            }
+            for l in out
+                .filtered
+                .iter()
+                .filter(|l| l.misses <= MAX_REPORT_MISSES)
+            {
+                let e = lives.entry((v.frame.clip.clone(), l.id.0)).or_default();
+                e.frames.push(k_in_clip);
+                e.ex.push(l.existence);
+                e.age.push(l.age);
+                e.hits.push(l.hits);
+                if matched_ids.contains(&l.id.0) {
+                    e.matched += 1
+                }
+            }
+        },
+    )?;
+    let clips = lives
+        .keys()
+        .map(|k| k.0.clone())
+        .collect::<std::collections::HashSet<_>>()
+        .len();
+    let (t, f): (Vec<_>, Vec<_>) = lives.iter().partition(|(_, l)| l.matched > 0);
+    println!(
+        "{level:?}: clips {clips}, ids {} (true {}, never true {})",
+        lives.len(),
+        t.len(),
+        f.len()
+    );
+    for (name, set) in [("true", &t), ("false", &f)] {
+        let mut by_len = BTreeMap::new();
+        let mut by_first = BTreeMap::new();
+        let mut by_age = BTreeMap::new();
+        let mut ex_bins = [0usize; 5];
+        for (_, l) in set.iter() {
+            *by_len.entry(l.frames.len().min(11)).or_insert(0) += 1;
+            *by_first.entry(l.frames[0].min(3)).or_insert(0) += 1;
+            *by_age.entry(l.age[0].min(4)).or_insert(0) += 1;
+            let e = l.ex[0];
+            let b = if e < 0.6 {
+                0
+            } else if e < 0.8 {
+                1
+            } else if e < 0.95 {
+                2
+            } else if e < 0.99 {
+                3
+            } else {
+                4
+            };
+            ex_bins[b] += 1;
+        }
+        println!("{name}: frames published {by_len:?}; first clip frame {by_first:?}; age at first pub {by_age:?}; existence at first pub <.6/.6-.8/.8-.95/.95-.99/>=.99 {ex_bins:?}");
+    }
+    if std::env::var("ID_DIAG_LIST").is_ok() {
+        for ((c, id), l) in f.iter() {
+            let last = *l.frames.last().unwrap_or(&0);
+            let nxt = reps
+                .get(&(c.clone(), last + 1))
+                .cloned()
+                .unwrap_or_default();
+            println!(
+                "{c} id {id}: next [{nxt}] frames {:?} ex {:?} age {:?} hits {:?}",
+                l.frames,
+                l.ex.iter()
+                    .map(|e| (e * 100.0).round() / 100.0)
+                    .collect::<Vec<_>>(),
+                l.age,
+                l.hits
+            );
+        }
+    }
+    Ok(())
+}
