@@ -605,7 +605,8 @@ impl_tracker! {
         let verdicts = self.lane_ray_verdicts();
         let aligned = self.cfg.persist.ray_aligned;
         let (mut any, mut rays) = (0u32, 0u32);
-        // Bit s: lane s kept and found to be paint / kept, of age ≤ 1 and never published.
+        // Bit s: lane s kept and found to be paint / kept, of age 1, never published and at
+        // `p_publish`.
         let (mut paint, mut young) = (0u32, 0u32);
         for s in 0..LANES {
             let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
@@ -623,7 +624,10 @@ impl_tracker! {
                     rays += u32::from(ray);
                 } else {
                     paint |= u32::from(get(&verdicts, s) == RayVerdict::Paint) << s;
-                    young |= u32::from(l.age < 2 && !get(&self.info, s).shown) << s;
+                    // Only a lane this frame would publish for the first time: one that has
+                    // been through one known-lane pass (§11.5) and stands at `p_publish`.
+                    let first = l.age == 1 && !get(&self.info, s).shown;
+                    young |= u32::from(first && p >= self.cfg.persist.p_publish) << s;
                 }
             }
         }
@@ -636,8 +640,9 @@ impl_tracker! {
     /// A lane not yet published that runs parallel to none of the paint lanes is first
     /// published one frame later than other lanes (docs/design.md §11.5): a vehicle's edge
     /// joined to a marking's near points is decisive paint for a frame before it is seen as the
-    /// ray it is. `young`: bit s for a kept lane of age ≤ 1 never published; `paint`: bit t for
-    /// a kept lane found to be paint (bits of [`Self::delete_unlikely`]).
+    /// ray it is. `young`: bit s for a kept lane of age 1, never published, at `p_publish` (the
+    /// only lanes this frame would publish for the first time while others are tracked);
+    /// `paint`: bit t for a kept lane found to be paint (bits of [`Self::delete_unlikely`]).
     ///
     /// # Complexity
     /// Per such lane, one [`Self::parallel`] test against each paint lane (6 quadratic forms).
