@@ -181,46 +181,65 @@ fn new_lane_gets_a_new_id() {
     assert_eq!(seen.len(), 3);
 }
 
-/// A line that appears while two markings are tracked and runs parallel to neither (a straight
-/// line diverging from them at 0.08 rad, 3 m right of the camera at its foot) is published from
-/// its third frame, not its second (`PersistConfig::apart_wait`, docs/design.md §11.5); with
-/// the rule off, from its second.
+/// A line that appears while two markings are tracked (straight, at x ≈ −5.4 and −1.8 m) and is
+/// not yet shown to be a marking of its own is published from its third frame, not its second
+/// (`PersistConfig::newcomer_wait`, docs/design.md §11.5); with the rule off, from its second:
+/// * a line that runs parallel to neither (diverging at 0.08 rad, 3 m right of the camera at
+///   its foot);
+/// * a line parallel to them 1.4–1.6 m right of the second (closer than two markings can be).
+///
+/// A line parallel to them at a marking's spacing (3.5–3.7 m) is published from its second
+/// frame either way.
 #[test]
-fn a_lane_apart_from_the_markings_waits_a_frame() {
+fn a_newcomer_that_is_not_yet_a_marking_waits_a_frame() {
     use stjpdacf::tracker::TrackerConfig;
-    for wait in [true, false] {
-        let mut cfg = TrackerConfig::DEFAULT;
-        cfg.persist.apart_wait = wait;
-        let mut t: Box<ReferenceTracker> = Box::new(ReferenceTracker::with_config(&DEFAULT, cfg));
-        let mut first_published = None;
-        for k in 0..12u64 {
-            let scene = ScenarioConfig {
-                lanes: 2,
-                clutter_density: 0.0,
-                ..ScenarioConfig::default()
-            };
-            let mut pts: Vec<[f32; 2]> = Scenario::generate(&scene, k)
-                .points
-                .iter()
-                .map(|&(u, x)| [u as f32, x as f32])
-                .collect();
-            if k >= 6 {
-                pts.extend((0..50).map(|i| {
-                    let u = 4.0 + 1.2 * i as f32;
-                    [u, 3.0 + 0.08 * u]
-                }));
+    // (line x(u), where its lane is at the first index point, frame of its first publication
+    // with the rule on)
+    let cases: [(fn(f32) -> f32, f32, u64); 3] = [
+        (|u| 3.0 + 0.08 * u, 3.24, 8),
+        (|_| -0.3, -0.3, 8),
+        (|_| 1.8, 1.8, 7),
+    ];
+    for (line, z0, on) in cases {
+        for wait in [true, false] {
+            let mut cfg = TrackerConfig::DEFAULT;
+            cfg.persist.newcomer_wait = wait;
+            let mut t: Box<ReferenceTracker> =
+                Box::new(ReferenceTracker::with_config(&DEFAULT, cfg));
+            let mut first_published = None;
+            for k in 0..12u64 {
+                let scene = ScenarioConfig {
+                    lanes: 2,
+                    clutter_density: 0.0,
+                    ..ScenarioConfig::default()
+                };
+                let mut pts: Vec<[f32; 2]> = Scenario::generate(&scene, k)
+                    .points
+                    .iter()
+                    .map(|&(u, x)| [u as f32, x as f32])
+                    .collect();
+                if k >= 6 {
+                    pts.extend((0..50).map(|i| {
+                        let u = 4.0 + 1.2 * i as f32;
+                        [u, line(u)]
+                    }));
+                }
+                let out = t
+                    .step(Instant::from_micros(50_000 * (k as i64 + 1)), &pts)
+                    .unwrap();
+                let shown = out.filtered.iter().any(|l| (l.z[0] - z0).abs() < 0.5);
+                if shown && first_published.is_none() {
+                    first_published = Some(k);
+                }
+                assert!(out.filtered.len() >= 2, "frame {k}: {:?}", out.report);
             }
-            let out = t
-                .step(Instant::from_micros(50_000 * (k as i64 + 1)), &pts)
-                .unwrap();
-            let apart = out.filtered.iter().any(|l| l.z[0] > 1.0);
-            if apart && first_published.is_none() {
-                first_published = Some(k);
-            }
-            assert!(out.filtered.len() >= 2, "frame {k}: {:?}", out.report);
+            let expected = if wait { on } else { 7 };
+            assert_eq!(
+                first_published,
+                Some(expected),
+                "line at {z0} m, newcomer_wait = {wait}"
+            );
         }
-        let expected = if wait { 8 } else { 7 };
-        assert_eq!(first_published, Some(expected), "apart_wait = {wait}");
     }
 }
 

@@ -140,9 +140,11 @@ pub struct PersistConfig {
     /// a transient mis-association; chosen on the replay's robustness curve and the soak's
     /// drives, docs/design.md §11.11).
     pub connector_frames: u8,
-    /// A lane not yet published that runs parallel to none of the lanes found to be paint is
-    /// first published one frame later (docs/design.md §11.5, §11.10).
-    pub apart_wait: bool,
+    /// While other lanes are tracked, a lane at its first publication that is not yet shown to
+    /// be a marking of its own — it runs parallel to none of the lanes found to be paint, or it
+    /// lies within `2 · min_spacing` of a lane published before — is published one frame later
+    /// (docs/design.md §11.5).
+    pub newcomer_wait: bool,
     /// The existence evidence of a known lane's rows (docs/design.md §11.5): `Some` (the
     /// default, [`PaintGap::HIGHWAY`]), the likelihood ratio of the rows under a paint / gap
     /// chain along the lane ([`PaintGap`]), not discounted; `None`, `(1/K) Σ_r ln Λ_r` at the
@@ -241,7 +243,7 @@ impl PersistConfig {
         slot_claims: true,
         connectors: true,
         connector_frames: 2,
-        apart_wait: true,
+        newcomer_wait: true,
         paint_gap: Some(PaintGap::HIGHWAY),
     };
 

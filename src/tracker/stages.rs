@@ -605,9 +605,9 @@ impl_tracker! {
         let verdicts = self.lane_ray_verdicts();
         let aligned = self.cfg.persist.ray_aligned;
         let (mut any, mut rays) = (0u32, 0u32);
-        // Bit s: lane s kept and found to be paint / kept, of age 1, never published and at
-        // `p_publish`.
-        let (mut paint, mut young) = (0u32, 0u32);
+        // Bit s: lane s kept and found to be paint / kept and published before / kept, of
+        // age 1, never published and at `p_publish`.
+        let (mut paint, mut shown, mut young) = (0u32, 0u32, 0u32);
         for s in 0..LANES {
             let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
             let ray = persist::vertical(
@@ -623,31 +623,38 @@ impl_tracker! {
                     any += 1;
                     rays += u32::from(ray);
                 } else {
+                    let info = get(&self.info, s);
                     paint |= u32::from(get(&verdicts, s) == RayVerdict::Paint) << s;
+                    shown |= u32::from(info.shown) << s;
                     // Only a lane this frame would publish for the first time: one that has
                     // been through one known-lane pass (§11.5) and stands at `p_publish`.
-                    let first = l.age == 1 && !get(&self.info, s).shown;
+                    let first = l.age == 1 && !info.shown;
                     young |= u32::from(first && p >= self.cfg.persist.p_publish) << s;
                 }
             }
         }
-        if self.cfg.persist.apart_wait && young != 0 && self.tracking() {
-            self.hold_lanes_apart(young, paint);
+        if self.cfg.persist.newcomer_wait && young != 0 && self.tracking() {
+            self.hold_newcomers(young, paint, shown);
         }
         (any, rays)
     }
 
-    /// A lane not yet published that runs parallel to none of the paint lanes is first
-    /// published one frame later than other lanes (docs/design.md §11.5): a vehicle's edge
-    /// joined to a marking's near points is decisive paint for a frame before it is seen as the
-    /// ray it is. `young`: bit s for a kept lane of age 1, never published, at `p_publish` (the
-    /// only lanes this frame would publish for the first time while others are tracked);
-    /// `paint`: bit t for a kept lane found to be paint (bits of [`Self::delete_unlikely`]).
+    /// A lane at its first publication waits one frame more when it is not yet shown to be a
+    /// marking of its own (docs/design.md §11.5): it runs parallel to none of the paint lanes
+    /// (a vehicle's edge joined to a marking's near points is decisive paint for a frame
+    /// before it is seen as the ray it is), or it lies within twice `min_spacing` (the lower
+    /// bound on the spacing of two markings) of a lane published before (a young track beside
+    /// a marking, which the duplicate test of §11.9 takes in the next frame). `young`: bit s
+    /// for a kept lane of age 1, never published, at `p_publish` (the only lanes this frame
+    /// would publish for the first time while others are tracked); `paint` / `shown`: bit t
+    /// for a kept lane found to be paint / published before (bits of
+    /// [`Self::delete_unlikely`]).
     ///
     /// # Complexity
-    /// Per such lane, one [`Self::parallel`] test against each paint lane (6 quadratic forms).
+    /// Per such lane, one [`Self::parallel`] test against each paint lane (6 quadratic forms)
+    /// and a mean distance over ≤ `POINTS` index points against each published lane.
     #[inline(never)]
-    fn hold_lanes_apart(&mut self, young: u32, paint: u32) {
+    fn hold_newcomers(&mut self, young: u32, paint: u32, shown: u32) {
         // Bit masks walked by their set bits: loops of unknown trip count, which the optimiser
         // leaves rolled.
         let bits = |mut m: u32| {
@@ -658,12 +665,43 @@ impl_tracker! {
             })
         };
         for s in bits(young) {
-            if persist::apart(bits(paint & !(1 << s)).map(|t| self.parallel(s, t))) {
+            let others = !(1u32 << s);
+            let hold = persist::apart(bits(paint & others).map(|t| self.parallel(s, t)))
+                || self.view(s).is_some_and(|(zs, _)| {
+                    let extent = self.extent_this_frame(s);
+                    bits(shown & others).any(|t| self.within_spacing(&zs, extent, t))
+                });
+            if hold {
                 if let Some(info) = self.info.get_mut(s) {
                     info.held = true;
                 }
             }
         }
+    }
+
+    /// Whether a live lane at positions `zs` over observed extent `(a0, a1)` and live lane `t`
+    /// are closer than two markings can be: their mean distance over the index points inside
+    /// both observed extents (this frame's and the last `LAG`) is under `2 · min_spacing`, over
+    /// at least `min_common` of them.
+    #[inline(never)]
+    fn within_spacing(&self, zs: &SVector<f32, POINTS>, (a0, a1): (f32, f32), t: usize) -> bool {
+        let (Some(tables), Some((zt, _))) = (self.tables, self.view(t)) else {
+            return false;
+        };
+        let (b0, b1) = self.extent_this_frame(t);
+        let (lo, hi) = (a0.max(b0), a1.min(b1));
+        let (mut dist, mut n) = (0.0f32, 0u32);
+        for i in 0..POINTS {
+            let u = tables.index_u.get(i).copied().unwrap_or(f32::NAN);
+            if u >= lo && u <= hi {
+                let at = |z: &SVector<f32, POINTS>| z.get(i).copied().unwrap_or(f32::NAN);
+                dist += (at(zs) - at(&zt)).abs();
+                n += 1;
+            }
+        }
+        // A non-finite distance compares false: no hold.
+        n >= u32::from(self.cfg.identity.min_common.max(1))
+            && dist < 2.0 * self.cfg.persist.min_spacing * n as f32
     }
 
     /// `(V_rᵀ p)ᵀ Cov(a_s, a_t) (V_rᵀ q)`: the covariance of `pᵀ z_s` and `qᵀ z_t` for the

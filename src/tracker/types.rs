@@ -158,7 +158,7 @@ impl TrackerConfig {
             slot_claims: false,
             connectors: false,
             connector_frames: 0,
-            apart_wait: false,
+            newcomer_wait: false,
             paint_gap: None,
         },
         smoother_per_lane: false,

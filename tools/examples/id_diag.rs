@@ -9,7 +9,7 @@
 //! connectors, merges, a yielded slot).
 //!
 //! `cargo run --release -p stjpdacf-tools --example id_diag [-- low|mid|high]` (default mid;
-//! `apart_wait=0` for the publication rule of before stop 44).
+//! `newcomer_wait=0` for the publication rule of before stop 44).
 use std::collections::{BTreeMap, HashMap};
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
@@ -34,9 +34,9 @@ fn main() -> anyhow::Result<()> {
             "low" => level = NoiseLevel::Low,
             "mid" => level = NoiseLevel::Mid,
             "high" => level = NoiseLevel::High,
-            "apart_wait=0" => config.persist.apart_wait = false,
-            "apart_wait=1" => config.persist.apart_wait = true,
-            _ => anyhow::bail!("unknown argument {a} (low|mid|high, apart_wait=0|1)"),
+            "newcomer_wait=0" => config.persist.newcomer_wait = false,
+            "newcomer_wait=1" => config.persist.newcomer_wait = true,
+            _ => anyhow::bail!("unknown argument {a} (low|mid|high, newcomer_wait=0|1)"),
         }
     }
     let labels = stjpdacf_tools::demo::replay_labels()?;

@@ -92,10 +92,10 @@ enum Command {
         #[arg(long)]
         no_slot_claims: bool,
         /// Publish a new lane from its second frame even when it runs parallel to no lane found
-        /// to be paint (`PersistConfig::apart_wait = false`, docs/design.md §11.5; before
-        /// stop 44).
+        /// to be paint or lies within 2 m of a published lane (`PersistConfig::newcomer_wait =
+        /// false`, docs/design.md §11.5; before stop 44).
         #[arg(long)]
-        no_apart_wait: bool,
+        no_newcomer_wait: bool,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -320,7 +320,7 @@ fn main() -> Result<()> {
             interval_evidence,
             decisive_rays_only,
             no_slot_claims,
-            no_apart_wait,
+            no_newcomer_wait,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -365,7 +365,7 @@ fn main() -> Result<()> {
                             },
                             ray_aligned: d.persist.ray_aligned && !decisive_rays_only,
                             slot_claims: d.persist.slot_claims && !no_slot_claims,
-                            apart_wait: d.persist.apart_wait && !no_apart_wait,
+                            newcomer_wait: d.persist.newcomer_wait && !no_newcomer_wait,
                             ..d.persist
                         },
                         ..d
