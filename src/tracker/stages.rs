@@ -605,8 +605,8 @@ impl_tracker! {
         let verdicts = self.lane_ray_verdicts();
         let aligned = self.cfg.persist.ray_aligned;
         let (mut any, mut rays) = (0u32, 0u32);
-        // Bit s: lane s kept and found to be paint / kept and published before / kept, of
-        // age 1, never published and at `p_publish`.
+        // Bit s: lane s kept and found to be paint / kept, published before and seen this
+        // frame / kept, of age 1, never published and at `p_publish`.
         let (mut paint, mut shown, mut young) = (0u32, 0u32, 0u32);
         for s in 0..LANES {
             let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
@@ -625,7 +625,9 @@ impl_tracker! {
                 } else {
                     let info = get(&self.info, s);
                     paint |= u32::from(get(&verdicts, s) == RayVerdict::Paint) << s;
-                    shown |= u32::from(info.shown) << s;
+                    // Seen this frame: a coasting lane is not a marking beside the lane that
+                    // took its place (a bump, a jump: §11.9).
+                    shown |= u32::from(info.shown && info.seen) << s;
                     // Only a lane this frame would publish for the first time: one that has
                     // been through one known-lane pass (§11.5) and stands at `p_publish`.
                     let first = l.age == 1 && !info.shown;
@@ -643,11 +645,13 @@ impl_tracker! {
     /// marking of its own (docs/design.md §11.5): it runs parallel to none of the paint lanes
     /// (a vehicle's edge joined to a marking's near points is decisive paint for a frame
     /// before it is seen as the ray it is), or it lies within twice `min_spacing` (the lower
-    /// bound on the spacing of two markings) of a lane published before (a young track beside
-    /// a marking, which the duplicate test of §11.9 takes in the next frame). `young`: bit s
+    /// bound on the spacing of two markings) of a lane published before and seen this frame (a
+    /// young track beside a marking, which the duplicate test of §11.9 takes in the next
+    /// frame; a coasting lane is not compared, as in §11.9: after a jump the lanes that took
+    /// the old ones' places are no duplicates). `young`: bit s
     /// for a kept lane of age 1, never published, at `p_publish` (the only lanes this frame
     /// would publish for the first time while others are tracked); `paint` / `shown`: bit t
-    /// for a kept lane found to be paint / published before (bits of
+    /// for a kept lane found to be paint / published before and seen this frame (bits of
     /// [`Self::delete_unlikely`]).
     ///
     /// # Complexity
