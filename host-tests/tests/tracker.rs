@@ -195,7 +195,8 @@ fn a_newcomer_that_is_not_yet_a_marking_waits_a_frame() {
     use stjpdacf::tracker::TrackerConfig;
     // (line x(u), where its lane is at the first index point, frame of its first publication
     // with the rule on)
-    let cases: [(fn(f32) -> f32, f32, u64); 3] = [
+    type Line = fn(f32) -> f32;
+    let cases: [(Line, f32, u64); 3] = [
         (|u| 3.0 + 0.08 * u, 3.24, 8),
         (|_| -0.3, -0.3, 8),
         (|_| 1.8, 1.8, 7),
