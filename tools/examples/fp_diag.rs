@@ -94,12 +94,7 @@ fn main() -> anyhow::Result<()> {
             params.distractors = k;
         }
         let o = synth::synthesize(&labels, &params, &cam, 1)?;
-        let gt_index: std::collections::HashMap<&str, usize> = o
-            .gt_all
-            .iter()
-            .enumerate()
-            .map(|(j, g)| (g.raw_file.as_str(), j))
-            .collect();
+        let gt_index = o.gt_index();
         let last: std::collections::HashSet<&str> =
             o.gt_last.iter().map(|g| g.raw_file.as_str()).collect();
         // FP_DIAG_INTERVAL=1: the existence evidence discounted 1/K per index interval instead

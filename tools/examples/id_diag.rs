@@ -43,12 +43,7 @@ fn main() -> anyhow::Result<()> {
     let cam = Camera::tusimple();
     let params = SynthParams::preset(level);
     let o = synth::synthesize(&labels, &params, &cam, 1)?;
-    let gt_index: HashMap<&str, usize> = o
-        .gt_all
-        .iter()
-        .enumerate()
-        .map(|(j, g)| (g.raw_file.as_str(), j))
-        .collect();
+    let gt_index = o.gt_index();
     let mut lives: BTreeMap<(String, u32), Life> = BTreeMap::new();
     let mut k_in_clip = 0usize;
     let mut reps: HashMap<(String, usize), String> = HashMap::new();

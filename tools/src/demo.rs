@@ -1091,12 +1091,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
             params.frames_per_clip = k;
         }
         let o = synth::synthesize(&labels, &params, &cam, opts.seed)?;
-        let gt_index: HashMap<&str, usize> = o
-            .gt_all
-            .iter()
-            .enumerate()
-            .map(|(j, g)| (g.raw_file.as_str(), j))
-            .collect();
+        let gt_index = o.gt_index();
         let merge_clips: Vec<String> = o
             .clip_stats
             .iter()

@@ -394,6 +394,17 @@ pub struct SynthOutput {
     pub stats: SynthStats,
 }
 
+impl SynthOutput {
+    /// Each `gt_all` record's index by its `raw_file` (the frames' and predictions' key).
+    pub fn gt_index(&self) -> std::collections::HashMap<&str, usize> {
+        self.gt_all
+            .iter()
+            .enumerate()
+            .map(|(j, g)| (g.raw_file.as_str(), j))
+            .collect()
+    }
+}
+
 /// Generate one clip per label (labels in order), clip `i` seeded by (`seed`, `i`).
 /// Errors: bad parameters, a label whose shape is wrong ([`TuSimpleRecord::check_shape`]) or
 /// repeated `raw_file`s (the scorer joins on them).
