@@ -142,9 +142,11 @@ pub struct PersistConfig {
     pub connector_frames: u8,
     /// While other lanes are tracked, a lane at its first publication that is not yet shown to
     /// be a marking of its own — it runs parallel to none of the lanes found to be paint, or it
-    /// lies within `2 · min_spacing` of a lane published before — is published one frame later
-    /// (docs/design.md §11.5).
-    pub newcomer_wait: bool,
+    /// lies within `2 · min_spacing` of a lane published before and seen this frame — is held,
+    /// for at most this many frames (docs/design.md §11.5): 2 by default (a lane that passes
+    /// the tests, or has waited this long, is published); 0 turns the rule off. Chosen on the
+    /// bundled replay's lane ids (1 and 3 measured, design §11.5).
+    pub newcomer_wait: u8,
     /// The existence evidence of a known lane's rows (docs/design.md §11.5): `Some` (the
     /// default, [`PaintGap::HIGHWAY`]), the likelihood ratio of the rows under a paint / gap
     /// chain along the lane ([`PaintGap`]), not discounted; `None`, `(1/K) Σ_r ln Λ_r` at the
@@ -243,7 +245,7 @@ impl PersistConfig {
         slot_claims: true,
         connectors: true,
         connector_frames: 2,
-        newcomer_wait: true,
+        newcomer_wait: 2,
         paint_gap: Some(PaintGap::HIGHWAY),
     };
 

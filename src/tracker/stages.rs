@@ -606,8 +606,9 @@ impl_tracker! {
         let aligned = self.cfg.persist.ray_aligned;
         let (mut any, mut rays) = (0u32, 0u32);
         // Bit s: lane s kept and found to be paint / kept, published before and seen this
-        // frame / kept, of age 1, never published and at `p_publish`.
+        // frame / kept, of age 1 to `newcomer_wait`, never published and at `p_publish`.
         let (mut paint, mut shown, mut young) = (0u32, 0u32, 0u32);
+        let wait = self.cfg.persist.newcomer_wait;
         for s in 0..LANES {
             let p = self.persist.lanes.get(s).map_or(1.0, |l| l.existence);
             let ray = persist::vertical(
@@ -629,27 +630,29 @@ impl_tracker! {
                     // took its place (a bump, a jump: §11.9).
                     shown |= u32::from(info.shown && info.seen) << s;
                     // Only a lane this frame would publish for the first time: one that has
-                    // been through one known-lane pass (§11.5) and stands at `p_publish`.
-                    let first = l.age == 1 && !info.shown;
+                    // been through one to `newcomer_wait` known-lane passes (§11.5), was never
+                    // published and stands at `p_publish`.
+                    let first = (1..=u32::from(wait)).contains(&l.age) && !info.shown;
                     young |= u32::from(first && p >= self.cfg.persist.p_publish) << s;
                 }
             }
         }
-        if self.cfg.persist.newcomer_wait && young != 0 && self.tracking() {
+        if young != 0 && self.tracking() {
             self.hold_newcomers(young, paint, shown);
         }
         (any, rays)
     }
 
-    /// A lane at its first publication waits one frame more when it is not yet shown to be a
-    /// marking of its own (docs/design.md §11.5): it runs parallel to none of the paint lanes
+    /// A lane at its first publication waits a frame more (up to `newcomer_wait` frames) when
+    /// it is not yet shown to be a marking of its own (docs/design.md §11.5): it runs parallel to none of the paint lanes
     /// (a vehicle's edge joined to a marking's near points is decisive paint for a frame
     /// before it is seen as the ray it is), or it lies within twice `min_spacing` (the lower
     /// bound on the spacing of two markings) of a lane published before and seen this frame (a
     /// young track beside a marking, which the duplicate test of §11.9 takes in the next
     /// frame; a coasting lane is not compared, as in §11.9: after a jump the lanes that took
     /// the old ones' places are no duplicates). `young`: bit s
-    /// for a kept lane of age 1, never published, at `p_publish` (the only lanes this frame
+    /// for a kept lane of age 1 to `newcomer_wait`, never published, at `p_publish` (the only
+    /// lanes this frame
     /// would publish for the first time while others are tracked); `paint` / `shown`: bit t
     /// for a kept lane found to be paint / published before and seen this frame (bits of
     /// [`Self::delete_unlikely`]).

@@ -158,7 +158,7 @@ impl TrackerConfig {
             slot_claims: false,
             connectors: false,
             connector_frames: 0,
-            newcomer_wait: false,
+            newcomer_wait: 0,
             paint_gap: None,
         },
         smoother_per_lane: false,

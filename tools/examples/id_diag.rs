@@ -9,7 +9,7 @@
 //! connectors, merges, a yielded slot).
 //!
 //! `cargo run --release -p stjpdacf-tools --example id_diag [-- low|mid|high]` (default mid;
-//! `newcomer_wait=0` for the publication rule of before stop 44).
+//! `newcomer_wait=0` for the publication rule of before stop 44, `newcomer_wait=1` for stop 44's).
 use std::collections::{BTreeMap, HashMap};
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
@@ -34,9 +34,10 @@ fn main() -> anyhow::Result<()> {
             "low" => level = NoiseLevel::Low,
             "mid" => level = NoiseLevel::Mid,
             "high" => level = NoiseLevel::High,
-            "newcomer_wait=0" => config.persist.newcomer_wait = false,
-            "newcomer_wait=1" => config.persist.newcomer_wait = true,
-            _ => anyhow::bail!("unknown argument {a} (low|mid|high, newcomer_wait=0|1)"),
+            w if w.starts_with("newcomer_wait=") => {
+                config.persist.newcomer_wait = w["newcomer_wait=".len()..].parse()?;
+            }
+            _ => anyhow::bail!("unknown argument {a} (low|mid|high, newcomer_wait=FRAMES)"),
         }
     }
     let labels = stjpdacf_tools::demo::replay_labels()?;

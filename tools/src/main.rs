@@ -93,9 +93,13 @@ enum Command {
         no_slot_claims: bool,
         /// Publish a new lane from its second frame even when it runs parallel to no lane found
         /// to be paint or lies within 2 m of a published lane (`PersistConfig::newcomer_wait =
-        /// false`, docs/design.md §11.5; before stop 44).
+        /// 0`, docs/design.md §11.5; before stop 44).
         #[arg(long)]
         no_newcomer_wait: bool,
+        /// The most frames such a lane waits (`PersistConfig::newcomer_wait`, default 2; 1 is
+        /// the rule of stop 44).
+        #[arg(long, value_name = "FRAMES")]
+        newcomer_wait: Option<u8>,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -321,6 +325,7 @@ fn main() -> Result<()> {
             decisive_rays_only,
             no_slot_claims,
             no_newcomer_wait,
+            newcomer_wait,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -365,7 +370,11 @@ fn main() -> Result<()> {
                             },
                             ray_aligned: d.persist.ray_aligned && !decisive_rays_only,
                             slot_claims: d.persist.slot_claims && !no_slot_claims,
-                            newcomer_wait: d.persist.newcomer_wait && !no_newcomer_wait,
+                            newcomer_wait: if no_newcomer_wait {
+                                0
+                            } else {
+                                newcomer_wait.unwrap_or(d.persist.newcomer_wait)
+                            },
                             ..d.persist
                         },
                         ..d
