@@ -83,22 +83,22 @@ enum Command {
         interval_evidence: bool,
         /// Act only on decisive rays (`PersistConfig::ray_aligned = false`, docs/design.md
         /// §11.10): a lane consistent with a ray whose offset at the camera's foot point is not
-        /// resolved is kept even when it runs parallel to no marking (before stop 42).
+        /// resolved is kept even when it runs parallel to no marking (an ablation).
         #[arg(long)]
         decisive_rays_only: bool,
         /// Turn a new lane away when every slot is taken (`PersistConfig::slot_claims = false`,
         /// docs/design.md §11.13) instead of giving it the slot of a lane whose existence fell
-        /// below the birth prior (before stop 43).
+        /// below the birth prior (an ablation).
         #[arg(long)]
         no_slot_claims: bool,
         /// Publish a new lane from its second frame even when it runs parallel to no lane found
         /// to be paint or lies within 2 m of a published lane (`PersistConfig::newcomer_wait =
-        /// 0`, docs/design.md §11.5; before stop 44).
+        /// 0`, docs/design.md §11.5; an ablation).
         #[arg(long)]
         no_newcomer_wait: bool,
-        /// The most frames such a lane waits (`PersistConfig::newcomer_wait`, default 2; 1 is
-        /// the rule of stop 44).
-        #[arg(long, value_name = "FRAMES")]
+        /// The most frames a new lane that is not yet shown to be a marking of its own waits
+        /// before it is published (`PersistConfig::newcomer_wait`, default 2; 0 = no wait).
+        #[arg(long, value_name = "FRAMES", conflicts_with = "no_newcomer_wait")]
         newcomer_wait: Option<u8>,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
