@@ -644,18 +644,17 @@ impl_tracker! {
     }
 
     /// A lane at its first publication waits a frame more (up to `newcomer_wait` frames) when
-    /// it is not yet shown to be a marking of its own (docs/design.md §11.5): it runs parallel to none of the paint lanes
-    /// (a vehicle's edge joined to a marking's near points is decisive paint for a frame
-    /// before it is seen as the ray it is), or it lies within twice `min_spacing` (the lower
-    /// bound on the spacing of two markings) of a lane published before and seen this frame (a
-    /// young track beside a marking, which the duplicate test of §11.9 takes in the next
-    /// frame; a coasting lane is not compared, as in §11.9: after a jump the lanes that took
-    /// the old ones' places are no duplicates). `young`: bit s
-    /// for a kept lane of age 1 to `newcomer_wait`, never published, at `p_publish` (the only
-    /// lanes this frame
-    /// would publish for the first time while others are tracked); `paint` / `shown`: bit t
-    /// for a kept lane found to be paint / published before and seen this frame (bits of
-    /// [`Self::delete_unlikely`]).
+    /// it is not yet shown to be a marking of its own (docs/design.md §11.5): it runs parallel
+    /// to none of the paint lanes (a vehicle's edge joined to a marking's near points is
+    /// decisive paint for a frame before it is seen as the ray it is), or it lies within twice
+    /// `min_spacing` (the lower bound on the spacing of two markings) of a lane published
+    /// before and seen this frame (a young track beside a marking, which the duplicate test of
+    /// §11.9 takes in the next frame; a coasting lane is not compared, as in §11.9: after a
+    /// jump the lanes that took the old ones' places are no duplicates). `young`: bit s for a
+    /// kept lane of age 1 to `newcomer_wait`, never published, at `p_publish` (the only lanes
+    /// this frame would publish for the first time while others are tracked); `paint` /
+    /// `shown`: bit t for a kept lane found to be paint / published before and seen this frame
+    /// (bits of [`Self::delete_unlikely`]).
     ///
     /// # Complexity
     /// Per such lane, one [`Self::parallel`] test against each paint lane (6 quadratic forms)
