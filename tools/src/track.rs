@@ -6,9 +6,9 @@
 //! `Tracker::step` at the frame's time (a new clip resets the tracker), then, for frames that
 //! carry `h_samples`, each lane seen within the last `MAX_REPORT_MISSES` frames is written at
 //! those rows ([`lane_x`]): inside the BEV window by the tracker's GP evaluation
-//! (`Tracker::lane_at`), beyond either end by extending the lane linearly from its two outermost
-//! index points (docs/design.md §4.0: rows near the horizon are extrapolated, never left out), −2 outside
-//! the lane's observed extent (one index interval of margin) and outside the image. Lanes are
+//! (`Tracker::lane_at`), nearer than the window by extending the lane linearly from its two
+//! nearest index points, −2 beyond the window's far end (no evidence there: docs/design.md §8),
+//! outside the lane's observed extent (one index interval of margin) and outside the image. Lanes are
 //! written left to right (by their position at the nearest index point); a lane with no point in
 //! the image is left out. `run_time` is the milliseconds spent on that frame from its points to
 //! its lanes (see [`track_with`]).
@@ -223,23 +223,20 @@ fn distinct_u(us: &[f64]) -> usize {
 pub const REFERENCE_LAG: usize = 4;
 
 /// Whether `u` lies in the part of a lane that predictions report: within its observed extent
-/// (one index interval of margin), and beyond the far end of the window only for a lane observed
-/// up to it.
+/// (one index interval of margin) and not beyond the far end of the window, where the tracker
+/// has no evidence (the lane's extent ends there at the latest); nearer than the window only for
+/// a lane observed down to it (the margin).
 fn reported(tables: &ReferenceTables, lane: &LaneEstimate<16>, u: f64) -> bool {
     let h = &tables.hyper;
     let u_max = f64::from(h.u_max);
     let interval = (u_max - f64::from(h.u_min)) / 15.0;
     let (first, last) = (f64::from(lane.u_first), f64::from(lane.u_last));
-    u.is_finite() && u >= first - interval && !(u > last + interval && last + interval < u_max)
+    u.is_finite() && u >= first - interval && u <= (last + interval).min(u_max)
 }
 
-/// A lane outside the window: the line through its two outermost index points at that end.
+/// A lane nearer than the window: the line through its two nearest index points.
 fn extension(tables: &ReferenceTables, lane: &LaneEstimate<16>, u: f64) -> f64 {
-    let (i, j) = if u > f64::from(tables.hyper.u_max) {
-        (14, 15)
-    } else {
-        (1, 0)
-    };
+    let (i, j) = (1, 0);
     let (ui, uj) = (f64::from(tables.index_u[i]), f64::from(tables.index_u[j]));
     let (xi, xj) = (f64::from(lane.z[i]), f64::from(lane.z[j]));
     xj + (u - uj) * (xj - xi) / (uj - ui)
@@ -250,11 +247,11 @@ fn inside(tables: &ReferenceTables, u: f64) -> bool {
 }
 
 /// Where a lane is at `u` metres ahead, by the rules of the predictions: inside the BEV window
-/// the tracker's GP evaluation ([`ReferenceTracker::lane_at`], with its variance); beyond either
-/// end of the window the line through the two nearest index points (no variance; docs/design.md §4.0:
-/// rows outside the window are extrapolated, never left out) — at the far end only for a lane
-/// observed up to it, at the near end only for a lane observed down to it. `None` outside the
-/// lane's observed extent (one index interval of margin) or for a free slot.
+/// the tracker's GP evaluation ([`ReferenceTracker::lane_at`], with its variance); nearer than
+/// the window the line through the two nearest index points (no variance), for a lane observed
+/// down to the window's near end. `None` beyond the window's far end (no evidence there:
+/// docs/design.md §8), outside the lane's observed extent (one index interval of margin) or for
+/// a free slot.
 pub fn lane_x(
     tr: &ReferenceTracker,
     tables: &ReferenceTables,
@@ -336,12 +333,12 @@ pub struct BandPoint {
     /// Lateral position, metres.
     pub x: f64,
     /// Standard deviation of `x` (the tracker's posterior), metres; `None` where the lane is
-    /// extrapolated beyond the window.
+    /// extrapolated nearer than the window.
     pub sd: Option<f64>,
 }
 
 /// A published lane sampled along `u` for drawing: mean and ±σ inside the window, the linear
-/// extension beyond it (see [`lane_x`]).
+/// extension nearer than it (see [`lane_x`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct LaneBand {
     /// The lane's stable id.

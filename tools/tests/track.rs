@@ -111,8 +111,8 @@ fn bev_clip(xs: &[f64], u_far: f64, frames: usize, rows: &[f64]) -> Vec<Frame> {
         .collect()
 }
 
-/// Lanes are written at every h_samples row, through the inverse IPM: inside the window, beyond
-/// its far end (extrapolated) and −2 only outside the lane's extent.
+/// Lanes are written at every h_samples row of the window, through the inverse IPM, and −2
+/// beyond its far end (no evidence there) and outside the lane's extent.
 #[test]
 fn bev_frames_give_predictions_at_every_row() {
     let cam = Camera::tusimple();
@@ -130,19 +130,19 @@ fn bev_frames_give_predictions_at_every_row() {
                 assert_eq!(col, -2.0, "row {row} above the horizon");
                 continue;
             };
+            if u > 80.0 {
+                assert_eq!(col, -2.0, "row {row} (u = {u:.0} m) beyond the window");
+                continue;
+            }
             let (want, _) = cam.to_image(u, x).unwrap();
             assert!(col >= 0.0, "row {row} (u = {u:.0} m) left out");
             // The lanes are straight and exact: within 3 cm laterally (20 px at the bottom row
             // is 7 cm).
-            // Beyond the window (extrapolated, hundreds of metres away near the horizon) within
-            // 2 px.
             let err_m = (col - want).abs() * u / cam.focal_px;
-            let ok = if u <= 80.0 {
-                err_m < 0.03
-            } else {
-                (col - want).abs() < 2.0
-            };
-            assert!(ok, "row {row}: {col} vs {want} ({err_m} m at {u} m)");
+            assert!(
+                err_m < 0.03,
+                "row {row}: {col} vs {want} ({err_m} m at {u} m)"
+            );
         }
     }
     // A lane seen only up to 30 m is not extrapolated beyond the window: −2 far away.
@@ -226,7 +226,7 @@ fn points_file_holds_the_tracker_input_exactly() {
 }
 
 #[test]
-fn lane_x_extends_beyond_the_window_and_bands_carry_the_variance() {
+fn lane_x_ends_at_the_window_and_bands_carry_the_variance() {
     let frames = bev_clip(&[-1.8, 1.8], 80.0, 3, &[700.0]);
     let mut seen = 0;
     track_with(
@@ -258,23 +258,21 @@ fn lane_x_extends_beyond_the_window_and_bands_carry_the_variance() {
                 let want = if l.z[0] < 0.0 { -1.8 } else { 1.8 };
                 let (x, var) = lane_x(v.tracker, &DEFAULT, l, 40.0).unwrap();
                 assert!((x - want).abs() < 0.05 && var.unwrap() > 0.0, "{x} {var:?}");
-                // Beyond the far end and before the near end: the line of the end index
-                // points, no variance.
-                let (u14, u15) = (
-                    f64::from(DEFAULT.index_u[14]),
-                    f64::from(DEFAULT.index_u[15]),
-                );
-                let (x14, x15) = (f64::from(l.z[14]), f64::from(l.z[15]));
-                let (x, var) = lane_x(v.tracker, &DEFAULT, l, 120.0).unwrap();
-                assert!(var.is_none());
-                assert!((x - (x15 + (120.0 - u15) * (x15 - x14) / (u15 - u14))).abs() < 1e-9);
+                // Beyond the far end: nothing (no evidence there); at the far end, the GP.
+                assert!(lane_x(v.tracker, &DEFAULT, l, 80.5).is_none());
+                assert!(lane_x(v.tracker, &DEFAULT, l, 120.0).is_none());
+                assert!(lane_x(v.tracker, &DEFAULT, l, 80.0).unwrap().1.is_some());
+                // Before the near end: the line of the two nearest index points, no variance.
+                let (u0, u1) = (f64::from(DEFAULT.index_u[0]), f64::from(DEFAULT.index_u[1]));
+                let (x0, x1) = (f64::from(l.z[0]), f64::from(l.z[1]));
                 let (x, var) = lane_x(v.tracker, &DEFAULT, l, 1.0).unwrap();
                 assert!(var.is_none() && (x - want).abs() < 0.1, "{x}");
+                assert!((x - (x0 + (1.0 - u0) * (x1 - x0) / (u1 - u0))).abs() < 1e-9);
                 assert!(lane_x(v.tracker, &DEFAULT, l, f64::NAN).is_none());
                 let band = lane_band(v.tracker, &DEFAULT, l, [1.0, 3.0, 40.0, 80.0, 120.0]);
-                assert_eq!(band.points.len(), 5);
+                assert_eq!(band.points.len(), 4);
                 let sds: Vec<bool> = band.points.iter().map(|p| p.sd.is_some()).collect();
-                assert_eq!(sds, [false, true, true, true, false]);
+                assert_eq!(sds, [false, true, true, true]);
                 assert!(band
                     .points
                     .iter()
