@@ -3,7 +3,9 @@
 //! labelled lane of the scored last frames that its best prediction gets wrong, classified as
 //! under-run (label there, prediction not), over-run (prediction there, label not) or lateral
 //! (both, ≥ the threshold apart), by image row band; lanes with no prediction on ≥ half their
-//! rows are counted apart as absent.
+//! rows are counted apart as absent. The over-run rows are split by where they lie against the
+//! label: beyond its far end, in a gap of it, or below its near end (a label with no point, as
+//! some of TuSimple's are, puts every row of its best prediction there; `V=1` lists them).
 //!
 //! `cargo run --release -p stjpdacf-tools --example miss_diag [-- low|mid|high]`
 use stjpdacf::tracker::TrackerConfig;
@@ -87,11 +89,20 @@ fn main() -> anyhow::Result<()> {
                 let bottom = gl.iter().rposition(|x| *x >= 0.0).unwrap_or(0);
                 for (r, ((a, b), y)) in pl.iter().zip(gl).zip(&g.h_samples).enumerate() {
                     if *a >= 0.0 && *b < 0.0 {
-                        let k = if r < top { 0 } else if r > bottom { 2 } else { 1 };
+                        let k = if r < top {
+                            0
+                        } else if r > bottom {
+                            2
+                        } else {
+                            1
+                        };
                         over_where[k] += 1;
                         if r > bottom && std::env::var("V").is_ok() {
                             let xb = gl[bottom];
-                            println!("{} lane bottom row {} x {xb:.0}, pred row {} x {a:.0}", p.raw_file, g.h_samples[bottom], y);
+                            println!(
+                                "{} lane bottom row {} x {xb:.0}, pred row {} x {a:.0}",
+                                p.raw_file, g.h_samples[bottom], y
+                            );
                         }
                     }
                     let band = (((*y - 160.0) / 100.0).max(0.0) as usize).min(5);
