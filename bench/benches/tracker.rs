@@ -17,7 +17,8 @@
 //! one frame, the sequence is cycled with frames 50 ms apart, after warm-up passes. Groups:
 //! * `tracker_step_typical` — core (also with the counting and the timing probe: the probe's
 //!   overhead) and reference, step + fixed-lag output; every sequence also runs the core on the
-//!   uncoupled tables (`core_f32_uncoupled`) and the smallest model (`core_f32_smallest_rank4`:
+//!   uncoupled tables (`core_f32_uncoupled`), the default tables in `Rank5Tracker`
+//!   (`core_f32_rank5`) and the smallest model (`core_f32_smallest_rank4`:
 //!   uncoupled tables, LBP on every known-lane row, `Rank4Tracker`; `core_f32_smallest_rank3`:
 //!   the same in `Rank3Tracker`);
 //! * `tracker_step_worst_6lanes_256points` — core and reference;
@@ -47,7 +48,9 @@ use stjpdacf::spatial::filter::{Config, LaneObservation, SpatialFilter};
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::smoother::Temporal;
-use stjpdacf::tracker::{Rank3Tracker, Rank4Tracker, ReferenceTracker, TrackerConfig};
+use stjpdacf::tracker::{
+    Rank3Tracker, Rank4Tracker, Rank5Tracker, ReferenceTracker, TrackerConfig,
+};
 use stjpdacf_bench::cputime::{self, ThreadCpuTime};
 use stjpdacf_bench::harness::Driver;
 use stjpdacf_bench::inputs::{self, Frame, STEP_US};
@@ -307,6 +310,14 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         uncoupled.warm_up(frames, WARM);
         g.bench_function("core_f32_uncoupled", |b| {
             b.iter(|| black_box(uncoupled.step(frames, &mut NoProbe)))
+        });
+        // The default (coupled) tables in a tracker compiled for Gram rank 5 (`Rank5Tracker`):
+        // the default's accuracy within 0.005 on the replay (docs/measurements.md "Fitting the
+        // MCU").
+        let mut rank5 = Driver::new(Box::new(Rank5Tracker::new(&DEFAULT)));
+        rank5.warm_up(frames, WARM);
+        g.bench_function("core_f32_rank5", |b| {
+            b.iter(|| black_box(rank5.step(frames, &mut NoProbe)))
         });
         // The smallest model measured on the MCU (docs/measurements.md "Fitting the MCU"): the
         // uncoupled tables, LBP on every known-lane row, in a tracker compiled for Gram rank 4

@@ -12,14 +12,15 @@
 //!
 //! Inputs: the firmware benchmark's three scenarios (typical, worst, worst_patterns), on the
 //! uncoupled tables with LBP on every row (the smallest model) at ranks 4 and 3, and on the
-//! default (coupled) tables with the default configuration at rank 4. Compared per frame: the
+//! default (coupled) tables with the default configuration at ranks 5 and 4. Compared per frame: the
 //! filtered and smoothed lanes (every field, floats by their bits) and the step report.
 
 use stjpdacf::persist::PersistConfig;
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::{
-    Instant, LaneEstimate, Rank3Tracker, Rank4Tracker, ReferenceTracker, TrackerConfig,
+    Instant, LaneEstimate, Rank3Tracker, Rank4Tracker, Rank5Tracker, ReferenceTracker,
+    TrackerConfig,
 };
 use stjpdacf_tools::fwscenario::{scenarios, STEP_US};
 
@@ -95,9 +96,15 @@ fn same(
 
 #[test]
 fn rank_capacity_changes_no_published_bit() {
-    let cases: [(&str, &'static ReferenceTables, TrackerConfig, u32); 3] = [
+    let cases: [(&str, &'static ReferenceTables, TrackerConfig, u32); 4] = [
         ("uncoupled, LBP, rank 4", truncated(&UNCOUPLED, 4), lbp(), 4),
         ("uncoupled, LBP, rank 3", truncated(&UNCOUPLED, 3), lbp(), 3),
+        (
+            "coupled, default, rank 5",
+            truncated(&DEFAULT, 5),
+            TrackerConfig::DEFAULT,
+            5,
+        ),
         (
             "coupled, default, rank 4",
             truncated(&DEFAULT, 4),
@@ -106,8 +113,9 @@ fn rank_capacity_changes_no_published_bit() {
         ),
     ];
     println!(
-        "size_of: ReferenceTracker {} B, Rank4Tracker {} B, rank 3 {} B",
+        "size_of: ReferenceTracker {} B, Rank5Tracker {} B, Rank4Tracker {} B, rank 3 {} B",
         std::mem::size_of::<ReferenceTracker>(),
+        std::mem::size_of::<Rank5Tracker>(),
         std::mem::size_of::<Rank4Tracker>(),
         std::mem::size_of::<Rank3Tracker>()
     );
@@ -116,6 +124,7 @@ fn rank_capacity_changes_no_published_bit() {
             let label = format!("{} / {name}", s.name);
             let reference = run!(ReferenceTracker, tables, cfg, s.frames);
             let compact = match rank {
+                5 => run!(Rank5Tracker, tables, cfg, s.frames),
                 4 => run!(Rank4Tracker, tables, cfg, s.frames),
                 _ => run!(Rank3Tracker, tables, cfg, s.frames),
             };
@@ -138,4 +147,12 @@ fn rank_capacity_below_the_tables_rank_truncates() {
     let full = run!(Rank4Tracker, &UNCOUPLED, lbp(), s.frames);
     let cut = run!(ReferenceTracker, truncated(&UNCOUPLED, 4), lbp(), s.frames);
     assert!(same("typical / capacity 4 on rank-7 tables", &full, &cut) > 0);
+    let full = run!(Rank5Tracker, &DEFAULT, TrackerConfig::DEFAULT, s.frames);
+    let cut = run!(
+        ReferenceTracker,
+        truncated(&DEFAULT, 5),
+        TrackerConfig::DEFAULT,
+        s.frames
+    );
+    assert!(same("typical / capacity 5 on rank-7 tables", &full, &cut) > 0);
 }

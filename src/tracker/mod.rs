@@ -124,6 +124,14 @@ pub struct Tracker<
 /// E = 512, L = 4, spatial order 2, Gram rank ≤ 7.
 pub type ReferenceTracker = Tracker<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>;
 
+/// The reference configuration compiled for Gram rank 5 (`RANK` = 5, `NX` = 60, `NA` = 30): with
+/// [`crate::tables::DEFAULT`] (coupled B) the default model's accuracy within 0.005 on the
+/// replay at about half its Cortex-M4F instructions on the typical clip (2.97 M against 5.58 M)
+/// and 71 % of [`ReferenceTracker`]'s memory (docs/measurements.md "Fitting the MCU"). On any
+/// tables it runs `r = min(gram_rank, 5)` components, bit for bit what [`ReferenceTracker`]
+/// publishes on the same tables truncated to rank 5 (host test `rank_capacity`).
+pub type Rank5Tracker = Tracker<2, 3, 6, 16, 64, 16, 256, 5, 60, 30, 4>;
+
 /// The reference configuration compiled for Gram rank 4 (`RANK` = 4, `NX` = 48, `NA` = 24): the
 /// tracker of the smallest model measured on the Cortex-M4F (with [`crate::tables::UNCOUPLED`]
 /// and LBP on every known-lane row, docs/measurements.md "Fitting the MCU"), about 60 % of

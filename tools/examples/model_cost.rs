@@ -16,8 +16,9 @@
 //! 5. fewer rows: K = 4 (the default), 3 and 2 rows per index interval
 //!    (`TrackerConfig::with_rows_per_interval`, every row count rescaled to keep its metres),
 //!    uncoupled and coupled B: the labelled last frames;
-//! 6. the smaller uncoupled models (LBP on every row, Gram rank 7, 5, 4, 3) on the demo's
-//!    robustness curve and held-out check, next to the per-frame RANSAC fit.
+//! 6. the smaller uncoupled models (LBP on every row, Gram rank 7, 5, 4, 3) and the coupled
+//!    model at Gram rank 5 and 4 on the demo's robustness curve and held-out check, next to the
+//!    per-frame RANSAC fit.
 //!
 //! The instructions per frame of the same models on the Cortex-M4F come from
 //! `STJPDACF_FW_RANK=r` / `STJPDACF_FW_PER_LANE=1` / `STJPDACF_FW_ASSOC=lbp|hybrid` /
@@ -133,7 +134,7 @@ fn uncoupled(replays: &Replays) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Section 6: the smaller uncoupled models on the demo's robustness curve and held-out check,
+/// Section 6: the smaller models on the demo's robustness curve and held-out check,
 /// next to the per-frame RANSAC fit (their accuracy and margin over it).
 fn small() -> anyhow::Result<()> {
     let lbp = TrackerConfig {
@@ -156,6 +157,13 @@ fn small() -> anyhow::Result<()> {
         variants.push(demo::Variant {
             tables,
             ..demo::Variant::new(&format!("uncoupled B, LBP every row, rank {rank}"), lbp)
+        });
+    }
+    for rank in [5u32, 4] {
+        let tables: &'static ReferenceTables = Box::leak(Box::new(truncated(rank)));
+        variants.push(demo::Variant {
+            tables,
+            ..demo::Variant::new(&format!("coupled B, rank {rank}"), TrackerConfig::DEFAULT)
         });
     }
     let opts = DemoOptions {

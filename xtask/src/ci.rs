@@ -260,8 +260,12 @@ pub fn run() -> Result<()> {
 
     // Each budget records the model it was measured with (tables, association, rank, capacity);
     // `firmware::run` builds that model for its check.
-    let budgets: [(&str, Option<(&str, &str)>); 3] = [
+    let budgets: [(&str, Option<(&str, &str)>); 4] = [
         ("the default model, check bench/firmware/budget.json", None),
+        (
+            "the default tables compiled at Gram rank 5 (Rank5Tracker: the default's accuracy within 0.005), check bench/firmware/budget-rank5.json",
+            Some(("budget-rank5.json", "target/report-rank5.json")),
+        ),
         (
             "the smallest measured model (uncoupled B, LBP on every row, Gram rank 4, compiled at rank 4), check bench/firmware/budget-mcu.json",
             Some(("budget-mcu.json", "target/report-mcu.json")),
