@@ -62,14 +62,15 @@ static int row_to_u(const camera *c, double row, double *u) {
 }
 
 /* Where lane `l` is at `u` metres ahead (`track::lane_x`): the tracker's GP inside the window,
- * the line through the two outermost index points beyond it, nothing outside the observed
- * extent (one index interval of margin). */
+ * the line through the two nearest index points nearer than it, nothing beyond the window's far
+ * end (no evidence there) or outside the observed extent (one index interval of margin). */
 static int lane_x(stjpdacf_tracker *t, const stjpdacf_lane *l, double u, double *x) {
     double u_min = model.u_min, u_max = model.u_max;
     double interval = (u_max - u_min) / 15.0;
     double first = l->u_first, last = l->u_last;
-    int reported = isfinite(u) && u >= first - interval &&
-                   !(u > last + interval && last + interval < u_max);
+    /* Rust's (last + interval).min(u_max): u_max when the sum is NaN. */
+    double end = last + interval < u_max ? last + interval : u_max;
+    int reported = isfinite(u) && u >= first - interval && u <= end;
     if (!reported) return 0;
     if (u >= u_min && u <= u_max) {
         float xf;
@@ -77,7 +78,7 @@ static int lane_x(stjpdacf_tracker *t, const stjpdacf_lane *l, double u, double 
         *x = xf;
         return 1;
     }
-    int i = u > u_max ? 14 : 1, j = u > u_max ? 15 : 0;
+    int i = 1, j = 0;
     double ui = model.index_u[i], uj = model.index_u[j];
     double xi = l->z[i], xj = l->z[j];
     *x = xj + (u - uj) * (xj - xi) / (uj - ui);
