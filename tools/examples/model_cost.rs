@@ -28,7 +28,8 @@
 //! `cargo run --release -p stjpdacf-tools --example model_cost [rank ...]` (all sections; the
 //! ranks given, or 7 down to 3), `... --example model_cost assoc` (section 3 only),
 //! `... --example model_cost uncoupled` (section 4 only), `... --example model_cost rows`
-//! (section 5 only), `... --example model_cost small` (section 6 only).
+//! (section 5 only), `... --example model_cost small` (section 6 only). `MODEL_COST_SEED=N`
+//! replays synth seed N instead of the demo's 1 in sections 1 to 5.
 use stjpdacf::persist::PersistConfig;
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
@@ -73,9 +74,14 @@ fn main() -> anyhow::Result<()> {
     let labels = demo::replay_labels()?;
     let cam = Camera::tusimple();
     let levels = [NoiseLevel::Low, NoiseLevel::Mid, NoiseLevel::High];
+    // MODEL_COST_SEED=N: the replay's synth seed (default 1, the demo's) for sections 1 to 5.
+    let seed: u64 = match std::env::var("MODEL_COST_SEED") {
+        Ok(v) => v.parse()?,
+        Err(_) => 1,
+    };
     let replays = levels
         .into_iter()
-        .map(|l| synth::synthesize(&labels, &SynthParams::preset(l), &cam, 1).map(|o| (l, o)))
+        .map(|l| synth::synthesize(&labels, &SynthParams::preset(l), &cam, seed).map(|o| (l, o)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     if only_uncoupled {
         return uncoupled(&replays);
