@@ -1,7 +1,7 @@
 //! The robustness curve over several synth seeds: the demo's robustness section (mid preset,
-//! clutter × 1 / × 2 / × 4 / × 8 and × 1 with distractors, the tracker against the per-frame
-//! RANSAC fit on the same frames) on all 40 replay labels for each seed, then the mean over the
-//! seeds. The demo's own curve is 20 clips of seed 1 (one lost lane is 0.0125 of accuracy there);
+//! clutter × 1 / × 2 / × 4 / × 8, × 1 with distractors and × 1 with the pixel noise × 2 / × 4,
+//! the tracker against the per-frame RANSAC fit on the same frames) on all 40 replay labels for
+//! each seed, then the mean over the seeds. The demo's own curve is 20 clips of seed 1 (one lost lane is 0.0125 of accuracy there);
 //! this is the curve over 8× the clips that docs/measurements.md quotes as "the 4-seed curve".
 //!
 //! `cargo run --release -p stjpdacf-tools --example robustness_seeds [clips] [seed ...]`

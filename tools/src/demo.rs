@@ -31,13 +31,14 @@
 //!    which the replay animated a merge/split lane alone ([`MergeSplitRow`]).
 //! 5. **Robustness** ([`RobustnessReport`]): the replay at the mid preset on the first
 //!    [`DemoOptions::robustness_clips`] labels with the uniform clutter rate × 1, 2, 4, 8 and
-//!    once ×1 with [`ROBUSTNESS_DISTRACTORS`] short straight distractor segments per frame; the
-//!    tracker (default tables, each configuration of [`DemoOptions::robustness_variants`])
+//!    once ×1 with [`ROBUSTNESS_DISTRACTORS`] short straight distractor segments per frame, and
+//!    the pixel noise × 2 and × 4 ([`ROBUSTNESS_NOISE`], clutter × 1); the tracker (default tables, each configuration of [`DemoOptions::robustness_variants`])
 //!    against the per-frame RANSAC baseline ([`crate::baseline`], its default parameters) on
 //!    the same frames, official metric on the labelled last frames.
 //! 6. **Held-out check** ([`HeldoutReport`], [`heldout_check`]): a second generator
 //!    ([`crate::heldout`]) on the held-out labels of [`crate::heldout::LABELS`] (the first
-//!    [`DemoOptions::heldout_clips`]), clutter × 1, 2, 4, 8 and segments; the same
+//!    [`DemoOptions::heldout_clips`]), clutter × 1, 2, 4, 8, segments, and the column noise × 2
+//!    and × 4 ([`HELDOUT_NOISE`]); the same
 //!    configurations and baseline, and the baseline capped at [`HELDOUT_BASELINE_LANES`] lanes.
 //!
 //! Every run is sequential on one thread, so the per-frame `run_time` is not inflated by a
@@ -105,12 +106,18 @@ pub const ROBUSTNESS_CLUTTER: [f64; 4] = [1.0, 2.0, 4.0, 8.0];
 /// Distractor segments per frame of the robustness section's distractor condition (at
 /// clutter × 1).
 pub const ROBUSTNESS_DISTRACTORS: f64 = 3.0;
+/// Multipliers of the mid preset's pixel noise (σ = 5 px at 1280×720) in the robustness
+/// section's noise conditions (at clutter × 1): σ = 10 and 20 px. The high preset's is 10 px.
+pub const ROBUSTNESS_NOISE: [f64; 2] = [2.0, 4.0];
 
 /// Multipliers of the held-out generator's reference clutter density in the held-out check.
 pub const HELDOUT_CLUTTER: [f64; 4] = [1.0, 2.0, 4.0, 8.0];
 /// Segments fixed on the road per clip in the held-out check's segment condition (at clutter
 /// × 1).
 pub const HELDOUT_SEGMENTS: f64 = 8.0;
+/// Multipliers of the held-out generator's column-noise scale (Student-t, 3 px at 1280×720) in
+/// the held-out check's noise conditions (at clutter × 1): 6 and 12 px.
+pub const HELDOUT_NOISE: [f64; 2] = [2.0, 4.0];
 /// The capped baseline of the held-out check: at most this many lanes a frame (the default
 /// baseline's 6 clutter lanes can trip the metric's "more than 2 lanes too many" penalty on
 /// 3-lane roads; a user would cap them).
@@ -391,6 +398,10 @@ pub struct RobustnessRow {
     pub clutter_rate: f64,
     /// Distractor segments per frame.
     pub distractors: f64,
+    /// Multiplier of the mid preset's pixel noise.
+    pub pixel_noise_multiplier: f64,
+    /// Pixel noise σ, px at 1280×720.
+    pub pixel_noise: f64,
     /// Each tracker configuration.
     pub trackers: Vec<VariantScore>,
     /// The RANSAC baseline on the same frames.
@@ -410,7 +421,8 @@ pub struct RobustnessReport {
     pub frames_per_clip: usize,
     /// The baseline's parameters.
     pub baseline_params: BaselineParams,
-    /// The conditions: clutter × 1, 2, 4, 8, then × 1 with distractors.
+    /// The conditions: clutter × 1, 2, 4, 8, then × 1 with distractors, then × 1 with the
+    /// pixel noise × 2 and × 4.
     pub rows: Vec<RobustnessRow>,
 }
 
@@ -425,6 +437,10 @@ pub struct HeldoutRow {
     pub clutter_per_frame: f64,
     /// Segment points per frame (mean).
     pub segment_points_per_frame: f64,
+    /// Multiplier of the generator's column-noise scale.
+    pub pixel_noise_multiplier: f64,
+    /// Column-noise scale (Student-t), px at 1280×720.
+    pub pixel_noise: f64,
     /// Each tracker configuration (`accuracy_minus_baseline`: against the default baseline).
     pub trackers: Vec<VariantScore>,
     /// The RANSAC baseline, default parameters.
@@ -441,7 +457,8 @@ pub struct HeldoutReport {
     /// The generator's reference parameters (each condition changes the clutter or the
     /// segments).
     pub params: HeldoutParams,
-    /// The conditions: clutter × 1, 2, 4, 8, then × 1 with segments.
+    /// The conditions: clutter × 1, 2, 4, 8, then × 1 with segments, then × 1 with the column
+    /// noise × 2 and × 4.
     pub rows: Vec<HeldoutRow>,
 }
 
@@ -734,22 +751,27 @@ pub fn robustness(
     let cam = Camera::tusimple();
     let bp = BaselineParams::default();
     let base = SynthParams::preset(NoiseLevel::Mid);
-    let mut conditions: Vec<(String, f64, f64)> = ROBUSTNESS_CLUTTER
+    let mut conditions: Vec<(String, f64, f64, f64)> = ROBUSTNESS_CLUTTER
         .iter()
-        .map(|&m| (format!("clutter ×{m}"), m, 0.0))
+        .map(|&m| (format!("clutter ×{m}"), m, 0.0, 1.0))
         .collect();
     conditions.push((
         "clutter ×1 + distractors".to_string(),
         1.0,
         ROBUSTNESS_DISTRACTORS,
+        1.0,
     ));
+    for &k in &ROBUSTNESS_NOISE {
+        conditions.push((format!("clutter ×1, pixel noise ×{k}"), 1.0, 0.0, k));
+    }
     let mut rows = Vec::new();
     let mut fpc = base.frames_per_clip;
-    for (condition, m, distractors) in conditions {
+    for (condition, m, distractors, noise) in conditions {
         progress(&format!("robustness: {condition}"));
         let mut params = SynthParams {
             clutter_rate: base.clutter_rate * m,
             distractors,
+            pixel_noise: base.pixel_noise * noise,
             ..base.clone()
         };
         if let Some(k) = frames_per_clip {
@@ -765,6 +787,8 @@ pub fn robustness(
             clutter_multiplier: m,
             clutter_rate: params.clutter_rate,
             distractors,
+            pixel_noise_multiplier: noise,
+            pixel_noise: params.pixel_noise,
             trackers,
             baseline: bscore,
             baseline_run_time_mean_ms: bstats.run_mean_ms,
@@ -781,8 +805,8 @@ pub fn robustness(
 
 /// The held-out check: the first `clips` labels of `labels` (the held-out geometry,
 /// [`crate::heldout::LABELS`]) rendered by the second generator ([`crate::heldout`]) at its
-/// reference parameters with the clutter density × 1, 2, 4, 8 and once × 1 with
-/// [`HELDOUT_SEGMENTS`] segments per clip; each tracker configuration of `variants` (default
+/// reference parameters with the clutter density × 1, 2, 4, 8, once × 1 with
+/// [`HELDOUT_SEGMENTS`] segments per clip and × 1 with the column noise × [`HELDOUT_NOISE`]; each tracker configuration of `variants` (default
 /// tables) against the RANSAC baseline (default parameters, and capped at
 /// [`HELDOUT_BASELINE_LANES`] lanes) on the same frames, official metric on the labelled last
 /// frames. Nothing of the tracker or the baseline was chosen on this data.
@@ -807,17 +831,26 @@ pub fn heldout_check(
         ..bp
     };
     let base = HeldoutParams::default();
-    let mut conditions: Vec<(String, f64, f64)> = HELDOUT_CLUTTER
+    let mut conditions: Vec<(String, f64, f64, f64)> = HELDOUT_CLUTTER
         .iter()
-        .map(|&m| (format!("clutter ×{m}"), m, 0.0))
+        .map(|&m| (format!("clutter ×{m}"), m, 0.0, 1.0))
         .collect();
-    conditions.push(("clutter ×1 + segments".to_string(), 1.0, HELDOUT_SEGMENTS));
+    conditions.push((
+        "clutter ×1 + segments".to_string(),
+        1.0,
+        HELDOUT_SEGMENTS,
+        1.0,
+    ));
+    for &k in &HELDOUT_NOISE {
+        conditions.push((format!("clutter ×1, column noise ×{k}"), 1.0, 0.0, k));
+    }
     let mut rows = Vec::new();
-    for (condition, m, segments) in conditions {
+    for (condition, m, segments, noise) in conditions {
         progress(&format!("held-out check: {condition}"));
         let params = HeldoutParams {
             clutter_density: base.clutter_density * m,
             segments,
+            pixel_noise: base.pixel_noise * noise,
             ..base.clone()
         };
         let o = heldout::generate(labels, &params, &cam, seed)?;
@@ -832,6 +865,8 @@ pub fn heldout_check(
             clutter_density: params.clutter_density,
             clutter_per_frame: per_frame(o.clutter_points),
             segment_points_per_frame: per_frame(o.segment_points),
+            pixel_noise_multiplier: noise,
+            pixel_noise: params.pixel_noise,
             trackers,
             baseline,
             baseline_capped,
@@ -1057,12 +1092,12 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     let diag = track::tables_from_hyper(&HyperFile::load(&opts.data.join(ABLATION_HYPER))?)?;
     let cam = Camera::tusimple();
     let robustness_stages = if opts.robustness_clips > 0 {
-        ROBUSTNESS_CLUTTER.len() + 1
+        ROBUSTNESS_CLUTTER.len() + 1 + ROBUSTNESS_NOISE.len()
     } else {
         0
     };
     let heldout_stages = if opts.heldout_clips > 0 {
-        HELDOUT_CLUTTER.len() + 1
+        HELDOUT_CLUTTER.len() + 1 + HELDOUT_NOISE.len()
     } else {
         0
     };
@@ -1302,7 +1337,8 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
     tusimple::write_records(&p, &real.preds)?;
     files.push(p);
 
-    // Robustness: clutter × 1, 2, 4, 8 and distractors, tracker vs the RANSAC baseline.
+    // Robustness: clutter × 1, 2, 4, 8, distractors and pixel noise, tracker vs the RANSAC
+    // baseline.
     let robustness = if opts.robustness_clips > 0 {
         Some(self::robustness(
             &labels,
@@ -1595,15 +1631,16 @@ fn render_robustness(r: &RobustnessReport) -> String {
         .unwrap_or_default();
     let mut s = format!(
         "\nRobustness: the replay at the {} preset on the first {} labels × {} frames, uniform \
-         clutter × 1, 2, 4, 8 and × 1 with {} short straight distractor segments per frame; the \
-         tracker (default tables) against the per-frame sequential-RANSAC baseline (BEV \
+         clutter × 1, 2, 4, 8, × 1 with {} short straight distractor segments per frame, and × 1 \
+         with the pixel noise × {}; the tracker (default tables) against the per-frame sequential-RANSAC baseline (BEV \
          quadratics on the same points; inlier tolerance {} m, ≥ {} inliers over ≥ {} m, no \
          tracking) on the same frames, official metric on the labelled last frames.\n\n\
-         | condition | clutter / frame | distractors / frame |",
+         | condition | clutter / frame | distractors / frame | pixel noise σ (px) |",
         format!("{:?}", r.noise).to_lowercase(),
         r.clips,
         r.frames_per_clip,
         ROBUSTNESS_DISTRACTORS,
+        ROBUSTNESS_NOISE.map(|k| k.to_string()).join(" and × "),
         r.baseline_params.inlier_tol,
         r.baseline_params.min_inliers,
         r.baseline_params.min_extent
@@ -1615,13 +1652,13 @@ fn render_robustness(r: &RobustnessReport) -> String {
     for n in &names {
         s.push_str(&format!(" Δ accuracy ({n} − baseline) |"));
     }
-    s.push_str("\n|---|---|---|");
+    s.push_str("\n|---|---|---|---|");
     s.push_str(&"---|".repeat(2 * names.len() + 1));
     s.push('\n');
     for row in &r.rows {
         s.push_str(&format!(
-            "| {} | {} | {} |",
-            row.condition, row.clutter_rate, row.distractors
+            "| {} | {} | {} | {} |",
+            row.condition, row.clutter_rate, row.distractors, row.pixel_noise
         ));
         for t in &row.trackers {
             s.push_str(&format!(
@@ -1655,10 +1692,10 @@ fn render_heldout(r: &HeldoutReport) -> String {
          every threshold was chosen on 0313 and the replay), {} frames at {:.0} fps; vehicle \
          pose a lateral offset integrating an Ornstein–Uhlenbeck velocity and a heading random walk, misses in bursts, dashes \
          of {}–{} m paint and {}–{} m gap, Student-t (ν = {}) column noise of scale {} px, \
-         uniform clutter over the road area ({} /m² at × 1) and, in the last row, {} short \
-         segments fixed on the road per clip. The tracker against the same RANSAC baseline, \
+         uniform clutter over the road area ({} /m² at × 1), in one row {} short segments fixed \
+         on the road per clip, and in the last rows the column noise × {}. The tracker against the same RANSAC baseline, \
          and that baseline capped at {} lanes.\n\n\
-         | condition | clutter / frame | segment points / frame |",
+         | condition | clutter / frame | segment points / frame | column noise scale (px) |",
         r.clips,
         p.frames_per_clip,
         1.0 / p.frame_step,
@@ -1670,6 +1707,7 @@ fn render_heldout(r: &HeldoutReport) -> String {
         p.pixel_noise,
         p.clutter_density,
         HELDOUT_SEGMENTS,
+        HELDOUT_NOISE.map(|k| k.to_string()).join(" and × "),
         HELDOUT_BASELINE_LANES
     );
     for n in &names {
@@ -1681,13 +1719,13 @@ fn render_heldout(r: &HeldoutReport) -> String {
     for n in &names {
         s.push_str(&format!(" Δ accuracy ({n} − the better RANSAC) |"));
     }
-    s.push_str("\n|---|---|---|");
+    s.push_str("\n|---|---|---|---|");
     s.push_str(&"---|".repeat(2 * names.len() + 2));
     s.push('\n');
     for row in &r.rows {
         s.push_str(&format!(
-            "| {} | {:.0} | {:.0} |",
-            row.condition, row.clutter_per_frame, row.segment_points_per_frame
+            "| {} | {:.0} | {:.0} | {} |",
+            row.condition, row.clutter_per_frame, row.segment_points_per_frame, row.pixel_noise
         ));
         for t in &row.trackers {
             s.push_str(&format!(
@@ -2119,8 +2157,19 @@ const VARIANT_COLOURS: [RGBColor; 4] = [
 /// Last-frame accuracy against the clutter multiplier (log scale), each tracker configuration
 /// and the baseline; the distractor condition as triangles at × 1.
 fn plot_robustness(r: &RobustnessReport, path: &Path) -> Result<()> {
-    let root = BitMapBackend::new(path, (760, 460)).into_drawing_area();
+    let root = BitMapBackend::new(path, (1040, 460)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_err)?;
+    let root = root
+        .titled(
+            &format!(
+                "Robustness ({} clips, {} preset): tracker vs per-frame RANSAC baseline",
+                r.clips,
+                format!("{:?}", r.noise).to_lowercase()
+            ),
+            ("sans-serif", 18),
+        )
+        .map_err(plot_err)?;
+    let (left, right) = root.split_horizontally(620);
     let accs = r.rows.iter().flat_map(|row| {
         row.trackers
             .iter()
@@ -2134,90 +2183,117 @@ fn plot_robustness(r: &RobustnessReport, path: &Path) -> Result<()> {
         .rows
         .first()
         .map_or(0.0, |row| row.clutter_rate / row.clutter_multiplier);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!(
-                "Robustness ({} clips, {} preset): tracker vs per-frame RANSAC baseline",
-                r.clips,
-                format!("{:?}", r.noise).to_lowercase()
-            ),
-            ("sans-serif", 18),
-        )
-        .margin(12)
-        .x_label_area_size(52)
-        .y_label_area_size(52)
-        .build_cartesian_2d(-0.3_f64..3.3_f64, y0..y1)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("uniform clutter × (points per frame); triangles: × 1 + distractor segments")
-        .y_desc("accuracy (last frame)")
-        .light_line_style(WHITE)
-        .x_labels(4)
-        .x_label_formatter(&|v| {
-            let m = 2f64.powf(v.round());
-            if (v - v.round()).abs() < 1e-6 {
-                format!("×{m} ({})", m * base_rate)
-            } else {
-                String::new()
-            }
-        })
-        .draw()
-        .map_err(plot_err)?;
-    let curves = r.rows.first().map_or(0, |row| row.trackers.len());
-    for k in 0..=curves {
-        let (colour, label) = match r.rows.first().and_then(|row| row.trackers.get(k)) {
-            Some(t) => (VARIANT_COLOURS[k % VARIANT_COLOURS.len()], t.name.clone()),
-            None => (BLACK, "RANSAC baseline".to_string()),
-        };
-        let acc = |row: &RobustnessRow| {
-            row.trackers
-                .get(k)
-                .map_or(row.baseline.accuracy, |t| t.score.accuracy)
-        };
-        let clutter: Vec<(f64, f64)> = r
-            .rows
-            .iter()
-            .filter(|row| row.distractors == 0.0)
-            .map(|row| (row.clutter_multiplier.log2(), acc(row)))
-            .collect();
-        chart
-            .draw_series(LineSeries::new(clutter.clone(), colour.stroke_width(3)))
-            .map_err(plot_err)?
-            .label(label)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3))
-            });
-        chart
-            .draw_series(
-                clutter
-                    .into_iter()
-                    .map(|p| Circle::new(p, 4, colour.filled())),
-            )
+    let base_noise = r
+        .rows
+        .first()
+        .map_or(0.0, |row| row.pixel_noise / row.pixel_noise_multiplier);
+    let plain = |row: &&RobustnessRow| row.pixel_noise_multiplier == 1.0;
+    // Left: the clutter curve (pixel noise × 1); right: the pixel-noise curve (clutter × 1).
+    let panels: [(&DrawingArea<_, _>, &str, f64, f64, bool); 2] = [
+        (
+            &left,
+            "uniform clutter × (points per frame); triangles: × 1 + distractor segments",
+            3.3,
+            base_rate,
+            true,
+        ),
+        (
+            &right,
+            "pixel noise × (σ, px at 1280×720), clutter × 1",
+            2.3,
+            base_noise,
+            false,
+        ),
+    ];
+    for (area, x_desc, x_max, unit, clutter_panel) in panels {
+        let mut chart = ChartBuilder::on(area)
+            .margin(12)
+            .x_label_area_size(52)
+            .y_label_area_size(52)
+            .build_cartesian_2d(-0.3_f64..x_max, y0..y1)
             .map_err(plot_err)?;
         chart
-            .draw_series(
+            .configure_mesh()
+            .x_desc(x_desc)
+            .y_desc("accuracy (last frame)")
+            .light_line_style(WHITE)
+            .x_labels(4)
+            .x_label_formatter(&|v| {
+                let m = 2f64.powf(v.round());
+                if (v - v.round()).abs() < 1e-6 {
+                    format!("×{m} ({})", m * unit)
+                } else {
+                    String::new()
+                }
+            })
+            .draw()
+            .map_err(plot_err)?;
+        let curves = r.rows.first().map_or(0, |row| row.trackers.len());
+        for k in 0..=curves {
+            let (colour, label) = match r.rows.first().and_then(|row| row.trackers.get(k)) {
+                Some(t) => (VARIANT_COLOURS[k % VARIANT_COLOURS.len()], t.name.clone()),
+                None => (BLACK, "RANSAC baseline".to_string()),
+            };
+            let acc = |row: &RobustnessRow| {
+                row.trackers
+                    .get(k)
+                    .map_or(row.baseline.accuracy, |t| t.score.accuracy)
+            };
+            let curve: Vec<(f64, f64)> = if clutter_panel {
                 r.rows
                     .iter()
-                    .filter(|row| row.distractors > 0.0)
-                    .map(|row| {
-                        TriangleMarker::new(
-                            (row.clutter_multiplier.log2(), acc(row)),
-                            7,
-                            colour.filled(),
-                        )
-                    }),
-            )
+                    .filter(plain)
+                    .filter(|row| row.distractors == 0.0)
+                    .map(|row| (row.clutter_multiplier.log2(), acc(row)))
+                    .collect()
+            } else {
+                r.rows
+                    .iter()
+                    .filter(|row| row.distractors == 0.0 && row.clutter_multiplier == 1.0)
+                    .map(|row| (row.pixel_noise_multiplier.log2(), acc(row)))
+                    .collect()
+            };
+            chart
+                .draw_series(LineSeries::new(curve.clone(), colour.stroke_width(3)))
+                .map_err(plot_err)?
+                .label(label)
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(3))
+                });
+            chart
+                .draw_series(
+                    curve
+                        .into_iter()
+                        .map(|p| Circle::new(p, 4, colour.filled())),
+                )
+                .map_err(plot_err)?;
+            if clutter_panel {
+                chart
+                    .draw_series(
+                        r.rows
+                            .iter()
+                            .filter(plain)
+                            .filter(|row| row.distractors > 0.0)
+                            .map(|row| {
+                                TriangleMarker::new(
+                                    (row.clutter_multiplier.log2(), acc(row)),
+                                    7,
+                                    colour.filled(),
+                                )
+                            }),
+                    )
+                    .map_err(plot_err)?;
+            }
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 13))
+            .draw()
             .map_err(plot_err)?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 13))
-        .draw()
-        .map_err(plot_err)?;
     root.present().map_err(plot_err)?;
     Ok(())
 }

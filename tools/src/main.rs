@@ -139,13 +139,14 @@ enum Command {
         /// Frames per replay clip (default 20; the last one is the labelled frame).
         #[arg(long)]
         frames_per_clip: Option<usize>,
-        /// Replay labels of the robustness section (clutter × 1, 2, 4, 8 and distractors,
-        /// tracker vs the RANSAC baseline; the first K; 0 leaves the section out).
+        /// Replay labels of the robustness section (clutter × 1, 2, 4, 8, distractors and pixel
+        /// noise × 2, × 4, tracker vs the RANSAC baseline; the first K; 0 leaves the section
+        /// out).
         #[arg(long, default_value_t = 20)]
         robustness_clips: usize,
         /// Labels of the held-out check (a second generator on the bundled held-out labels,
-        /// clutter × 1, 2, 4, 8 and segments, tracker vs the RANSAC baseline; the first K of
-        /// 40; 0 leaves it out).
+        /// clutter × 1, 2, 4, 8, segments and column noise × 2, × 4, tracker vs the RANSAC
+        /// baseline; the first K of 40; 0 leaves it out).
         #[arg(long, default_value_t = 40)]
         heldout_clips: usize,
         /// Skip the PNG files.

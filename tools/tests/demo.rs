@@ -40,9 +40,9 @@ fn reduced_demo_scores_and_writes_its_files() {
     println!("{}", demo::render_markdown(&r));
 
     // Progress: every stage announced, ending at total (2 levels × 2 couplings, the real frames
-    // twice, the robustness conditions: clutter × 1, 2, 4, 8 and distractors, and the held-out
-    // check's: clutter × 1, 2, 4, 8 and segments).
-    let total = 2 * 2 + 2 + 5 + 5;
+    // twice, the robustness conditions: clutter × 1, 2, 4, 8, distractors and pixel noise × 2,
+    // × 4, and the held-out check's: clutter × 1, 2, 4, 8, segments and column noise × 2, × 4).
+    let total = 2 * 2 + 2 + 7 + 7;
     assert_eq!(calls.len(), total + 1);
     assert_eq!(calls.last().unwrap().0, total);
 
@@ -133,23 +133,34 @@ fn reduced_demo_scores_and_writes_its_files() {
             other => panic!("{other:?}"),
         }
     }
-    // Robustness: 2 clips × 5 frames, clutter × 1, 2, 4, 8 and distractors; every tracker
-    // configuration and the baseline on the same frames.
+    // Robustness: 2 clips × 5 frames, clutter × 1, 2, 4, 8, distractors and the pixel noise × 2
+    // and × 4 (σ 5 px at the mid preset); every tracker configuration and the baseline on the
+    // same frames.
     let rob = r.robustness.as_ref().unwrap();
     assert_eq!((rob.clips, rob.frames_per_clip), (2, 5));
-    let conditions: Vec<(f64, f64, f64)> = rob
+    let conditions: Vec<(f64, f64, f64, f64, f64)> = rob
         .rows
         .iter()
-        .map(|x| (x.clutter_multiplier, x.clutter_rate, x.distractors))
+        .map(|x| {
+            (
+                x.clutter_multiplier,
+                x.clutter_rate,
+                x.distractors,
+                x.pixel_noise_multiplier,
+                x.pixel_noise,
+            )
+        })
         .collect();
     assert_eq!(
         conditions,
         [
-            (1.0, 25.0, 0.0),
-            (2.0, 50.0, 0.0),
-            (4.0, 100.0, 0.0),
-            (8.0, 200.0, 0.0),
-            (1.0, 25.0, 3.0)
+            (1.0, 25.0, 0.0, 1.0, 5.0),
+            (2.0, 50.0, 0.0, 1.0, 5.0),
+            (4.0, 100.0, 0.0, 1.0, 5.0),
+            (8.0, 200.0, 0.0, 1.0, 5.0),
+            (1.0, 25.0, 3.0, 1.0, 5.0),
+            (1.0, 25.0, 0.0, 2.0, 10.0),
+            (1.0, 25.0, 0.0, 4.0, 20.0)
         ]
     );
     for x in &rob.rows {
@@ -169,13 +180,23 @@ fn reduced_demo_scores_and_writes_its_files() {
         }
     }
 
-    // Held-out check: 2 held-out labels (16 frames each), clutter × 1, 2, 4, 8 and segments;
-    // clutter grows with the density, segments only in the last row.
+    // Held-out check: 2 held-out labels (16 frames each), clutter × 1, 2, 4, 8, segments and
+    // the column noise × 2 and × 4; clutter grows with the density, segments only in their row.
     let h = r.heldout.as_ref().unwrap();
     assert_eq!(h.clips, 2);
-    assert_eq!(h.rows.len(), 5);
-    for (x, m) in h.rows.iter().zip([1.0, 2.0, 4.0, 8.0, 1.0]) {
+    assert_eq!(h.rows.len(), 7);
+    for (x, (m, k)) in h.rows.iter().zip([
+        (1.0, 1.0),
+        (2.0, 1.0),
+        (4.0, 1.0),
+        (8.0, 1.0),
+        (1.0, 1.0),
+        (1.0, 2.0),
+        (1.0, 4.0),
+    ]) {
         assert!((x.clutter_density - m * h.params.clutter_density).abs() < 1e-12);
+        assert_eq!(x.pixel_noise_multiplier, k);
+        assert!((x.pixel_noise - k * h.params.pixel_noise).abs() < 1e-12);
         assert_eq!(
             x.segment_points_per_frame > 0.0,
             x.condition.contains("segments")
@@ -220,13 +241,21 @@ fn reduced_demo_scores_and_writes_its_files() {
     assert!(md.contains("| high | diag(B) | 3 |"), "{md}");
     assert!(md.contains("| low | B (coupled) | all 3 |"), "{md}");
     assert!(md.contains("| high | diag(B) | merge/split "), "{md}");
-    assert!(md.contains("| clutter ×8 | 200 | 0 |"), "{md}");
-    assert!(md.contains("| clutter ×1 + distractors | 25 | 3 |"), "{md}");
+    assert!(md.contains("| clutter ×8 | 200 | 0 | 5 |"), "{md}");
+    assert!(
+        md.contains("| clutter ×1 + distractors | 25 | 3 | 5 |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("| clutter ×1, pixel noise ×4 | 25 | 0 | 20 |"),
+        "{md}"
+    );
+    assert!(md.contains("| clutter ×1, column noise ×4 |"), "{md}");
     let js: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(js["rows"].as_array().unwrap().len(), 6);
-    assert_eq!(js["robustness"]["rows"].as_array().unwrap().len(), 5);
-    assert_eq!(js["heldout"]["rows"].as_array().unwrap().len(), 5);
+    assert_eq!(js["robustness"]["rows"].as_array().unwrap().len(), 7);
+    assert_eq!(js["heldout"]["rows"].as_array().unwrap().len(), 7);
     assert!(md.contains("Held-out check"), "{md}");
     assert!(md.contains("| clutter ×1 + segments |"), "{md}");
     assert!(js["rows"][0]["id_switches_per_clip"].is_number());
@@ -256,7 +285,7 @@ fn reduced_demo_scores_and_writes_its_files() {
     let plot = image::open(out.join("accuracy_vs_noise.png")).unwrap();
     assert_eq!((plot.width(), plot.height()), (760, 460));
     let plot = image::open(out.join("robustness.png")).unwrap();
-    assert_eq!((plot.width(), plot.height()), (760, 460));
+    assert_eq!((plot.width(), plot.height()), (1040, 460));
     let bev = image::open(out.join("replay_bev.png")).unwrap();
     assert_eq!((bev.width(), bev.height()), (3 * 420, 720));
     let overlays: Vec<_> = r
