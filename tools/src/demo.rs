@@ -1910,6 +1910,121 @@ fn draw_frame_overlay(
     write_png(path, &buf, w, h)
 }
 
+/// Overlays of tracked frames on their own images: what `stjpdacf track --overlay DIR --images
+/// IMAGES` writes, in the style of the demo's real-frame overlays (the image in grey above a
+/// tenth of the height over the horizon cropped, the frame's feature points red, the labelled
+/// lanes green where labels are given, each published lane, seen within
+/// [`MAX_REPORT_MISSES`] frames, in its id's colour: a line over its observed extent, dots
+/// where it is extrapolated, its ±2σ band). One PNG per frame whose `raw_file` names an image
+/// under the images folder, named after the `raw_file` (`/` → `_`).
+pub struct OverlayWriter<'a> {
+    images: PathBuf,
+    dir: PathBuf,
+    cam: Camera,
+    space: Space,
+    tables: &'a ReferenceTables,
+    /// Where the bands are sampled: the BEV distance of every image row from just below the
+    /// horizon to the bottom.
+    us: Vec<f64>,
+    labels: HashMap<String, TuSimpleRecord>,
+    /// The overlays written.
+    pub written: Vec<PathBuf>,
+    /// Frames with no `raw_file` or whose image is not under the images folder.
+    pub skipped: usize,
+}
+
+impl<'a> OverlayWriter<'a> {
+    /// Overlays into `dir` (created) of the images under `images`, seen by `cam` (the camera
+    /// the frames were tracked with; each image must have its size), points in `space`, lanes
+    /// of `tables`' model; `labels` drawn where their `raw_file` is a frame's.
+    ///
+    /// # Errors
+    /// `dir` cannot be created, or the font does not load.
+    pub fn new(
+        images: &Path,
+        dir: &Path,
+        cam: Camera,
+        space: Space,
+        tables: &'a ReferenceTables,
+        labels: Vec<TuSimpleRecord>,
+    ) -> Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        register_fonts()?;
+        let first = (cam.vp_row + 1.0).ceil().max(0.0) as i64;
+        let us = (first..cam.height as i64)
+            .rev()
+            .filter_map(|r| cam.to_bev(cam.vp_col, r as f64).map(|b| b.0))
+            .collect();
+        Ok(Self {
+            images: images.to_path_buf(),
+            dir: dir.to_path_buf(),
+            cam,
+            space,
+            tables,
+            us,
+            labels: labels
+                .into_iter()
+                .map(|l| (l.raw_file.clone(), l))
+                .collect(),
+            written: Vec::new(),
+            skipped: 0,
+        })
+    }
+
+    /// The overlay of one tracked frame (skipped, and counted, when it names no image).
+    ///
+    /// # Errors
+    /// The image does not decode or its size is not the camera's, or the PNG cannot be written.
+    pub fn frame(&mut self, v: &FrameView<'_>) -> Result<()> {
+        let Some(raw) = v.frame.raw_file.as_deref() else {
+            self.skipped += 1;
+            return Ok(());
+        };
+        let path = self.images.join(raw);
+        if !path.is_file() {
+            self.skipped += 1;
+            return Ok(());
+        }
+        let img = frontend::load_rgb(&path)?;
+        let cam = &self.cam;
+        ensure!(
+            f64::from(img.width()) == cam.width.round()
+                && f64::from(img.height()) == cam.height.round(),
+            "{} is {}×{} but the camera is {}×{} (give --camera / --scale of the images)",
+            path.display(),
+            img.width(),
+            img.height(),
+            cam.width,
+            cam.height
+        );
+        let mut snap = snapshot(v, self.tables, &self.us);
+        if self.space == Space::Bev {
+            snap.frame.points = snap
+                .frame
+                .points
+                .iter()
+                .filter_map(|p| cam.to_image(p[1], p[0]).map(|(c, r)| [c, r]))
+                .collect();
+        }
+        let ids: Vec<String> = snap.bands.iter().map(|b| b.id.to_string()).collect();
+        let caption = format!(
+            "{raw} (clip {}, t = {:.2} s): {} lanes{}{}",
+            v.frame.clip,
+            v.frame.t,
+            ids.len(),
+            if ids.is_empty() { "" } else { ", ids " },
+            ids.join(" ")
+        );
+        let name = Path::new(raw).with_extension("png");
+        let out = self
+            .dir
+            .join(name.to_string_lossy().replace(['/', '\\'], "_"));
+        draw_frame_overlay(&img, cam, &snap, self.labels.get(raw), &caption, &out)?;
+        self.written.push(out);
+        Ok(())
+    }
+}
+
 /// Writes an RGB8 buffer as a PNG with the strongest compression.
 fn write_png(path: &Path, buf: &[u8], w: u32, h: u32) -> Result<()> {
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};

@@ -100,6 +100,19 @@ enum Command {
         /// before it is published (`PersistConfig::newcomer_wait`, default 2; 0 = no wait).
         #[arg(long, value_name = "FRAMES", conflicts_with = "no_newcomer_wait")]
         newcomer_wait: Option<u8>,
+        /// Also draw each frame's tracked lanes on its image into this folder (one PNG per frame
+        /// whose `raw_file` names an image under --images: the image in grey, the points red,
+        /// each lane in its id's colour, solid where observed, dotted where extrapolated, with
+        /// its ±2σ band; labelled lanes green with --labels).
+        #[arg(long, requires = "images")]
+        overlay: Option<PathBuf>,
+        /// The folder the frames' `raw_file`s are relative to (for --overlay); the camera
+        /// (--camera, --scale) must be the images' own.
+        #[arg(long)]
+        images: Option<PathBuf>,
+        /// TuSimple labels drawn green on the overlays where their `raw_file` is a frame's.
+        #[arg(long, requires = "overlay")]
+        labels: Option<PathBuf>,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -327,6 +340,9 @@ fn main() -> Result<()> {
             no_slot_claims,
             no_newcomer_wait,
             newcomer_wait,
+            overlay,
+            images,
+            labels,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -354,6 +370,19 @@ fn main() -> Result<()> {
                 }
                 None => None,
             };
+            let mut overlays = match (&overlay, &images) {
+                (Some(dir), Some(images)) => {
+                    let labels = match &labels {
+                        Some(p) => tusimple::read_labels(p)?,
+                        None => Vec::new(),
+                    };
+                    Some(stjpdacf_tools::demo::OverlayWriter::new(
+                        images, dir, cam, space, tables, labels,
+                    )?)
+                }
+                _ => None,
+            };
+            let mut overlay_err = None;
             let (mut clip_no, mut last_clip, mut export_err) = (0usize, None::<String>, None);
             let (preds, stats) = stjpdacf_tools::track::track_with(
                 &frames,
@@ -383,6 +412,13 @@ fn main() -> Result<()> {
                 },
                 |v| {
                     bar.set_position(v.index as u64 + 1);
+                    if let Some(o) = overlays.as_mut() {
+                        if overlay_err.is_none() {
+                            if let Err(e) = o.frame(&v) {
+                                overlay_err = Some(e);
+                            }
+                        }
+                    }
                     let Some(w) = export.as_mut() else { return };
                     if last_clip.as_deref() != Some(v.frame.clip.as_str()) {
                         clip_no += 1;
@@ -396,6 +432,17 @@ fn main() -> Result<()> {
             bar.finish_and_clear();
             if let Some(e) = export_err {
                 return Err(e).context("writing the points file");
+            }
+            if let Some(e) = overlay_err {
+                return Err(e).context("drawing the overlays");
+            }
+            if let (Some(o), Some(dir)) = (&overlays, &overlay) {
+                eprintln!(
+                    "{} overlays to {} ({} frames without an image)",
+                    o.written.len(),
+                    dir.display(),
+                    o.skipped
+                );
             }
             if let Some(mut w) = export {
                 std::io::Write::flush(&mut w)?;

@@ -379,3 +379,115 @@ fn track_cli_camera_file_scale_and_bad_files() {
     assert_failure_mentions(&o, "f.jsonl:4: time 0.01 s of clip c");
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+#[test]
+fn track_cli_draws_overlays_on_the_images() {
+    let d = temp_dir("overlay");
+    let sample = repo_root().join("data/tusimple/sample_512x288");
+    let labels_file = sample.join("label_data.json");
+    let labels = read_labels(&labels_file).unwrap();
+    // The 10 real frames' labelled points as frames (512×288 pixels), one frame a clip.
+    let frames: Vec<Frame> = labels
+        .iter()
+        .map(stjpdacf_tools::demo::label_points_frame)
+        .collect();
+    let fpath = d.join("f.jsonl");
+    write_frames(&fpath, &frames).unwrap();
+    let (out, dir) = (d.join("p.jsonl"), d.join("overlays"));
+    let o = run_track(
+        &fpath,
+        &out,
+        &[
+            "--scale".as_ref(),
+            "0.4".as_ref(),
+            "--overlay".as_ref(),
+            dir.as_ref(),
+            "--images".as_ref(),
+            sample.as_ref(),
+            "--labels".as_ref(),
+            labels_file.as_ref(),
+        ],
+    );
+    assert_success(&o);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("10 overlays to"));
+    let preds = read_predictions(&out).unwrap();
+    let cam = Camera::tusimple().scaled(0.4);
+    let top = (cam.vp_row - 0.1 * cam.height).floor() as u32;
+    let colours = stjpdacf_tools::demo::LANE_COLOURS.map(|c| [c.0, c.1, c.2]);
+    let green = stjpdacf_tools::demo::GT;
+    for (l, p) in labels.iter().zip(&preds) {
+        let name = l.raw_file.replace('/', "_").replace(".jpg", ".png");
+        let img = image::open(dir.join(&name)).unwrap().to_rgb8();
+        // 512 wide, the sky above a tenth of the height over the horizon cropped, 20 px caption.
+        assert_eq!((img.width(), img.height()), (512, 288 - top + 20), "{name}");
+        let count = |want: &dyn Fn([u8; 3]) -> bool| img.pixels().filter(|q| want(q.0)).count();
+        // The labels are drawn green; every predicted lane in some lane colour.
+        assert!(count(&|q| q == [green.0, green.1, green.2]) > 100, "{name}");
+        let lanes = p.lanes.len();
+        assert!(lanes > 0, "{name}");
+        assert!(count(&|q| colours.contains(&q)) > 50 * lanes, "{name}");
+    }
+    // The same frames in BEV metres (`--space bev`): the points are drawn back through the
+    // camera, at the same pixels up to rounding.
+    let bev: Vec<Frame> = frames
+        .iter()
+        .map(|f| Frame {
+            points: f
+                .points
+                .iter()
+                .filter_map(|p| cam.to_bev(p[0], p[1]).map(|(u, x)| [x, u]))
+                .collect(),
+            ..f.clone()
+        })
+        .collect();
+    let bpath = d.join("b.jsonl");
+    write_frames(&bpath, &bev).unwrap();
+    let bdir = d.join("overlays-bev");
+    let o = run_track(
+        &bpath,
+        &d.join("pb.jsonl"),
+        &[
+            "--space".as_ref(),
+            "bev".as_ref(),
+            "--scale".as_ref(),
+            "0.4".as_ref(),
+            "--overlay".as_ref(),
+            bdir.as_ref(),
+            "--images".as_ref(),
+            sample.as_ref(),
+        ],
+    );
+    assert_success(&o);
+    let red = |p: &std::path::Path| {
+        let img = image::open(p).unwrap().to_rgb8();
+        img.pixels().filter(|q| q.0 == [255, 0, 0]).count()
+    };
+    for l in &labels {
+        let name = l.raw_file.replace('/', "_").replace(".jpg", ".png");
+        let (a, b) = (red(&dir.join(&name)), red(&bdir.join(&name)));
+        assert!(
+            a > 100 && a.abs_diff(b) * 20 <= a,
+            "{name}: {a} / {b} red pixels"
+        );
+    }
+    // The overlays need the images' own camera: 512×288 images against the 1280×720 camera.
+    let o = run_track(
+        &fpath,
+        &d.join("q.jsonl"),
+        &[
+            "--overlay".as_ref(),
+            d.join("bad").as_ref(),
+            "--images".as_ref(),
+            sample.as_ref(),
+        ],
+    );
+    assert_failure_mentions(&o, "is 512×288 but the camera is 1280×720");
+    // --overlay without --images is refused by the argument parser.
+    let o = run_track(
+        &fpath,
+        &d.join("r.jsonl"),
+        &["--overlay".as_ref(), d.join("bad2").as_ref()],
+    );
+    assert_failure_mentions(&o, "--images");
+    std::fs::remove_dir_all(&d).unwrap();
+}
