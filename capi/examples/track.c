@@ -78,10 +78,10 @@ static int lane_x(stjpdacf_tracker *t, const stjpdacf_lane *l, double u, double 
         *x = xf;
         return 1;
     }
-    int i = 1, j = 0;
-    double ui = model.index_u[i], uj = model.index_u[j];
-    double xi = l->z[i], xj = l->z[j];
-    *x = xj + (u - uj) * (xj - xi) / (uj - ui);
+    /* Nearer than the window: the line through index points 0 and 1. */
+    double u0 = model.index_u[0], u1 = model.index_u[1];
+    double x0 = l->z[0], x1 = l->z[1];
+    *x = x0 + (u - u0) * (x0 - x1) / (u0 - u1);
     return 1;
 }
 

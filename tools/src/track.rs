@@ -236,10 +236,9 @@ fn reported(tables: &ReferenceTables, lane: &LaneEstimate<16>, u: f64) -> bool {
 
 /// A lane nearer than the window: the line through its two nearest index points.
 fn extension(tables: &ReferenceTables, lane: &LaneEstimate<16>, u: f64) -> f64 {
-    let (i, j) = (1, 0);
-    let (ui, uj) = (f64::from(tables.index_u[i]), f64::from(tables.index_u[j]));
-    let (xi, xj) = (f64::from(lane.z[i]), f64::from(lane.z[j]));
-    xj + (u - uj) * (xj - xi) / (uj - ui)
+    let (u0, u1) = (f64::from(tables.index_u[0]), f64::from(tables.index_u[1]));
+    let (x0, x1) = (f64::from(lane.z[0]), f64::from(lane.z[1]));
+    x0 + (u - u0) * (x0 - x1) / (u0 - u1)
 }
 
 fn inside(tables: &ReferenceTables, u: f64) -> bool {
