@@ -108,7 +108,7 @@ enum Command {
         overlay: Option<PathBuf>,
         /// The folder the frames' `raw_file`s are relative to (for --overlay); the camera
         /// (--camera, --scale) must be the images' own.
-        #[arg(long)]
+        #[arg(long, requires = "overlay")]
         images: Option<PathBuf>,
         /// TuSimple labels drawn green on the overlays where their `raw_file` is a frame's.
         #[arg(long, requires = "overlay")]
