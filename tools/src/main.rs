@@ -129,6 +129,11 @@ enum Command {
         /// of 512x288 frames at TuSimple's 1280x720, where the metric's 20 px threshold is set).
         #[arg(long, default_value_t = 1.0)]
         pixel_scale: f64,
+        /// Also write every frame's score (JSON lines `{"raw_file", "accuracy", "fp", "fn",
+        /// "gt_lanes", "pred_lanes", "penalty"}`, worst accuracy first) to this file, and
+        /// list the worst frames on stderr.
+        #[arg(long, value_name = "OUT.jsonl")]
+        per_frame: Option<PathBuf>,
     },
     /// The demo on bundled data: replay clips (three noise levels, coupled B and diag(B)) and the
     /// 10 real frames through the front end → tracker → official TuSimple metric; prints the
@@ -464,12 +469,48 @@ fn main() -> Result<()> {
             gt,
             json,
             pixel_scale,
+            per_frame,
         } => {
             anyhow::ensure!(
                 pixel_scale > 0.0 && pixel_scale.is_finite(),
                 "--pixel-scale must be > 0"
             );
-            let s = metric::evaluate_files_scaled(&pred, &gt, pixel_scale)?;
+            let (s, mut frames) = metric::evaluate_files_frames(&pred, &gt, pixel_scale)?;
+            if let Some(p) = &per_frame {
+                // Worst first: accuracy up, then FP + FN down; ties in file order.
+                frames.sort_by(|a, b| {
+                    a.accuracy
+                        .total_cmp(&b.accuracy)
+                        .then((b.fp + b.fn_).total_cmp(&(a.fp + a.fn_)))
+                });
+                let mut w = std::io::BufWriter::new(
+                    std::fs::File::create(p)
+                        .with_context(|| format!("creating {}", p.display()))?,
+                );
+                for f in &frames {
+                    serde_json::to_writer(&mut w, f).context("serialising a frame score")?;
+                    std::io::Write::write_all(&mut w, b"\n")?;
+                }
+                std::io::Write::flush(&mut w)
+                    .with_context(|| format!("writing {}", p.display()))?;
+                eprintln!(
+                    "{} frame scores to {}; the worst:",
+                    frames.len(),
+                    p.display()
+                );
+                for f in frames.iter().take(5) {
+                    eprintln!(
+                        "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes predicted / labelled){}",
+                        f.raw_file,
+                        f.accuracy,
+                        f.fp,
+                        f.fn_,
+                        f.pred_lanes,
+                        f.gt_lanes,
+                        if f.penalty { ", penalty" } else { "" }
+                    );
+                }
+            }
             if json {
                 println!(
                     "{}",

@@ -254,6 +254,35 @@ pub struct Score {
 /// frame that [`bench()`] rejects. Also an error (the original divides by zero): no ground truth.
 /// Like the original, this accepts repeated `raw_file`s; [`check_one_to_one`] rejects them.
 pub fn bench_one_submit(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Result<Score> {
+    Ok(bench_frames(preds, gts)?.0)
+}
+
+/// One prediction's frame score ([`bench()`]) with what it was scored on.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FrameResult {
+    /// The prediction's `raw_file`.
+    pub raw_file: String,
+    /// The frame's accuracy.
+    pub accuracy: f64,
+    /// The frame's FP rate.
+    pub fp: f64,
+    /// The frame's FN rate.
+    #[serde(rename = "fn")]
+    pub fn_: f64,
+    /// Ground-truth lanes of the frame.
+    pub gt_lanes: usize,
+    /// Predicted lanes of the frame.
+    pub pred_lanes: usize,
+    /// The frame got the metric's penalty (too slow, or more than 2 lanes too many).
+    pub penalty: bool,
+}
+
+/// [`bench_one_submit`] and each prediction's frame score, in the predictions' order (same
+/// checks and errors).
+pub fn bench_frames(
+    preds: &[TuSimpleRecord],
+    gts: &[TuSimpleRecord],
+) -> Result<(Score, Vec<FrameResult>)> {
     ensure!(
         gts.len() == preds.len(),
         "{} predictions for {} ground-truth frames: every ground-truth frame needs one prediction",
@@ -263,6 +292,7 @@ pub fn bench_one_submit(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
     let by_file: HashMap<&str, &TuSimpleRecord> =
         gts.iter().map(|g| (g.raw_file.as_str(), g)).collect();
     let (mut accuracy, mut fp, mut fn_) = (0.0_f64, 0.0_f64, 0.0_f64);
+    let mut frames = Vec::with_capacity(preds.len());
     for (i, pred) in preds.iter().enumerate() {
         let Some(run_time) = pred.run_time else {
             bail!("prediction {} ({}): run_time missing", i + 1, pred.raw_file);
@@ -279,16 +309,27 @@ pub fn bench_one_submit(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
         accuracy += f.accuracy;
         fp += f.fp;
         fn_ += f.fn_;
+        frames.push(FrameResult {
+            raw_file: pred.raw_file.clone(),
+            accuracy: f.accuracy,
+            fp: f.fp,
+            fn_: f.fn_,
+            gt_lanes: gt.lanes.len(),
+            pred_lanes: pred.lanes.len(),
+            penalty: run_time > MAX_RUN_TIME_MS
+                || gt.lanes.len() + MAX_EXTRA_LANES < pred.lanes.len(),
+        });
     }
     let num = by_file.len();
     ensure!(num > 0, "no ground-truth frames");
     let n = num as f64;
-    Ok(Score {
+    let score = Score {
         accuracy: accuracy / n,
         fp: fp / n,
         fn_: fn_ / n,
         frames: num,
-    })
+    };
+    Ok((score, frames))
 }
 
 /// Stricter than the original (which would silently count a repeated prediction twice): every
@@ -332,6 +373,15 @@ pub fn evaluate_files(pred_path: &Path, gt_path: &Path) -> Result<Score> {
 /// (negative "no point" values stay as they are), e.g. 2.5 to score files of 512×288 frames at
 /// TuSimple's 1280×720, where the metric's 20 px threshold is defined.
 pub fn evaluate_files_scaled(pred_path: &Path, gt_path: &Path, scale: f64) -> Result<Score> {
+    Ok(evaluate_files_frames(pred_path, gt_path, scale)?.0)
+}
+
+/// [`evaluate_files_scaled`] and each prediction's frame score ([`bench_frames`]).
+pub fn evaluate_files_frames(
+    pred_path: &Path,
+    gt_path: &Path,
+    scale: f64,
+) -> Result<(Score, Vec<FrameResult>)> {
     let mut gts = read_labels(gt_path)?;
     let mut preds = read_predictions(pred_path)?;
     if scale != 1.0 {
@@ -347,7 +397,7 @@ pub fn evaluate_files_scaled(pred_path: &Path, gt_path: &Path, scale: f64) -> Re
         )
     };
     check_one_to_one(&preds, &gts).with_context(ctx)?;
-    bench_one_submit(&preds, &gts).with_context(ctx)
+    bench_frames(&preds, &gts).with_context(ctx)
 }
 
 #[cfg(test)]

@@ -191,3 +191,58 @@ fn pixel_scale_scores_512_files_at_1280() {
     assert_eq!(r.lanes[0][3], gts[0].lanes[0][3] * 2.5);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn per_frame_scores_average_to_the_score_and_list_the_worst_first() {
+    let dir = temp_dir("per-frame");
+    let gts = labels();
+    let mut preds = as_predictions(&gts);
+    // Frame 3: lane 0 shifted 60 px (one FN and one FP); frame 7: too slow (the penalty).
+    for x in preds[3].lanes[0].iter_mut().filter(|x| **x >= 0.0) {
+        *x += 60.0;
+    }
+    preds[7].run_time = Some(250.0);
+    let (score, frames) = metric::bench_frames(&preds, &gts).unwrap();
+    assert_eq!(score, bench_one_submit(&preds, &gts).unwrap());
+    let mean = frames.iter().map(|f| f.accuracy).sum::<f64>() / 10.0;
+    assert_relative_eq!(mean, score.accuracy, epsilon = 1e-15);
+    assert!(frames[7].penalty && frames[7].accuracy == 0.0 && frames[7].fn_ == 1.0);
+    assert!(!frames[3].penalty && frames[3].fp == 0.25 && frames[3].fn_ == 0.25);
+    assert!(frames
+        .iter()
+        .enumerate()
+        .all(|(i, f)| f.raw_file == gts[i].raw_file && f.gt_lanes == gts[i].lanes.len()));
+    // The CLI writes them worst first.
+    let pred = dir.join("pred.json");
+    write_records(&pred, &preds).unwrap();
+    let per = dir.join("frames.jsonl");
+    let out = stjpdacf()
+        .args(["eval", "--per-frame"])
+        .arg(&per)
+        .arg("--pred")
+        .arg(&pred)
+        .arg("--gt")
+        .arg(labels_path())
+        .output()
+        .unwrap();
+    assert_success(&out);
+    let rows: Vec<serde_json::Value> = std::fs::read_to_string(&per)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(rows.len(), 10);
+    assert_eq!(rows[0]["raw_file"], gts[7].raw_file.as_str());
+    assert_eq!(rows[0]["penalty"], true);
+    assert_eq!(rows[1]["raw_file"], gts[3].raw_file.as_str());
+    assert_eq!(rows[1]["fn"].as_f64(), Some(0.25));
+    assert!(rows[2..]
+        .iter()
+        .all(|r| r["accuracy"].as_f64() == Some(1.0)));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("10 frame scores to") && err.contains("penalty"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
