@@ -6,12 +6,16 @@
 //! guess of the per-image estimate (`CameraMode::Estimate`: the horizon, the vanishing column
 //! and the height found in each image, the focal length from the guess). The last column is
 //! the tracker alone: the labelled points as feature points, mapped with the perturbed camera.
+//! The last lines average the perturbed-calibration runs over all the cameras, per half of the
+//! frames (the front end's tuning half and its held-out half), with the feature points'
+//! precision and recall: a smoother figure than one camera's for judging a front-end change.
 //!
-//! `cargo run --release -p stjpdacf-tools --example camera_sensitivity` (about 30 s)
+//! `cargo run --release -p stjpdacf-tools --example camera_sensitivity [name=value ...]` (about
+//! 5 s; `name=value` overrides a front-end parameter, [`FrontendParams::set`])
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::demo::{self, REAL_TO_TUSIMPLE};
-use stjpdacf_tools::frontend::{CameraMode, FrontendParams};
+use stjpdacf_tools::frontend::{CameraMode, FrontendParams, TUNING_SET};
 use stjpdacf_tools::metric;
 use stjpdacf_tools::track::{self, Space};
 use stjpdacf_tools::tusimple::{read_labels, Frame, TuSimpleRecord};
@@ -19,7 +23,14 @@ use stjpdacf_tools::tusimple::{read_labels, Frame, TuSimpleRecord};
 fn main() -> anyhow::Result<()> {
     let dir = stjpdacf_tools::repo_root().join("data/tusimple/sample_512x288");
     let labels = read_labels(&dir.join("label_data.json"))?;
-    let p = FrontendParams::default();
+    // `name=value` arguments override the front end's parameters (as `frontend_eval`).
+    let mut p = FrontendParams::default();
+    for a in std::env::args().skip(1) {
+        let (name, v) = a
+            .split_once('=')
+            .ok_or_else(|| anyhow::anyhow!("expected name=value, got {a}"))?;
+        p.set(name, v.parse()?)?;
+    }
     let base = Camera::tusimple().scaled(0.4);
     // (what, perturbed camera at 512×288)
     let mut cases: Vec<(String, Camera)> = vec![("calibration".into(), base)];
@@ -69,8 +80,23 @@ fn main() -> anyhow::Result<()> {
     );
     println!("|---|---|---|---|");
     let (mut given, mut est) = (Vec::new(), Vec::new());
+    // Over every camera of the table (calibration included), per half of the frames (tuning,
+    // held-out: `frontend::TUNING_SET`): sums of accuracy, FP, FN, point precision and recall.
+    let mut halves = [[0.0f64; 5]; 2];
+    let mut counts = [0usize; 2];
     for (what, cam) in &cases {
-        let g = demo::run_real(&dir, &labels, &CameraMode::Given(*cam), &p, false)?.score;
+        let run = demo::run_real(&dir, &labels, &CameraMode::Given(*cam), &p, false)?;
+        for f in &run.results {
+            let h = usize::from(!TUNING_SET.contains(&f.raw_file.as_str()));
+            let s = &mut halves[h];
+            s[0] += f.score.accuracy;
+            s[1] += f.score.fp;
+            s[2] += f.score.fn_;
+            s[3] += f.precision;
+            s[4] += f.recall;
+            counts[h] += 1;
+        }
+        let g = run.score;
         // The guess is a 1280×720 camera (the estimate scales it to the image's width).
         let guess = cam.scaled(1.0 / 0.4);
         let e = demo::run_real(&dir, &labels, &CameraMode::Estimate(guess), &p, false)?.score;
@@ -112,5 +138,18 @@ fn main() -> anyhow::Result<()> {
         "over the {} perturbations, accuracy min / median / max: calibration perturbed {g0:.3} / {g1:.3} / {g2:.3}; per-image estimate {e0:.3} / {e1:.3} / {e2:.3}",
         given.len()
     );
+    for (h, name) in ["tuning", "held-out"].iter().enumerate() {
+        let n = counts[h].max(1) as f64;
+        let m = halves[h].map(|v| v / n);
+        println!(
+            "{name} half, mean over the {} cameras (calibration perturbed): accuracy {:.3}, FP {:.3}, FN {:.3}; feature points precision {:.3}, recall {:.3}",
+            cases.len(),
+            m[0],
+            m[1],
+            m[2],
+            m[3],
+            m[4]
+        );
+    }
     Ok(())
 }

@@ -908,6 +908,7 @@ pub fn label_points_frame(l: &TuSimpleRecord) -> Frame {
         points,
         raw_file: Some(l.raw_file.clone()),
         h_samples: Some(l.h_samples.clone()),
+        camera: None,
     }
 }
 
@@ -1935,7 +1936,8 @@ pub struct OverlayWriter<'a> {
 
 impl<'a> OverlayWriter<'a> {
     /// Overlays into `dir` (created) of the images under `images`, seen by `cam` (the camera
-    /// the frames were tracked with; each image must have its size), points in `space`, lanes
+    /// the frames were tracked with, unless a frame's clip has its own; each image must have
+    /// its size), points in `space`, lanes
     /// of `tables`' model; `labels` drawn where their `raw_file` is a frame's.
     ///
     /// # Errors
@@ -1950,11 +1952,7 @@ impl<'a> OverlayWriter<'a> {
     ) -> Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         register_fonts()?;
-        let first = (cam.vp_row + 1.0).ceil().max(0.0) as i64;
-        let us = (first..cam.height as i64)
-            .rev()
-            .filter_map(|r| cam.to_bev(cam.vp_col, r as f64).map(|b| b.0))
-            .collect();
+        let us = Self::band_distances(&cam);
         Ok(Self {
             images: images.to_path_buf(),
             dir: dir.to_path_buf(),
@@ -1971,11 +1969,25 @@ impl<'a> OverlayWriter<'a> {
         })
     }
 
-    /// The overlay of one tracked frame (skipped, and counted, when it names no image).
+    /// The BEV distance of every image row of `cam` from just below the horizon to the bottom.
+    fn band_distances(cam: &Camera) -> Vec<f64> {
+        let first = (cam.vp_row + 1.0).ceil().max(0.0) as i64;
+        (first..cam.height as i64)
+            .rev()
+            .filter_map(|r| cam.to_bev(cam.vp_col, r as f64).map(|b| b.0))
+            .collect()
+    }
+
+    /// The overlay of one tracked frame (skipped, and counted, when it names no image), drawn
+    /// through the camera its clip was tracked with ([`FrameView::camera`]).
     ///
     /// # Errors
     /// The image does not decode or its size is not the camera's, or the PNG cannot be written.
     pub fn frame(&mut self, v: &FrameView<'_>) -> Result<()> {
+        if *v.camera != self.cam {
+            self.cam = *v.camera;
+            self.us = Self::band_distances(&self.cam);
+        }
         let Some(raw) = v.frame.raw_file.as_deref() else {
             self.skipped += 1;
             return Ok(());

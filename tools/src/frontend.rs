@@ -1563,6 +1563,7 @@ pub fn run_dir_cameras(
             points,
             raw_file: Some(raw_file),
             h_samples,
+            camera: matches!(mode, CameraMode::Estimate(_)).then_some(cam),
         });
         progress(n + 1, files.len());
     }

@@ -441,6 +441,7 @@ fn clip(
             points,
             raw_file: last.then(|| label.raw_file.clone()),
             h_samples: last.then(|| label.h_samples.clone()),
+            camera: None,
         });
     }
 }

@@ -61,7 +61,8 @@ enum Command {
         #[arg(long)]
         hyper: Option<PathBuf>,
         /// Camera: `tusimple` (1280x720) or a camera JSON file (fields width, height, vp_col,
-        /// vp_row, height_m, focal_px).
+        /// vp_row, height_m, focal_px). A clip whose first frame carries its own camera (`stjpdacf
+        /// frontend --camera estimate`) is mapped with that one instead.
         #[arg(long, default_value = "tusimple")]
         camera: String,
         /// Image scale relative to the camera (0.4 for 512x288 frames with `--camera tusimple`).
@@ -247,9 +248,21 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
         /// Camera: `tusimple` (the 1280x720 TuSimple camera, scaled by --scale, or to each
-        /// image's width when --scale is absent) or a camera JSON file.
+        /// image's width when --scale is absent), `culane` (a 1640x590 guess), a camera JSON
+        /// file, or `estimate`: each image's horizon, vanishing column and camera height found
+        /// from its markings (the focal length from --guess), written into its frame for
+        /// `stjpdacf track`.
         #[arg(long, default_value = "tusimple")]
         camera: String,
+        /// With `--camera estimate`: the camera to start from (`tusimple`, `culane` or a file),
+        /// scaled to each image's width; default: a guess from the first image's size (focal
+        /// length 0.8 x width, horizon at 0.4 x height, 1.5 m high).
+        #[arg(long)]
+        guess: Option<String>,
+        /// Front-end parameter overrides `name=value` (the fields of
+        /// `stjpdacf_tools::frontend::FrontendParams`, e.g. `ridge_threshold=25`); repeatable.
+        #[arg(long = "param", value_name = "NAME=VALUE")]
+        params: Vec<String>,
         /// Image scale relative to the camera (0.4 for the 512x288 TuSimple sample).
         #[arg(long)]
         scale: Option<f64>,
@@ -362,6 +375,11 @@ fn main() -> Result<()> {
                 None => cam,
             };
             let frames = tusimple::read_frames(&frames)?;
+            anyhow::ensure!(
+                export_points.is_none() || frames.iter().all(|f| f.camera.is_none()),
+                "--export-points writes one camera for all frames; these frames carry their own \
+                 (from `frontend --camera estimate`): track them without --export-points"
+            );
             let bar = indicatif::ProgressBar::new(frames.len() as u64);
             let space = match space {
                 SpaceArg::Image => stjpdacf_tools::track::Space::Image,
@@ -686,22 +704,52 @@ fn main() -> Result<()> {
             images,
             out,
             camera,
+            guess,
+            params,
             scale,
             labels,
             overlay,
         } => {
-            let cam = match (camera.as_str(), scale) {
-                ("tusimple", None) => None,
-                (spec, s) => {
-                    let c = Camera::from_spec(spec)?;
-                    Some(match s {
-                        Some(s) => {
-                            anyhow::ensure!(s > 0.0, "--scale must be > 0");
-                            c.scaled(s)
-                        }
-                        None => c,
-                    })
-                }
+            let mut p = frontend::FrontendParams::default();
+            for a in &params {
+                let (name, v) = a
+                    .split_once('=')
+                    .with_context(|| format!("--param {a}: expected NAME=VALUE"))?;
+                let v: f64 = v
+                    .parse()
+                    .with_context(|| format!("--param {a}: {v} is not a number"))?;
+                p.set(name, v)?;
+            }
+            let scaled = |c: Camera| -> Result<Camera> {
+                Ok(match scale {
+                    Some(s) => {
+                        anyhow::ensure!(s > 0.0 && s.is_finite(), "--scale must be > 0");
+                        c.scaled(s)
+                    }
+                    None => c,
+                })
+            };
+            anyhow::ensure!(
+                guess.is_none() || camera == "estimate",
+                "--guess is the starting point of --camera estimate"
+            );
+            let mode = match (camera.as_str(), scale) {
+                ("tusimple", None) => frontend::CameraMode::TuSimple,
+                ("estimate", _) => frontend::CameraMode::Estimate(match &guess {
+                    Some(spec) => scaled(Camera::from_spec(spec)?)?,
+                    None => {
+                        let first = frontend::find_images(&images)?
+                            .into_iter()
+                            .next()
+                            .with_context(|| {
+                                format!("no *.jpg or *.png images under {}", images.display())
+                            })?;
+                        let (w, h) = image::image_dimensions(&first)
+                            .with_context(|| format!("{}", first.display()))?;
+                        Camera::guess(f64::from(w), f64::from(h))
+                    }
+                }),
+                (spec, _) => frontend::CameraMode::Given(scaled(Camera::from_spec(spec)?)?),
             };
             let labels = labels.or_else(|| {
                 let p = images.join("label_data.json");
@@ -713,19 +761,16 @@ fn main() -> Result<()> {
             };
             let bar = indicatif::ProgressBar::hidden();
             let start = std::time::Instant::now();
-            let frames = frontend::run_dir(
-                &images,
-                cam.as_ref(),
-                &recs,
-                &frontend::FrontendParams::default(),
-                |k, n| {
-                    if k == 1 {
-                        bar.set_length(n as u64);
-                        bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
-                    }
-                    bar.set_position(k as u64);
-                },
-            )?;
+            let frames = frontend::run_dir_cameras(&images, &mode, &recs, &p, |k, n| {
+                if k == 1 {
+                    bar.set_length(n as u64);
+                    bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                }
+                bar.set_position(k as u64);
+            })?
+            .into_iter()
+            .map(|(f, _, _)| f)
+            .collect::<Vec<_>>();
             bar.finish_and_clear();
             tusimple::write_frames(&out, &frames)?;
             if let Some(dir) = &overlay {

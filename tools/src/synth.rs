@@ -1209,6 +1209,7 @@ pub fn synth_clip(
             points,
             raw_file: Some(raw_file),
             h_samples: Some(label.h_samples.clone()),
+            camera: None,
         });
     }
     let gt_last = gt_all.last().cloned().expect("frames_per_clip ≥ 1");

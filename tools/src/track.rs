@@ -383,6 +383,9 @@ pub struct FrameView<'a> {
     pub points: &'a [[f32; 2]],
     /// The tracker after the step.
     pub tracker: &'a ReferenceTracker,
+    /// The camera of the frame's clip (its first frame's [`Frame::camera`], else the one the
+    /// run was given).
+    pub camera: &'a Camera,
     /// The step's output (`None` when the tracker refused the frame).
     pub output: Option<&'a StepOutput<6, 16>>,
     /// The prediction written for this frame, if any.
@@ -500,7 +503,11 @@ pub fn track(
 /// [`track`] with a tracker configuration, calling `observe` after every frame (for overlays and
 /// progress). `run_time` of a prediction (and the `run_*` statistics) is the wall time spent on
 /// the frame from its points to its lanes: mapping to BEV, [`preprocess`], `Tracker::step` and
-/// the evaluation at the `h_samples` rows; `observe` is not counted.
+/// the evaluation at the `h_samples` rows; `observe` is not counted. `cam` maps the points and
+/// the lanes of every clip whose first frame carries no camera ([`Frame::camera`]); a clip whose
+/// first frame does (an estimated camera, `stjpdacf frontend --camera estimate`) is mapped with
+/// that one throughout (one BEV per clip: a camera that changed from frame to frame would move
+/// the lanes the tracker holds).
 ///
 /// # Errors
 /// A frame that fails [`Frame::check`].
@@ -517,10 +524,13 @@ pub fn track_with(
     let mut tracker: Option<Box<ReferenceTracker>> = None;
     let mut clip: Option<&str> = None;
     let mut times = RunTimes::default();
+    let mut clip_cam = *cam;
     for (k, f) in frames.iter().enumerate() {
         if stats.begin_frame(k, f, &mut clip)? {
             tracker = Some(Box::new(ReferenceTracker::with_config(tables, config)));
+            clip_cam = f.camera.unwrap_or(*cam);
         }
+        let cam = &clip_cam;
         let Some(tr) = tracker.as_mut() else { continue };
         let start = WallClock::now();
         let bev_pts = bev_points(f, cam, space, &mut stats.unmapped_points);
@@ -580,6 +590,7 @@ pub fn track_with(
             frame: f,
             points: &pts,
             tracker: tr,
+            camera: cam,
             output: output.as_ref(),
             prediction: prediction.as_ref(),
             prediction_ids: &prediction_ids,

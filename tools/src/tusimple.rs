@@ -7,10 +7,14 @@
 //!   where the lane has no point. Ground truth has no `run_time`; predictions must have it (the
 //!   official scorer refuses predictions without it).
 //! * [`Frame`] — one frame of feature points for the tracker:
-//!   `{"clip": str, "t": seconds, "points": [[x, y], ...], "raw_file": str?, "h_samples": [row, ...]?}`.
+//!   `{"clip": str, "t": seconds, "points": [[x, y], ...], "raw_file": str?, "h_samples": [row, ...]?,
+//!   "camera": {...}?}`.
 //!   Frames of one clip are consecutive and their times increase strictly; `raw_file`/`h_samples`
 //!   are present on frames for which a TuSimple prediction is to be written (`h_samples` needs
 //!   `raw_file`, and a `raw_file` with `h_samples` appears once per file: the scorer joins on it).
+//!   `camera` (the fields of [`crate::camera::Camera`]) is the camera the image points were
+//!   found with, written by `stjpdacf frontend --camera estimate`; `stjpdacf track` maps each
+//!   clip with its first frame's camera when it has one.
 //!
 //! Readers skip blank lines and report malformed input as `FILE:LINE: ...` errors. Unknown keys
 //! are ignored (submissions commonly carry extra keys).
@@ -112,6 +116,10 @@ pub struct Frame {
     /// Image rows at which to report the lanes, when a prediction is to be written.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub h_samples: Option<Vec<f64>>,
+    /// The camera the image points were found with (an estimated camera, per image); `None`:
+    /// the camera the tracker is given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<crate::camera::Camera>,
 }
 
 impl Frame {
@@ -496,14 +504,26 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("stjpdacf-tusimple-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("frames.jsonl");
-        let frames = vec![Frame {
+        let frame = Frame {
             clip: "c".into(),
             t: 0.5,
             points: vec![[1.0, 2.0]],
             raw_file: None,
             h_samples: None,
-        }];
+            camera: None,
+        };
+        // A frame with its camera round-trips too; one without writes no `camera` key.
+        let frames = vec![
+            frame.clone(),
+            Frame {
+                t: 0.55,
+                camera: Some(crate::camera::Camera::culane()),
+                ..frame
+            },
+        ];
         write_frames(&p, &frames).unwrap();
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert_eq!(text.matches("\"camera\"").count(), 1, "{text}");
         assert_eq!(read_frames(&p).unwrap(), frames);
         let missing = dir.join("nope.json");
         let msg = format!("{:#}", read_labels(&missing).unwrap_err());

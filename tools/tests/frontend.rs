@@ -146,6 +146,7 @@ fn works_at_1280x720() {
         points: pts,
         raw_file: None,
         h_samples: None,
+        camera: None,
     };
     let (tp, n, rec) = score(&f.points, &label, 2.5, 15.0);
     let precision = tp as f64 / n as f64;
@@ -336,4 +337,201 @@ fn tagged_points_are_detects_points() -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// `stjpdacf frontend --camera estimate` on a folder of uncalibrated CULane-sized (1640×590)
+/// images writes each image's estimated camera into its frame, and `stjpdacf track` maps each
+/// clip with it: the lanes come out where the synthetic road's markings are, while the same
+/// points mapped with the guessed camera (horizon 30 rows off) do not. Also `--param` and the
+/// errors of the new options.
+#[test]
+fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-est-{}", std::process::id()));
+    let images = d.join("images");
+    // Two clips of one image each, the road seen by cameras the guess does not know (horizon
+    // 30 and 20 rows above the guess's, vanishing column right of centre).
+    let truths = [(30.0, 850.0), (20.0, 800.0)].map(|(dv, col)| Camera {
+        vp_row: 0.4 * 590.0 - dv,
+        vp_col: col,
+        height_m: 1.6,
+        focal_px: 1100.0,
+        ..Camera::culane()
+    });
+    let rows: Vec<f64> = (0..35).map(|k| 240.0 + 10.0 * f64::from(k)).collect();
+    let mut labels = Vec::new();
+    for (k, truth) in truths.iter().enumerate() {
+        let clip = images.join(format!("clips/c{k}"));
+        std::fs::create_dir_all(&clip).unwrap();
+        synthetic_road(truth).save(clip.join("20.png")).unwrap();
+        // The labelled lanes: the ego lane's solid lines at the rows (the outer dashed lines
+        // leave the image below a few dashes; predictions of them count as false positives).
+        let lanes = [-1.8, 1.8]
+            .iter()
+            .map(|&x| {
+                rows.iter()
+                    .map(|&r| {
+                        let (u, _) = truth.to_bev(truth.vp_col, r).unwrap();
+                        truth.to_image(u, x).map_or(-2.0, |(c, _)| {
+                            if (0.0..1640.0).contains(&c) {
+                                c
+                            } else {
+                                -2.0
+                            }
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        labels.push(TuSimpleRecord {
+            raw_file: format!("clips/c{k}/20.png"),
+            lanes,
+            h_samples: rows.clone(),
+            run_time: None,
+        });
+    }
+    let label_file = d.join("labels.json");
+    stjpdacf_tools::tusimple::write_jsonl(&label_file, &labels).unwrap();
+    let cli = |args: &[&std::ffi::OsStr]| {
+        Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let ok = |o: &std::process::Output| {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    let frontend_run = |out: &std::path::Path, extra: &[&str]| {
+        let mut args: Vec<&std::ffi::OsStr> = vec![
+            "frontend".as_ref(),
+            "--images".as_ref(),
+            images.as_ref(),
+            "--labels".as_ref(),
+            label_file.as_ref(),
+            "--out".as_ref(),
+            out.as_ref(),
+        ];
+        args.extend(extra.iter().map(std::ffi::OsStr::new));
+        cli(&args)
+    };
+    let est = d.join("est.jsonl");
+    let o = frontend_run(&est, &["--camera", "estimate"]);
+    ok(&o);
+    let frames = read_frames(&est).unwrap();
+    assert_eq!(frames.len(), 2);
+    for (f, truth) in frames.iter().zip(&truths) {
+        let c = f.camera.expect("an estimated camera in the frame");
+        eprintln!("{}: estimated {c:?}", f.clip);
+        assert!((c.vp_row - truth.vp_row).abs() <= 3.0, "{c:?}");
+        assert!((c.vp_col - truth.vp_col).abs() <= 5.0, "{c:?}");
+        assert_eq!((c.width, c.height), (1640.0, 590.0));
+    }
+    // Tracked with the estimated cameras (the frames' own; `--camera culane` is only the
+    // fallback), then with the same points and the guess alone.
+    let track_score = |frames_file: &std::path::Path, tag: &str| {
+        let out = d.join(format!("pred-{tag}.jsonl"));
+        let o = cli(&[
+            "track".as_ref(),
+            "--frames".as_ref(),
+            frames_file.as_ref(),
+            "--out".as_ref(),
+            out.as_ref(),
+            "--camera".as_ref(),
+            "culane".as_ref(),
+        ]);
+        ok(&o);
+        let preds = stjpdacf_tools::tusimple::read_predictions(&out).unwrap();
+        let s = stjpdacf_tools::metric::bench_one_submit(&preds, &labels).unwrap();
+        eprintln!(
+            "{tag}: accuracy {:.3} FP {:.3} FN {:.3}",
+            s.accuracy, s.fp, s.fn_
+        );
+        s
+    };
+    let with_cameras = track_score(&est, "estimated");
+    assert!(
+        with_cameras.accuracy >= 0.9 && with_cameras.fn_ == 0.0,
+        "{with_cameras:?}"
+    );
+    // The frames' cameras are what `track` used: clip c0's points tracked without its camera
+    // but with `--camera FILE` of that camera give the same lanes.
+    let c0 = frames[0].camera.unwrap();
+    let cam_file = d.join("c0.json");
+    std::fs::write(&cam_file, serde_json::to_string(&c0).unwrap()).unwrap();
+    let stripped = d.join("c0.jsonl");
+    stjpdacf_tools::tusimple::write_frames(
+        &stripped,
+        &[Frame {
+            camera: None,
+            ..frames[0].clone()
+        }],
+    )
+    .unwrap();
+    let (p_file, p0_file) = (d.join("p-c0.jsonl"), d.join("pred-estimated.jsonl"));
+    ok(&cli(&[
+        "track".as_ref(),
+        "--frames".as_ref(),
+        stripped.as_ref(),
+        "--out".as_ref(),
+        p_file.as_ref(),
+        "--camera".as_ref(),
+        cam_file.as_ref(),
+    ]));
+    let lanes = |f: &std::path::Path| {
+        stjpdacf_tools::tusimple::read_predictions(f).unwrap()[0]
+            .lanes
+            .clone()
+    };
+    assert_eq!(lanes(&p_file), lanes(&p0_file));
+    // For the record: the same points mapped with the guess (horizon 30 and 20 rows off, focal
+    // length 19 % long) alone.
+    let guess_file = d.join("guess.jsonl");
+    let guessed: Vec<Frame> = frames
+        .iter()
+        .map(|f| Frame {
+            camera: None,
+            ..f.clone()
+        })
+        .collect();
+    stjpdacf_tools::tusimple::write_frames(&guess_file, &guessed).unwrap();
+    track_score(&guess_file, "guess");
+    // `--param` reaches the front end: a threshold above the paint's contrast finds nothing.
+    let high = d.join("high.jsonl");
+    ok(&frontend_run(
+        &high,
+        &["--camera", "estimate", "--param", "ridge_threshold=1000"],
+    ));
+    let n = |p: &std::path::Path| -> usize {
+        read_frames(p).unwrap().iter().map(|f| f.points.len()).sum()
+    };
+    assert!(n(&est) > 100);
+    assert_eq!(n(&high), 0);
+    // Errors: an unknown parameter, a malformed one, --guess without estimation, and a points
+    // export (one camera for all frames) of frames that carry their own.
+    let bad = d.join("bad.jsonl");
+    for (extra, msg) in [
+        (
+            &["--param", "nope=1"][..],
+            "unknown front-end parameter nope",
+        ),
+        (&["--param", "ridge_threshold"][..], "expected NAME=VALUE"),
+        (&["--param", "ridge_threshold=x"][..], "is not a number"),
+        (&["--guess", "culane"][..], "--guess is the starting point"),
+    ] {
+        let o = frontend_run(&bad, extra);
+        assert!(!o.status.success(), "{extra:?}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(msg), "{extra:?}: {err}");
+    }
+    let o = cli(&[
+        "track".as_ref(),
+        "--frames".as_ref(),
+        est.as_ref(),
+        "--out".as_ref(),
+        d.join("p.jsonl").as_ref(),
+        "--export-points".as_ref(),
+        d.join("pts.txt").as_ref(),
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--export-points writes one camera"));
+    std::fs::remove_dir_all(&d).unwrap();
 }

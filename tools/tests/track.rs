@@ -107,6 +107,7 @@ fn bev_clip(xs: &[f64], u_far: f64, frames: usize, rows: &[f64]) -> Vec<Frame> {
             points: bev_lanes(xs, u_far),
             raw_file: (k + 1 == frames).then(|| "clips/c/20.jpg".to_string()),
             h_samples: (k + 1 == frames).then(|| rows.to_vec()),
+            camera: None,
         })
         .collect()
 }
