@@ -1243,12 +1243,12 @@ fn lines_row_min(img: &RgbImage) -> i64 {
     (0.45 * f64::from(img.height())).ceil() as i64
 }
 
-/// [`vanishing_point_and_lines`] from ridge peaks found with `guess`.
-/// Peaks a marking line of [`vanishing_point_of_peaks`] needs (at 288 image rows; scaled with
+/// Peaks a marking line of the per-image camera estimate needs (at 288 image rows; scaled with
 /// the height), strongest first: the weaker entries are tried only when no two lines of the
-/// previous one cross.
+/// previous one cross (see the module doc, "How far off the guess may be").
 pub const LINE_VOTES: [f64; 3] = [10.0, 7.0, 5.0];
 
+/// [`vanishing_point_and_lines`] from ridge peaks found with `guess`.
 fn vanishing_point_of_peaks(
     img: &RgbImage,
     guess: &Camera,
