@@ -980,13 +980,14 @@ pub fn run_real(
             |v: FrameView<'_>| real_snaps.push(snapshot(&v, coupled, &real_us)),
         )?
     } else {
-        // A camera per image (estimated): each clip is tracked with its first frame's camera.
+        // A camera per image (estimated): each clip is tracked with one camera, as
+        // `track::track_with` does (`track::clip_camera`).
         let (mut preds, mut stats) = (Vec::new(), track::TrackStats::default());
         let mut start = 0;
         while start < real_frames.len() {
             let clip = &real_frames[start].clip;
             let end = start + real_frames[start..].partition_point(|f| &f.clip == clip);
-            let cam = cams[start];
+            let cam = track::clip_camera(&real_frames[start..end], &cams[start]);
             let us: Vec<f64> = real_us
                 .iter()
                 .filter_map(|&u| real_cam.row_at(u))

@@ -61,8 +61,8 @@ enum Command {
         #[arg(long)]
         hyper: Option<PathBuf>,
         /// Camera: `tusimple` (1280x720) or a camera JSON file (fields width, height, vp_col,
-        /// vp_row, height_m, focal_px). A clip whose first frame carries its own camera (`stjpdacf
-        /// frontend --camera estimate`) is mapped with that one instead.
+        /// vp_row, height_m, focal_px). A clip whose frames carry their own cameras (`stjpdacf
+        /// frontend --camera estimate`) is mapped with the median of those instead.
         #[arg(long, default_value = "tusimple")]
         camera: String,
         /// Image scale relative to the camera (0.4 for 512x288 frames with `--camera tusimple`).

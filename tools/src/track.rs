@@ -383,8 +383,8 @@ pub struct FrameView<'a> {
     pub points: &'a [[f32; 2]],
     /// The tracker after the step.
     pub tracker: &'a ReferenceTracker,
-    /// The camera of the frame's clip (its first frame's [`Frame::camera`], else the one the
-    /// run was given).
+    /// The camera of the frame's clip ([`clip_camera`]: from its frames' [`Frame::camera`], else
+    /// the one the run was given).
     pub camera: &'a Camera,
     /// The step's output (`None` when the tracker refused the frame).
     pub output: Option<&'a StepOutput<6, 16>>,
@@ -500,14 +500,42 @@ pub fn track(
     )
 }
 
+/// The camera a clip's `frames` are mapped with: where they carry cameras ([`Frame::camera`],
+/// e.g. each image's estimate), the median of each of their quantities (horizon row, vanishing
+/// column, height, focal length; a fixed camera estimated on every frame, so one frame whose
+/// estimate missed does not move the clip's BEV); else `fallback`.
+pub fn clip_camera(frames: &[Frame], fallback: &Camera) -> Camera {
+    let cams: Vec<Camera> = frames.iter().filter_map(|f| f.camera).collect();
+    let Some(first) = cams.first() else {
+        return *fallback;
+    };
+    let median = |field: fn(&Camera) -> f64| {
+        let mut v: Vec<f64> = cams.iter().map(field).collect();
+        v.sort_by(f64::total_cmp);
+        let m = v.len() / 2;
+        if v.len() % 2 == 1 {
+            v[m]
+        } else {
+            0.5 * (v[m - 1] + v[m])
+        }
+    };
+    Camera {
+        vp_row: median(|c| c.vp_row),
+        vp_col: median(|c| c.vp_col),
+        height_m: median(|c| c.height_m),
+        focal_px: median(|c| c.focal_px),
+        ..*first
+    }
+}
+
 /// [`track`] with a tracker configuration, calling `observe` after every frame (for overlays and
 /// progress). `run_time` of a prediction (and the `run_*` statistics) is the wall time spent on
 /// the frame from its points to its lanes: mapping to BEV, [`preprocess`], `Tracker::step` and
 /// the evaluation at the `h_samples` rows; `observe` is not counted. `cam` maps the points and
-/// the lanes of every clip whose first frame carries no camera ([`Frame::camera`]); a clip whose
-/// first frame does (an estimated camera, `stjpdacf frontend --camera estimate`) is mapped with
-/// that one throughout (one BEV per clip: a camera that changed from frame to frame would move
-/// the lanes the tracker holds).
+/// the lanes of every clip whose frames carry no camera ([`Frame::camera`]); a clip whose frames
+/// do (estimated cameras, `stjpdacf frontend --camera estimate`) is mapped with one camera
+/// throughout, [`clip_camera`] (a camera that changed from frame to frame would move the lanes
+/// the tracker holds).
 ///
 /// # Errors
 /// A frame that fails [`Frame::check`].
@@ -528,7 +556,8 @@ pub fn track_with(
     for (k, f) in frames.iter().enumerate() {
         if stats.begin_frame(k, f, &mut clip)? {
             tracker = Some(Box::new(ReferenceTracker::with_config(tables, config)));
-            clip_cam = f.camera.unwrap_or(*cam);
+            let n = frames[k..].iter().take_while(|g| g.clip == f.clip).count();
+            clip_cam = clip_camera(&frames[k..k + n], cam);
         }
         let cam = &clip_cam;
         let Some(tr) = tracker.as_mut() else { continue };

@@ -14,7 +14,7 @@
 //!   `raw_file`, and a `raw_file` with `h_samples` appears once per file: the scorer joins on it).
 //!   `camera` (the fields of [`crate::camera::Camera`]) is the camera the image points were
 //!   found with, written by `stjpdacf frontend --camera estimate`; `stjpdacf track` maps each
-//!   clip with its first frame's camera when it has one.
+//!   clip with the median of its frames' cameras when they have them (`track::clip_camera`).
 //!
 //! Readers skip blank lines and report malformed input as `FILE:LINE: ...` errors. Unknown keys
 //! are ignored (submissions commonly carry extra keys).

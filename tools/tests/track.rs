@@ -15,8 +15,8 @@ use stjpdacf_tools::repo_root;
 use stjpdacf_tools::synth::{synthesize, NoiseLevel, SynthParams};
 use stjpdacf_tools::tablegen;
 use stjpdacf_tools::track::{
-    lane_band, lane_x, preprocess, tables_from_hyper, track, track_with, write_points_frame,
-    write_points_header, FrameView, Space,
+    clip_camera, lane_band, lane_x, preprocess, tables_from_hyper, track, track_with,
+    write_points_frame, write_points_header, FrameView, Space,
 };
 use stjpdacf_tools::tusimple::{
     read_labels, read_predictions, write_frames, Frame, TuSimpleRecord,
@@ -158,6 +158,73 @@ fn bev_frames_give_predictions_at_every_row() {
         }
         assert!(lane.last().unwrap() >= &0.0);
     }
+}
+
+/// A clip whose frames carry cameras (per-image estimates) is mapped with the median of each of
+/// their quantities, so one frame's missed estimate does not move the clip; clips without
+/// cameras use the run's camera.
+#[test]
+fn a_clip_is_mapped_with_the_median_of_its_frames_cameras() {
+    let cam = Camera::tusimple();
+    let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
+    let good = Camera {
+        vp_row: 250.0,
+        vp_col: 640.0,
+        height_m: 1.5,
+        focal_px: 1100.0,
+        ..cam
+    };
+    let near = Camera {
+        vp_row: 252.0,
+        vp_col: 642.0,
+        height_m: 1.52,
+        focal_px: 1090.0,
+        ..cam
+    };
+    // One frame's estimate missed by 50 rows.
+    let missed = Camera {
+        vp_row: 200.0,
+        vp_col: 700.0,
+        height_m: 2.4,
+        focal_px: 1300.0,
+        ..cam
+    };
+    let mut frames = bev_clip(&[-1.8, 1.8], 80.0, 3, &rows);
+    for (f, c) in frames.iter_mut().zip([good, missed, near]) {
+        f.camera = Some(c);
+    }
+    let median = clip_camera(&frames, &cam);
+    assert_eq!(
+        median,
+        Camera {
+            vp_row: 250.0,
+            vp_col: 642.0,
+            height_m: 1.52,
+            focal_px: 1100.0,
+            ..cam
+        }
+    );
+    // An even count averages the middle two; no cameras: the fallback.
+    assert_eq!(clip_camera(&frames[..2], &cam).vp_row, 225.0);
+    let bare: Vec<Frame> = frames
+        .iter()
+        .map(|f| Frame {
+            camera: None,
+            ..f.clone()
+        })
+        .collect();
+    assert_eq!(clip_camera(&bare, &cam), cam);
+    // The tracker's lanes (BEV points; the camera maps them to the rows) are those of the
+    // median camera given as the run's camera, and not those of the first frame's.
+    let lanes = |fr: &[Frame], c: &Camera| {
+        track(fr, &DEFAULT, c, Space::Bev, |_| {}).unwrap().0[0]
+            .lanes
+            .clone()
+    };
+    let with_cameras = lanes(&frames, &cam);
+    assert_eq!(with_cameras, lanes(&bare, &median));
+    assert_ne!(with_cameras, lanes(&bare, &good));
+    assert_ne!(with_cameras, lanes(&bare, &cam));
 }
 
 /// The points file (`--export-points`, the C example's input) holds exactly what the tracker got:
