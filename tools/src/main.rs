@@ -792,6 +792,7 @@ fn main() -> Result<()> {
                 start.elapsed().as_secs_f64() * 1e3 / frames.len() as f64,
                 out.display()
             );
+            print_estimated_cameras(&frames);
         }
         Command::Demo {
             out,
@@ -852,4 +853,47 @@ fn main() -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// For `frontend --camera estimate`: the estimated cameras in one line (median and range of the
+/// horizon row, the vanishing column and the height), and how many frames' horizons lie more
+/// than 2 % of the image height from their clip's camera (`track::clip_camera`, what `track`
+/// maps the clip with): single-frame misses of the estimate.
+fn print_estimated_cameras(frames: &[tusimple::Frame]) {
+    let cams: Vec<Camera> = frames.iter().filter_map(|f| f.camera).collect();
+    if cams.is_empty() {
+        return;
+    }
+    let stats = |field: fn(&Camera) -> f64| {
+        let mut v: Vec<f64> = cams.iter().map(field).collect();
+        v.sort_by(f64::total_cmp);
+        (v[v.len() / 2], v[0], v[v.len() - 1])
+    };
+    let (r, r0, r1) = stats(|c| c.vp_row);
+    let (c, c0, c1) = stats(|c| c.vp_col);
+    let (h, h0, h1) = stats(|c| c.height_m);
+    let (mut far, mut start) = (0usize, 0usize);
+    while start < frames.len() {
+        let clip = &frames[start].clip;
+        let n = frames[start..]
+            .iter()
+            .take_while(|f| &f.clip == clip)
+            .count();
+        let clip_frames = &frames[start..start + n];
+        let cc = stjpdacf_tools::track::clip_camera(clip_frames, &cams[0]);
+        far += clip_frames
+            .iter()
+            .filter_map(|f| f.camera)
+            .filter(|k| (k.vp_row - cc.vp_row).abs() > 0.02 * k.height)
+            .count();
+        start += n;
+    }
+    eprintln!(
+        "estimated cameras: horizon row {r:.1} (median; {r0:.1}–{r1:.1}), vanishing column {c:.1} \
+         ({c0:.1}–{c1:.1}), height {h:.2} m ({h0:.2}–{h1:.2}), focal length {:.0} px (the guess's); \
+         {far} of {} frames with a horizon more than 2 % of the height from their clip's median \
+         (single-frame misses; `track` maps each clip with the median)",
+        cams[0].focal_px,
+        cams.len()
+    );
 }

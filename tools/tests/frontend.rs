@@ -416,6 +416,13 @@ fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
     let est = d.join("est.jsonl");
     let o = frontend_run(&est, &["--camera", "estimate"]);
     ok(&o);
+    // The summary of the estimated cameras (one frame a clip: none is off its clip's median).
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("estimated cameras: horizon row"), "{err}");
+    assert!(
+        err.contains("0 of 2 frames with a horizon more than 2 %"),
+        "{err}"
+    );
     let frames = read_frames(&est).unwrap();
     assert_eq!(frames.len(), 2);
     for (f, truth) in frames.iter().zip(&truths) {
