@@ -984,17 +984,16 @@ pub fn run_real(
         // `track::track_with` does (`track::clip_camera`).
         let (mut preds, mut stats) = (Vec::new(), track::TrackStats::default());
         let mut start = 0;
-        while start < real_frames.len() {
-            let clip = &real_frames[start].clip;
-            let end = start + real_frames[start..].partition_point(|f| &f.clip == clip);
-            let cam = track::clip_camera(&real_frames[start..end], &cams[start]);
+        for clip_frames in tusimple::clips(&real_frames) {
+            let end = start + clip_frames.len();
+            let cam = track::clip_camera(clip_frames, &cams[start]);
             let us: Vec<f64> = real_us
                 .iter()
                 .filter_map(|&u| real_cam.row_at(u))
                 .filter_map(|r| cam.to_bev(cam.vp_col, r).map(|b| b.0))
                 .collect();
             let (p, st) = track::track_with(
-                &real_frames[start..end],
+                clip_frames,
                 coupled,
                 &cam,
                 Space::Image,

@@ -872,22 +872,16 @@ fn print_estimated_cameras(frames: &[tusimple::Frame]) {
     let (r, r0, r1) = stats(|c| c.vp_row);
     let (c, c0, c1) = stats(|c| c.vp_col);
     let (h, h0, h1) = stats(|c| c.height_m);
-    let (mut far, mut start) = (0usize, 0usize);
-    while start < frames.len() {
-        let clip = &frames[start].clip;
-        let n = frames[start..]
-            .iter()
-            .take_while(|f| &f.clip == clip)
-            .count();
-        let clip_frames = &frames[start..start + n];
-        let cc = stjpdacf_tools::track::clip_camera(clip_frames, &cams[0]);
-        far += clip_frames
-            .iter()
-            .filter_map(|f| f.camera)
-            .filter(|k| (k.vp_row - cc.vp_row).abs() > 0.02 * k.height)
-            .count();
-        start += n;
-    }
+    let far: usize = tusimple::clips(frames)
+        .map(|clip_frames| {
+            let cc = stjpdacf_tools::track::clip_camera(clip_frames, &cams[0]);
+            clip_frames
+                .iter()
+                .filter_map(|f| f.camera)
+                .filter(|k| (k.vp_row - cc.vp_row).abs() > 0.02 * k.height)
+                .count()
+        })
+        .sum();
     eprintln!(
         "estimated cameras: horizon row {r:.1} (median; {r0:.1}–{r1:.1}), vanishing column {c:.1} \
          ({c0:.1}–{c1:.1}), height {h:.2} m ({h0:.2}–{h1:.2}), focal length {:.0} px (the guess's); \

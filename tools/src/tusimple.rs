@@ -122,6 +122,13 @@ pub struct Frame {
     pub camera: Option<crate::camera::Camera>,
 }
 
+/// The clips of `frames`: the runs of consecutive frames with the same [`Frame::clip`], in
+/// order. This is how `track` splits its input (a clip name that comes back after another clip
+/// starts a new run, and a new tracker).
+pub fn clips(frames: &[Frame]) -> impl Iterator<Item = &[Frame]> {
+    frames.chunk_by(|a, b| a.clip == b.clip)
+}
+
 impl Frame {
     /// Check one frame's values: a finite time, finite points, and `h_samples` (if any) non-empty,
     /// finite and with a `raw_file`.
@@ -529,5 +536,23 @@ mod tests {
         let msg = format!("{:#}", read_labels(&missing).unwrap_err());
         assert!(msg.contains("nope.json"), "{msg}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn clips_are_runs_of_one_name_and_a_returning_name_starts_a_new_one() {
+        let f = |clip: &str, t: f64| Frame {
+            clip: clip.into(),
+            t,
+            points: Vec::new(),
+            raw_file: None,
+            h_samples: None,
+            camera: None,
+        };
+        let frames = [f("a", 0.0), f("a", 0.1), f("b", 0.0), f("a", 0.5)];
+        let runs: Vec<(&str, usize)> = clips(&frames)
+            .map(|c| (c[0].clip.as_str(), c.len()))
+            .collect();
+        assert_eq!(runs, [("a", 2), ("b", 1), ("a", 1)]);
+        assert_eq!(clips(&[]).count(), 0);
     }
 }
