@@ -2,13 +2,14 @@
 //! frontend --camera estimate`) may be: the 10 bundled 512×288 TuSimple frames through front
 //! end → tracker → official metric with the estimate started from guesses whose horizon row,
 //! vanishing column, focal length or height are off by large amounts, and the horizon it finds
-//! (largest |row − calibration| over the frames). Also a synthetic 1640×590 road (as
-//! `tools/tests/frontend.rs`) with the guess's horizon off.
+//! (largest |row − calibration| over the frames), and the same with one camera for all 10
+//! frames (`CameraMode::EstimateShared`, `--share all`: they come from one camera), the median of
+//! the 10 estimates.
 //!
 //! `cargo run --release -p stjpdacf-tools --example camera_guess_range` (about 10 s)
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::demo;
-use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams};
+use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams, Share};
 use stjpdacf_tools::tusimple::read_labels;
 
 fn main() -> anyhow::Result<()> {
@@ -58,8 +59,8 @@ fn main() -> anyhow::Result<()> {
             },
         ));
     }
-    println!("| guess (1280×720 px) | accuracy / FP / FN | horizon found: largest / median \\|row − calibration\\| (512×288 rows) | height found, m |");
-    println!("|---|---|---|---|");
+    println!("| guess (1280×720 px) | accuracy / FP / FN | horizon found: largest / median \\|row − calibration\\| (512×288 rows) | height found, m | one camera for the 10 frames (`--share all`): accuracy / FP / FN | its horizon, \\|row − calibration\\| | its height, m |");
+    println!("|---|---|---|---|---|---|---|");
     for (what, guess) in &cases {
         let mode = CameraMode::Estimate(*guess);
         let cams: Vec<Camera> = frontend::run_dir_cameras(&dir, &mode, &labels, &p, |_, _| {})?
@@ -75,13 +76,26 @@ fn main() -> anyhow::Result<()> {
             (a.0.min(c.height_m), a.1.max(c.height_m))
         });
         let s = demo::run_real(&dir, &labels, &mode, &p, false)?.score;
+        // The same estimates pooled: the 10 frames come from one camera.
+        let shared = CameraMode::EstimateShared {
+            guess: *guess,
+            share: Share::All,
+            every: 1,
+        };
+        let run = demo::run_real(&dir, &labels, &shared, &p, false)?;
+        let sc = run.camera;
         println!(
-            "| {what} | {:.3} / {:.3} / {:.3} | {:.1} / {:.1} | {hmin:.2}–{hmax:.2} |",
+            "| {what} | {:.3} / {:.3} / {:.3} | {:.1} / {:.1} | {hmin:.2}–{hmax:.2} | {:.3} / {:.3} / {:.3} | {:.1} | {:.2} |",
             s.accuracy,
             s.fp,
             s.fn_,
             errs[errs.len() - 1],
-            errs[errs.len() / 2]
+            errs[errs.len() / 2],
+            run.score.accuracy,
+            run.score.fp,
+            run.score.fn_,
+            (sc.vp_row - calib.vp_row).abs(),
+            sc.height_m
         );
     }
     Ok(())

@@ -109,6 +109,31 @@ impl Camera {
     pub fn row_at(&self, u: f64) -> Option<f64> {
         self.to_image(u, 0.0).map(|(_, r)| r)
     }
+
+    /// The median of `cams`, quantity by quantity (horizon row, vanishing column, height, focal
+    /// length; the mean of the middle two for an even count), with the first camera's image
+    /// size: one camera from estimates of a fixed camera, which single estimates that missed do
+    /// not move. `None` if `cams` is empty.
+    pub fn median(cams: &[Camera]) -> Option<Camera> {
+        let first = cams.first()?;
+        let median = |field: fn(&Camera) -> f64| {
+            let mut v: Vec<f64> = cams.iter().map(field).collect();
+            v.sort_by(f64::total_cmp);
+            let m = v.len() / 2;
+            if v.len() % 2 == 1 {
+                v[m]
+            } else {
+                0.5 * (v[m - 1] + v[m])
+            }
+        };
+        Some(Camera {
+            vp_row: median(|c| c.vp_row),
+            vp_col: median(|c| c.vp_col),
+            height_m: median(|c| c.height_m),
+            focal_px: median(|c| c.focal_px),
+            ..*first
+        })
+    }
 }
 
 impl Camera {

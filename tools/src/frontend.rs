@@ -168,6 +168,7 @@
 //! Images are read with the `image` crate (JPEG, PNG). [`overlay_png`] draws feature points (and
 //! optionally labelled lanes) over an image for inspection.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context, Result};
@@ -1000,6 +1001,33 @@ pub enum CameraMode {
     /// height from the spacing of the marking lines (lane boundaries [`LANE_WIDTH`] apart); the
     /// focal length, and whatever is not found, from this guess (scaled to the image's width).
     Estimate(Camera),
+    /// One camera for a group of images ([`Share`]): the estimate of [`CameraMode::Estimate`]
+    /// from `guess` on the group's first image and every `every`-th after it (`every` 0 is
+    /// taken as 1), the median of those estimates ([`Camera::median`]), and every image's
+    /// points found with it ([`run_dir_cameras`]). An image whose own estimate missed moves
+    /// neither its points nor its clip's BEV, and the estimate costs time only on the images it
+    /// runs on. A group of one image (and [`camera_with`]'s single image) is estimated as under
+    /// `Estimate`.
+    EstimateShared {
+        /// The camera the estimates start from.
+        guess: Camera,
+        /// Which images share a camera.
+        share: Share,
+        /// Estimate on every `every`-th image of a group.
+        every: usize,
+    },
+}
+
+/// Which images share one camera under [`CameraMode::EstimateShared`]; images of different
+/// sizes never do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Share {
+    /// The images of one clip (one folder): one drive of one camera. What `stjpdacf track`
+    /// assumes when it maps a clip with the median of its frames' cameras.
+    Clip,
+    /// Every image (of one size) under the folder: images from one camera, e.g. single frames
+    /// of many drives of one car.
+    All,
 }
 
 /// The vanishing point of the road's markings in `img`, `(column, row)`: every strong
@@ -1411,18 +1439,18 @@ pub fn camera_with(img: &RgbImage, mode: &CameraMode) -> Result<Camera> {
     match mode {
         CameraMode::TuSimple => camera_for(img, None),
         CameraMode::Given(c) => camera_for(img, Some(c)),
-        CameraMode::Estimate(guess) => {
-            let g = scaled_guess(img, guess);
-            let peaks = ridge_peaks(
-                img,
-                &g,
-                &FrontendParams::default(),
-                lines_row_min(img),
-                i64::MAX,
-            )?;
-            Ok(camera_from_peaks(img, &g, &peaks))
+        CameraMode::Estimate(guess) | CameraMode::EstimateShared { guess, .. } => {
+            estimate_camera(img, guess, &FrontendParams::default())
         }
     }
+}
+
+/// The camera of `img` estimated from its markings ([`CameraMode::Estimate`]), starting from
+/// `guess` (scaled to the image's width); [`estimate_and_detect`] also finds the points.
+pub fn estimate_camera(img: &RgbImage, guess: &Camera, p: &FrontendParams) -> Result<Camera> {
+    let g = scaled_guess(img, guess);
+    let peaks = ridge_peaks(img, &g, p, lines_row_min(img), i64::MAX)?;
+    Ok(camera_from_peaks(img, &g, &peaks))
 }
 
 /// `guess` scaled to `img`'s width, with `img`'s height.
@@ -1543,7 +1571,8 @@ pub fn run_dir_timed(
 }
 
 /// [`run_dir_timed`] with the camera of each image from `mode`, also returning that camera
-/// (the time includes estimating it).
+/// (the time includes estimating it, on the images an estimate ran on). Under
+/// [`CameraMode::EstimateShared`] the groups' estimates run first (their images are read twice).
 pub fn run_dir_cameras(
     dir: &Path,
     mode: &CameraMode,
@@ -1555,24 +1584,77 @@ pub fn run_dir_cameras(
     if files.is_empty() {
         bail!("no *.jpg or *.png images under {}", dir.display());
     }
+    let clip_of = |raw_file: &str| {
+        raw_file
+            .rsplit_once('/')
+            .map(|(d, _)| d.to_string())
+            .unwrap_or_default()
+    };
+    // Shared estimates first: each group's camera, and the time the estimate took per image.
+    let mut shared: Vec<Option<Camera>> = vec![None; files.len()];
+    let mut estimate_ms = vec![0.0; files.len()];
+    if let CameraMode::EstimateShared {
+        guess,
+        share,
+        every,
+    } = mode
+    {
+        let mut groups: HashMap<(String, (u32, u32)), Vec<usize>> = HashMap::new();
+        let mut order = Vec::new();
+        for (n, path) in files.iter().enumerate() {
+            let key = match share {
+                Share::Clip => clip_of(&raw_file_of(dir, path)),
+                Share::All => String::new(),
+            };
+            let dims = image::image_dimensions(path)
+                .with_context(|| format!("reading image {}", path.display()))?;
+            let members = groups.entry((key.clone(), dims)).or_default();
+            if members.is_empty() {
+                order.push((key, dims));
+            }
+            members.push(n);
+        }
+        for key in &order {
+            let members = groups.get(key).map_or(&[][..], Vec::as_slice);
+            if members.len() < 2 {
+                continue; // one image: its own estimate, as `Estimate`
+            }
+            let mut cams = Vec::new();
+            for &n in members.iter().step_by((*every).max(1)) {
+                let img = load_rgb(&files[n])?;
+                let start = std::time::Instant::now();
+                cams.push(
+                    estimate_camera(&img, guess, p)
+                        .with_context(|| format!("{}", files[n].display()))?,
+                );
+                estimate_ms[n] = start.elapsed().as_secs_f64() * 1e3;
+            }
+            let cam = Camera::median(&cams);
+            for &n in members {
+                shared[n] = cam;
+            }
+        }
+    }
     let mut frames: Vec<Frame> = Vec::with_capacity(files.len());
     let mut times = Vec::with_capacity(files.len());
     let mut cams = Vec::with_capacity(files.len());
     for (n, path) in files.iter().enumerate() {
         let img = load_rgb(path)?;
         let start = std::time::Instant::now();
-        let (cam, points) = match mode {
-            CameraMode::Estimate(guess) => estimate_and_detect(&img, guess, p),
+        let (cam, points) = match (mode, shared[n]) {
+            (CameraMode::EstimateShared { .. }, Some(cam)) => {
+                detect(&img, &cam, p).map(|points| (cam, points))
+            }
+            (CameraMode::Estimate(guess) | CameraMode::EstimateShared { guess, .. }, _) => {
+                estimate_and_detect(&img, guess, p)
+            }
             _ => camera_with(&img, mode).and_then(|cam| Ok((cam, detect(&img, &cam, p)?))),
         }
         .with_context(|| format!("{}", path.display()))?;
         cams.push(cam);
-        times.push(start.elapsed().as_secs_f64() * 1e3);
+        times.push(start.elapsed().as_secs_f64() * 1e3 + estimate_ms[n]);
         let raw_file = raw_file_of(dir, path);
-        let clip = raw_file
-            .rsplit_once('/')
-            .map(|(d, _)| d.to_string())
-            .unwrap_or_default();
+        let clip = clip_of(&raw_file);
         let index_in_clip = frames.iter().rev().take_while(|f| f.clip == clip).count();
         let t = match path
             .file_stem()
@@ -1592,7 +1674,11 @@ pub fn run_dir_cameras(
             points,
             raw_file: Some(raw_file),
             h_samples,
-            camera: matches!(mode, CameraMode::Estimate(_)).then_some(cam),
+            camera: matches!(
+                mode,
+                CameraMode::Estimate(_) | CameraMode::EstimateShared { .. }
+            )
+            .then_some(cam),
         });
         progress(n + 1, files.len());
     }

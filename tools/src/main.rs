@@ -32,6 +32,17 @@ enum SpaceArg {
     Bev,
 }
 
+/// Which images share one camera estimate (`frontend --camera estimate --share`).
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ShareArg {
+    /// Each image its own estimate.
+    Image,
+    /// One camera per clip (folder): the median of its images' estimates.
+    Clip,
+    /// One camera for every image of one size: the median of all estimates.
+    All,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Generate the static model tables (a Rust source file) from a hyperparameter file.
@@ -259,6 +270,17 @@ enum Command {
         /// length 0.8 x width, horizon at 0.4 x height, 1.5 m high).
         #[arg(long)]
         guess: Option<String>,
+        /// With `--camera estimate`: which images share one camera. `clip` (default): the
+        /// median of the estimates of a clip's images finds every point of the clip (what
+        /// `track` maps the clip with), so an image whose own estimate missed still gets its
+        /// clip's BEV; `all`: one camera for every image (one camera, many drives); `image`:
+        /// each image's own estimate.
+        #[arg(long, value_enum, default_value = "clip")]
+        share: ShareArg,
+        /// With `--camera estimate --share clip|all`: estimate on the first and every K-th
+        /// image of a group only (the estimate costs 2–3 ms a 512x288 image).
+        #[arg(long, value_name = "K", default_value_t = 1)]
+        estimate_every: usize,
         /// Front-end parameter overrides `name=value` (the fields of
         /// `stjpdacf_tools::frontend::FrontendParams`, e.g. `ridge_threshold=25`); repeatable.
         #[arg(long = "param", value_name = "NAME=VALUE")]
@@ -705,6 +727,8 @@ fn main() -> Result<()> {
             out,
             camera,
             guess,
+            share,
+            estimate_every,
             params,
             scale,
             labels,
@@ -733,9 +757,29 @@ fn main() -> Result<()> {
                 guess.is_none() || camera == "estimate",
                 "--guess is the starting point of --camera estimate"
             );
+            anyhow::ensure!(
+                estimate_every >= 1 && (share != ShareArg::Image || estimate_every == 1),
+                "--estimate-every must be at least 1, and 1 with --share image"
+            );
+            anyhow::ensure!(
+                camera == "estimate" || (share == ShareArg::Clip && estimate_every == 1),
+                "--share and --estimate-every go with --camera estimate"
+            );
+            let estimate_mode = |guess: Camera| match share {
+                ShareArg::Image => frontend::CameraMode::Estimate(guess),
+                ShareArg::Clip | ShareArg::All => frontend::CameraMode::EstimateShared {
+                    guess,
+                    share: if share == ShareArg::Clip {
+                        frontend::Share::Clip
+                    } else {
+                        frontend::Share::All
+                    },
+                    every: estimate_every,
+                },
+            };
             let mode = match (camera.as_str(), scale) {
                 ("tusimple", None) => frontend::CameraMode::TuSimple,
-                ("estimate", _) => frontend::CameraMode::Estimate(match &guess {
+                ("estimate", _) => estimate_mode(match &guess {
                     Some(spec) => scaled(Camera::from_spec(spec)?)?,
                     None => {
                         let first = frontend::find_images(&images)?
@@ -792,7 +836,7 @@ fn main() -> Result<()> {
                 start.elapsed().as_secs_f64() * 1e3 / frames.len() as f64,
                 out.display()
             );
-            print_estimated_cameras(&frames);
+            print_estimated_cameras(&frames, share != ShareArg::Image);
         }
         Command::Demo {
             out,
@@ -858,8 +902,9 @@ fn main() -> Result<()> {
 /// For `frontend --camera estimate`: the estimated cameras in one line (median and range of the
 /// horizon row, the vanishing column and the height), and how many frames' horizons lie more
 /// than 2 % of the image height from their clip's camera (`track::clip_camera`, what `track`
-/// maps the clip with): single-frame misses of the estimate.
-fn print_estimated_cameras(frames: &[tusimple::Frame]) {
+/// maps the clip with): single-frame misses of the estimate. With `shared` estimates (`--share
+/// clip|all`) every frame carries its group's camera, and the misses are not counted.
+fn print_estimated_cameras(frames: &[tusimple::Frame], shared: bool) {
     let cams: Vec<Camera> = frames.iter().filter_map(|f| f.camera).collect();
     if cams.is_empty() {
         return;
@@ -872,22 +917,32 @@ fn print_estimated_cameras(frames: &[tusimple::Frame]) {
     let (r, r0, r1) = stats(|c| c.vp_row);
     let (c, c0, c1) = stats(|c| c.vp_col);
     let (h, h0, h1) = stats(|c| c.height_m);
-    let far: usize = tusimple::clips(frames)
-        .map(|clip_frames| {
-            let cc = stjpdacf_tools::track::clip_camera(clip_frames, &cams[0]);
-            clip_frames
-                .iter()
-                .filter_map(|f| f.camera)
-                .filter(|k| (k.vp_row - cc.vp_row).abs() > 0.02 * k.height)
-                .count()
-        })
-        .sum();
+    let misses = if shared {
+        format!(
+            "{} frames, each with its group's camera (the median of the group's estimates)",
+            cams.len()
+        )
+    } else {
+        let far: usize = tusimple::clips(frames)
+            .map(|clip_frames| {
+                let cc = stjpdacf_tools::track::clip_camera(clip_frames, &cams[0]);
+                clip_frames
+                    .iter()
+                    .filter_map(|f| f.camera)
+                    .filter(|k| (k.vp_row - cc.vp_row).abs() > 0.02 * k.height)
+                    .count()
+            })
+            .sum();
+        format!(
+            "{far} of {} frames with a horizon more than 2 % of the height from their clip's \
+             median (single-frame misses; `track` maps each clip with the median)",
+            cams.len()
+        )
+    };
     eprintln!(
         "estimated cameras: horizon row {r:.1} (median; {r0:.1}–{r1:.1}), vanishing column {c:.1} \
          ({c0:.1}–{c1:.1}), height {h:.2} m ({h0:.2}–{h1:.2}), focal length {:.0} px (the guess's); \
-         {far} of {} frames with a horizon more than 2 % of the height from their clip's median \
-         (single-frame misses; `track` maps each clip with the median)",
+         {misses}",
         cams[0].focal_px,
-        cams.len()
     );
 }

@@ -506,26 +506,7 @@ pub fn track(
 /// estimate missed does not move the clip's BEV); else `fallback`.
 pub fn clip_camera(frames: &[Frame], fallback: &Camera) -> Camera {
     let cams: Vec<Camera> = frames.iter().filter_map(|f| f.camera).collect();
-    let Some(first) = cams.first() else {
-        return *fallback;
-    };
-    let median = |field: fn(&Camera) -> f64| {
-        let mut v: Vec<f64> = cams.iter().map(field).collect();
-        v.sort_by(f64::total_cmp);
-        let m = v.len() / 2;
-        if v.len() % 2 == 1 {
-            v[m]
-        } else {
-            0.5 * (v[m - 1] + v[m])
-        }
-    };
-    Camera {
-        vp_row: median(|c| c.vp_row),
-        vp_col: median(|c| c.vp_col),
-        height_m: median(|c| c.height_m),
-        focal_px: median(|c| c.focal_px),
-        ..*first
-    }
+    Camera::median(&cams).unwrap_or(*fallback)
 }
 
 /// [`track`] with a tracker configuration, calling `observe` after every frame (for overlays and

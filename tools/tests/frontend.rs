@@ -416,11 +416,11 @@ fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
     let est = d.join("est.jsonl");
     let o = frontend_run(&est, &["--camera", "estimate"]);
     ok(&o);
-    // The summary of the estimated cameras (one frame a clip: none is off its clip's median).
+    // The summary of the estimated cameras (one frame a clip, so each its own estimate).
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("estimated cameras: horizon row"), "{err}");
     assert!(
-        err.contains("0 of 2 frames with a horizon more than 2 %"),
+        err.contains("2 frames, each with its group's camera"),
         "{err}"
     );
     let frames = read_frames(&est).unwrap();
@@ -523,6 +523,14 @@ fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
         (&["--param", "ridge_threshold"][..], "expected NAME=VALUE"),
         (&["--param", "ridge_threshold=x"][..], "is not a number"),
         (&["--guess", "culane"][..], "--guess is the starting point"),
+        (
+            &["--share", "all"][..],
+            "--share and --estimate-every go with",
+        ),
+        (
+            &["--camera", "estimate", "--estimate-every", "0"][..],
+            "--estimate-every must be at least 1",
+        ),
     ] {
         let o = frontend_run(&bad, extra);
         assert!(!o.status.success(), "{extra:?}");
@@ -540,5 +548,76 @@ fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
     ]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--export-points writes one camera"));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// `--share clip` (the default of `--camera estimate`): a clip's images share the median of
+/// their estimates, so an image whose own estimate fails (here one with no markings at all)
+/// gets its clip's camera; `--estimate-every 2` estimates on the clip's first and third images
+/// only; `--share image` keeps each image's own estimate; `--share all` one camera for two clips.
+#[test]
+fn cli_shares_one_estimated_camera_per_clip() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-share-{}", std::process::id()));
+    let images = d.join("images");
+    let truth = Camera {
+        vp_row: 0.4 * 590.0 - 30.0,
+        vp_col: 850.0,
+        height_m: 1.6,
+        focal_px: 1100.0,
+        ..Camera::culane()
+    };
+    let blank = image::RgbImage::from_fn(1640, 590, |c, r| {
+        let texture = ((c.wrapping_mul(73_856_093) ^ r.wrapping_mul(19_349_663)) % 11) as u8;
+        image::Rgb([80 + texture, 80 + texture, 82 + texture])
+    });
+    for clip in ["c0", "c1"] {
+        let dir = images.join(clip);
+        std::fs::create_dir_all(&dir).unwrap();
+        synthetic_road(&truth).save(dir.join("1.png")).unwrap();
+        blank.save(dir.join("2.png")).unwrap();
+        synthetic_road(&truth).save(dir.join("3.png")).unwrap();
+    }
+    let run = |tag: &str, extra: &[&str]| -> (Vec<Frame>, String) {
+        let out = d.join(format!("{tag}.jsonl"));
+        let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+            .args(["frontend", "--camera", "estimate", "--images"])
+            .arg(&images)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let frames = read_frames(&out).unwrap();
+        assert_eq!(frames.len(), 6);
+        (frames, String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let off = |f: &Frame| (f.camera.expect("a camera in every frame").vp_row - truth.vp_row).abs();
+    // Each image's own estimate: the blank images' is not the road's.
+    let (own, err) = run("image", &["--share", "image"]);
+    assert!(off(&own[0]) <= 3.0 && off(&own[2]) <= 3.0);
+    assert!(off(&own[1]) > 10.0, "{:?}", own[1].camera);
+    // The summary counts the blank images as their clips' single-frame misses.
+    assert!(
+        err.contains("2 of 6 frames with a horizon more than 2 %"),
+        "{err}"
+    );
+    for (tag, extra) in [
+        ("clip", &[][..]),
+        ("every2", &["--estimate-every", "2"][..]),
+        ("all", &["--share", "all"][..]),
+    ] {
+        let (frames, _) = run(tag, extra);
+        for f in &frames {
+            assert!(off(f) <= 3.0, "{tag}: {} {:?}", f.clip, f.camera);
+        }
+        // One camera per clip (per run with `all`), the blank images' points found with it.
+        assert_eq!(frames[0].camera, frames[1].camera, "{tag}");
+        assert_eq!(frames[0].camera, frames[2].camera, "{tag}");
+        assert_eq!(frames[0].points, frames[2].points, "{tag}");
+        if tag == "all" {
+            assert_eq!(frames[0].camera, frames[3].camera);
+        }
+    }
     std::fs::remove_dir_all(&d).unwrap();
 }
