@@ -10,7 +10,7 @@
 use std::time::Instant;
 
 use stjpdacf_tools::camera::Camera;
-use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams, HELD_OUT_SET, TUNING_SET};
+use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams, Share, HELD_OUT_SET, TUNING_SET};
 use stjpdacf_tools::tusimple::read_labels;
 
 fn main() -> anyhow::Result<()> {
@@ -98,14 +98,24 @@ fn main() -> anyhow::Result<()> {
     // camera and with the horizon estimated from each image (no calibration: Camera::guess).
     let guess = Camera::guess(1280.0, 720.0);
     let calibrated = Camera::tusimple().scaled(0.4);
+    let shared = |every| CameraMode::EstimateShared {
+        guess,
+        share: Share::All,
+        every,
+    };
     for (name, mode) in [
         ("calibrated", CameraMode::TuSimple),
         ("horizon estimated", CameraMode::Estimate(guess)),
+        ("one camera estimated for the 10 frames", shared(1)),
+        ("one camera estimated on every 5th frame", shared(5)),
     ] {
         let real = stjpdacf_tools::demo::run_real(&dir, &labels, &mode, &p, false)?;
         for (r, f) in real.results.iter().zip(&real.frames) {
             let img = frontend::load_rgb(&dir.join(f.raw_file.as_deref().unwrap_or("")))?;
-            let cam = frontend::camera_with(&img, &mode)?;
+            let cam = match f.camera {
+                Some(c) => c,
+                None => frontend::camera_with(&img, &mode)?,
+            };
             println!(
                 "  {}: accuracy {:.3}, FP {:.3}, FN {:.3} ({} / {} lanes), points P {:.2} R {:.2}, vanishing point ({:.1}, {:.1}), row {:+.1} from the calibration, height {:.2} m",
                 r.raw_file, r.score.accuracy, r.score.fp, r.score.fn_, r.lanes, r.gt_lanes,
@@ -114,7 +124,8 @@ fn main() -> anyhow::Result<()> {
             );
         }
         let n = real.results.len() as f64;
-        // The camera alone (estimating it is part of the front end's time above).
+        // The camera alone (estimating it is part of the front end's time above; with one
+        // camera shared, the time of one image's estimate, not amortised).
         let mut cam_ms = 0.0;
         for f in &real.frames {
             let img = frontend::load_rgb(&dir.join(f.raw_file.as_deref().unwrap_or("")))?;
