@@ -224,19 +224,36 @@ fn cli_writes_frames() {
 
 /// A synthetic 1640×590 (CULane-sized) road seen by `cam`: grey asphalt, white markings 0.15 m
 /// wide at x = ±1.8 m (solid) and ±5.4 m (dashed, 3 m on / 9 m off), sky above the horizon.
+/// A 1640×590 camera the CULane guess does not know: horizon `rows_above` rows above the
+/// guess's, vanishing column `vp_col`, 1.6 m high, focal length 1100 px.
+fn road_camera(rows_above: f64, vp_col: f64) -> Camera {
+    Camera {
+        vp_row: 0.4 * 590.0 - rows_above,
+        vp_col,
+        height_m: 1.6,
+        focal_px: 1100.0,
+        ..Camera::culane()
+    }
+}
+
+/// Asphalt: grey with a fixed pseudo-random texture.
+fn asphalt(c: u32, r: u32) -> image::Rgb<u8> {
+    let texture = ((c.wrapping_mul(73_856_093) ^ r.wrapping_mul(19_349_663)) % 11) as u8;
+    image::Rgb([80 + texture, 80 + texture, 82 + texture])
+}
+
 fn synthetic_road(cam: &Camera) -> image::RgbImage {
     image::RgbImage::from_fn(cam.width as u32, cam.height as u32, |c, r| {
         let Some((u, x)) = cam.to_bev(f64::from(c) + 0.5, f64::from(r) + 0.5) else {
             return image::Rgb([150, 180, 220]);
         };
-        let texture = ((c.wrapping_mul(73_856_093) ^ r.wrapping_mul(19_349_663)) % 11) as u8;
         let paint = [-5.4, -1.8, 1.8, 5.4]
             .iter()
             .any(|&m: &f64| (x - m).abs() < 0.075 && (m.abs() < 3.0 || (u % 12.0) < 3.0));
         if paint && u < 120.0 {
             image::Rgb([220, 220, 215])
         } else {
-            image::Rgb([80 + texture, 80 + texture, 82 + texture])
+            asphalt(c, r)
         }
     })
 }
@@ -246,13 +263,7 @@ fn culane_sized_camera_and_horizon_estimate() {
     assert_eq!(Camera::from_spec("culane").unwrap(), Camera::culane());
     // The true camera: horizon 30 px above the guess's, vanishing column 30 px right of
     // centre.
-    let truth = Camera {
-        vp_row: 0.4 * 590.0 - 30.0,
-        vp_col: 850.0,
-        height_m: 1.6,
-        focal_px: 1100.0,
-        ..Camera::culane()
-    };
+    let truth = road_camera(30.0, 850.0);
     let img = synthetic_road(&truth);
     // The edge vote finds the vanishing column; its horizon row is biased upwards (measured:
     // row 116 for a true 206; on the TuSimple frames 18–50 rows high on half of them), so its
@@ -350,13 +361,7 @@ fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
     let images = d.join("images");
     // Two clips of one image each, the road seen by cameras the guess does not know (horizon
     // 30 and 20 rows above the guess's, vanishing column right of centre).
-    let truths = [(30.0, 850.0), (20.0, 800.0)].map(|(dv, col)| Camera {
-        vp_row: 0.4 * 590.0 - dv,
-        vp_col: col,
-        height_m: 1.6,
-        focal_px: 1100.0,
-        ..Camera::culane()
-    });
+    let truths = [(30.0, 850.0), (20.0, 800.0)].map(|(dv, col)| road_camera(dv, col));
     let rows: Vec<f64> = (0..35).map(|k| 240.0 + 10.0 * f64::from(k)).collect();
     let mut labels = Vec::new();
     for (k, truth) in truths.iter().enumerate() {
@@ -559,17 +564,8 @@ fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
 fn cli_shares_one_estimated_camera_per_clip() {
     let d = std::env::temp_dir().join(format!("stjpdacf-frontend-share-{}", std::process::id()));
     let images = d.join("images");
-    let truth = Camera {
-        vp_row: 0.4 * 590.0 - 30.0,
-        vp_col: 850.0,
-        height_m: 1.6,
-        focal_px: 1100.0,
-        ..Camera::culane()
-    };
-    let blank = image::RgbImage::from_fn(1640, 590, |c, r| {
-        let texture = ((c.wrapping_mul(73_856_093) ^ r.wrapping_mul(19_349_663)) % 11) as u8;
-        image::Rgb([80 + texture, 80 + texture, 82 + texture])
-    });
+    let truth = road_camera(30.0, 850.0);
+    let blank = image::RgbImage::from_fn(1640, 590, asphalt);
     for clip in ["c0", "c1"] {
         let dir = images.join(clip);
         std::fs::create_dir_all(&dir).unwrap();
