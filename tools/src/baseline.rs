@@ -17,7 +17,7 @@
 //!    stops.
 //! 3. Its inliers are removed and the search repeats, up to [`BaselineParams::max_lanes`] lanes.
 //!
-//! A lane is written ([`track`]) at the frame's `h_samples` rows through the inverse IPM exactly
+//! A lane is written ([`track()`]) at the frame's `h_samples` rows through the inverse IPM exactly
 //! as the tracker's lanes are ([`track::lane_columns`], [`track::lanes_record`]), but only
 //! within the `u` range of its inliers: no extrapolation, neither towards the horizon nor below
 //! the window.
