@@ -27,8 +27,8 @@
 //!   safe core, which never panics (the no-panic link proof of the C examples covers these
 //!   entry points).
 //!
-//! The unsafe operations are the four pointer helpers ([`tracker_ref`], [`tracker_mut`],
-//! [`slice_in`], [`slice_out`]), the out-parameter writes ([`write_out`]), the point buffer of
+//! The unsafe operations are the four pointer helpers (`tracker_ref`, `tracker_mut`,
+//! `slice_in`, `slice_out`), the out-parameter writes (`write_out`), the point buffer of
 //! [`stjpdacf_decode_frame`] and the initialisation copy in [`stjpdacf_init`]; the entry points
 //! call them after their checks, each call with its SAFETY comment.
 #![no_std]

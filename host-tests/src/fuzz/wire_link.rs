@@ -325,7 +325,7 @@ fn reseal(f: &mut [u8]) {
 }
 
 /// The buffers a structured [`wire_decode`] input describes: up to [`MAX_FRAMES`] frames
-/// encoded with `wire::encode` (lane-like and raw points as in [`tracker_step`], those the format
+/// encoded with `wire::encode` (lane-like and raw points as in `tracker_step`, those the format
 /// can carry, cut to `MEAS`; sequence numbers increasing with gaps, wrapping at `u32::MAX`;
 /// times increasing), each sent as is or with a [`Fault`] (the faulty copy alone, or followed by
 /// the good frame).
@@ -462,12 +462,12 @@ fn raw_stream(data: &[u8], link: &mut Link) -> Result<(), String> {
 
 /// The SPI frame decoder and receiver on arbitrary bytes, with the invariants of `fuzz/README.md`:
 /// no panic; every buffer decodes as the documented layout says or gives its typed error, never a
-/// partial frame ([`checked_decode`]); a decoded frame re-encodes to the same bytes and holds at
+/// partial frame (`checked_decode`); a decoded frame re-encodes to the same bytes and holds at
 /// most `MEAS` points; its bit flips, truncations and extensions give an error or the same
-/// frame ([`check_mutations`]); the receiver accepts exactly the frames that decode with an
+/// frame (`check_mutations`); the receiver accepts exactly the frames that decode with an
 /// increasing sequence number and time, counts every outcome, and feeds only those to
 /// `Tracker::step`, which keeps every invariant and resumes on the next good frame
-/// ([`Link::offer`]).
+/// (`Link::offer`).
 ///
 /// Two parts, each with its own receiver and tracker: the input as a raw byte stream (frames
 /// back to back, corrupted frames mid-stream: what the seed corpus of real frames turns into
