@@ -111,6 +111,14 @@ pub fn run() -> Result<()> {
         "warnings",
     ])?;
 
+    step("rustdoc (workspace, no warnings)");
+    run_in(
+        ".",
+        &[("RUSTDOCFLAGS", "-D warnings")],
+        "cargo",
+        &["doc", "--workspace", "--no-deps"],
+    )?;
+
     step("regenerate the default and uncoupled tables (must not change the committed files)");
     cargo(&[
         "run",
