@@ -264,6 +264,11 @@ pub struct FrontendParams {
     /// paint stays. 0 = the evidence alone (the default: the tuning frames do not choose a
     /// value, see the module doc).
     pub gap_contrast: f64,
+    /// Frame rate of the image sequences (frames per second), for the frames' time stamps: a
+    /// file named `n` (`n.jpg`) is frame `n` of its clip, counted from 1 (TuSimple's clips,
+    /// `1.jpg`–`20.jpg` at 20 fps) or from 0 when the clip has a file named `0`, so `t` =
+    /// (`n` − 1) / `fps` or `n` / `fps`; other names: the image's index in its clip / `fps`.
+    pub fps: f64,
 }
 
 impl Default for FrontendParams {
@@ -297,6 +302,7 @@ impl Default for FrontendParams {
             lane_gap: 2.5,
             gap_ratio: 0.6,
             gap_contrast: 0.0,
+            fps: 20.0,
         }
     }
 }
@@ -331,6 +337,7 @@ impl FrontendParams {
             "lane_gap" => &mut self.lane_gap,
             "gap_ratio" => &mut self.gap_ratio,
             "gap_contrast" => &mut self.gap_contrast,
+            "fps" => &mut self.fps,
             "support_rows" => {
                 self.support_rows = v.round().max(0.0) as usize;
                 return Ok(());
@@ -950,15 +957,19 @@ pub fn find_images(dir: &Path) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     walk(dir, &mut out)?;
     let key = |p: &PathBuf| {
-        let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or("");
         (
             p.parent().map(Path::to_path_buf),
-            stem.parse::<u64>().ok(),
+            frame_number(p),
             p.file_name().map(|n| n.to_os_string()),
         )
     };
     out.sort_by_key(key);
     Ok(out)
+}
+
+/// The frame number of an image file named by one (`20.jpg`, `00030.png`).
+fn frame_number(path: &Path) -> Option<u64> {
+    path.file_stem()?.to_str()?.parse().ok()
 }
 
 /// `path` relative to `dir`, with `/` separators (a TuSimple `raw_file`).
@@ -1542,8 +1553,9 @@ pub fn estimate_and_detect(
 }
 
 /// Run the front end on every image under `dir` (see [`find_images`]): one [`Frame`] per image,
-/// `raw_file` = its path relative to `dir`, `clip` = that path's folder, `t` = (n − 1)·0.05 s for
-/// a file named `n.jpg` (TuSimple's 20 fps clips) or the image's index in its folder × 0.05 s,
+/// `raw_file` = its path relative to `dir`, `clip` = that path's folder, `t` from the file's
+/// frame number and [`FrontendParams::fps`] (TuSimple's `n.jpg`: (n − 1) × 0.05 s), or the
+/// image's index in its folder / `fps`,
 /// `h_samples` from `labels` when one has the same `raw_file`. `camera`: `None` = the TuSimple
 /// camera scaled to each image. `progress` is called after each image.
 pub fn run_dir(
@@ -1595,6 +1607,17 @@ pub fn run_dir_cameras(
             .map(|(d, _)| d.to_string())
             .unwrap_or_default()
     };
+    ensure!(
+        p.fps.is_finite() && p.fps > 0.0,
+        "fps must be a positive number, not {}",
+        p.fps
+    );
+    // Clips whose files are numbered from 0.
+    let zero_based: std::collections::HashSet<String> = files
+        .iter()
+        .filter(|f| frame_number(f) == Some(0))
+        .map(|f| clip_of(&raw_file_of(dir, f)))
+        .collect();
     // Shared estimates first: each group's camera, and the time the estimate took per image.
     let mut shared: Vec<Option<Camera>> = vec![None; files.len()];
     let mut estimate_ms = vec![0.0; files.len()];
@@ -1661,13 +1684,11 @@ pub fn run_dir_cameras(
         let raw_file = raw_file_of(dir, path);
         let clip = clip_of(&raw_file);
         let index_in_clip = frames.iter().rev().take_while(|f| f.clip == clip).count();
-        let t = match path
-            .file_stem()
-            .and_then(|s| s.to_str())
-            .and_then(|s| s.parse::<u64>().ok())
-        {
-            Some(k) if k >= 1 => (k - 1) as f64 * 0.05,
-            _ => index_in_clip as f64 * 0.05,
+        let dt = 1.0 / p.fps;
+        let t = match frame_number(path) {
+            Some(k) if zero_based.contains(clip.as_str()) => k as f64 * dt,
+            Some(k) if k >= 1 => (k - 1) as f64 * dt,
+            _ => index_in_clip as f64 * dt,
         };
         let h_samples = labels
             .iter()

@@ -281,6 +281,11 @@ enum Command {
         /// image of a group only (the estimate costs 2–3 ms a 512x288 image).
         #[arg(long, value_name = "K", default_value_t = 1)]
         estimate_every: usize,
+        /// Frame rate of the image sequences, for the frames' time stamps: a file named `n` is
+        /// frame `n` of its clip, counted from 1 (TuSimple: `1.jpg`–`20.jpg` at 20 fps) or from
+        /// 0 when the clip has a file named `0`; other names are numbered in order.
+        #[arg(long, default_value_t = 20.0)]
+        fps: f64,
         /// Front-end parameter overrides `name=value` (the fields of
         /// `stjpdacf_tools::frontend::FrontendParams`, e.g. `ridge_threshold=25`); repeatable.
         #[arg(long = "param", value_name = "NAME=VALUE")]
@@ -729,12 +734,16 @@ fn main() -> Result<()> {
             guess,
             share,
             estimate_every,
+            fps,
             params,
             scale,
             labels,
             overlay,
         } => {
-            let mut p = frontend::FrontendParams::default();
+            let mut p = frontend::FrontendParams {
+                fps,
+                ..Default::default()
+            };
             for a in &params {
                 let (name, v) = a
                     .split_once('=')

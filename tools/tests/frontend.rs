@@ -617,3 +617,70 @@ fn cli_shares_one_estimated_camera_per_clip() {
     }
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// `frontend`'s time stamps: a file named `n` is frame `n` of its clip, counted from 1
+/// (TuSimple) or from 0 when the clip has a file named 0, at `--fps` (default 20).
+#[test]
+fn cli_time_stamps_follow_frame_numbers_and_fps() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-fps-{}", std::process::id()));
+    let images = d.join("images");
+    let blank = image::RgbImage::from_fn(1640, 590, asphalt);
+    for (clip, names) in [("a", ["1", "2", "10"]), ("b", ["0", "30", "60"])] {
+        let dir = images.join(clip);
+        std::fs::create_dir_all(&dir).unwrap();
+        for n in names {
+            blank.save(dir.join(format!("{n}.png"))).unwrap();
+        }
+    }
+    let run = |extra: &[&str]| {
+        let out = d.join("f.jsonl");
+        let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+            .args(["frontend", "--camera", "culane", "--images"])
+            .arg(&images)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        (o.status.success())
+            .then(|| read_frames(&out).unwrap())
+            .ok_or_else(|| String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let times = |frames: Vec<Frame>| -> Vec<(String, f64)> {
+        frames.into_iter().map(|f| (f.clip, f.t)).collect()
+    };
+    let close = |got: &[(String, f64)], want: &[(&str, f64)]| {
+        assert_eq!(got.len(), want.len(), "{got:?}");
+        for ((gc, gt), (wc, wt)) in got.iter().zip(want) {
+            assert!(
+                gc == wc && (gt - wt).abs() < 1e-9,
+                "{got:?} against {want:?}"
+            );
+        }
+    };
+    close(
+        &times(run(&[]).unwrap()),
+        &[
+            ("a", 0.0),
+            ("a", 0.05),
+            ("a", 0.45),
+            ("b", 0.0),
+            ("b", 1.5),
+            ("b", 3.0),
+        ],
+    );
+    close(
+        &times(run(&["--fps", "30"]).unwrap()),
+        &[
+            ("a", 0.0),
+            ("a", 1.0 / 30.0),
+            ("a", 0.3),
+            ("b", 0.0),
+            ("b", 1.0),
+            ("b", 2.0),
+        ],
+    );
+    let err = run(&["--fps", "0"]).unwrap_err();
+    assert!(err.contains("fps must be a positive number"), "{err}");
+    std::fs::remove_dir_all(&d).unwrap();
+}
