@@ -556,6 +556,30 @@ fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// `stjpdacf frontend --images IMAGES --out OUT ARGS…`: its frames and standard error, or its
+/// standard error if it failed.
+fn frontend_cli(
+    images: &std::path::Path,
+    out: &std::path::Path,
+    args: &[&str],
+) -> Result<(Vec<Frame>, String), String> {
+    let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
+        .arg("frontend")
+        .arg("--images")
+        .arg(images)
+        .arg("--out")
+        .arg(out)
+        .args(args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    if o.status.success() {
+        Ok((read_frames(out).unwrap(), err))
+    } else {
+        Err(err)
+    }
+}
+
 /// `--share clip` (the default of `--camera estimate`): a clip's images share the median of
 /// their estimates, so an image whose own estimate fails (here one with no markings at all)
 /// gets its clip's camera; `--estimate-every 2` estimates on the clip's first and third images
@@ -575,18 +599,10 @@ fn cli_shares_one_estimated_camera_per_clip() {
     }
     let run = |tag: &str, extra: &[&str]| -> (Vec<Frame>, String) {
         let out = d.join(format!("{tag}.jsonl"));
-        let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
-            .args(["frontend", "--camera", "estimate", "--images"])
-            .arg(&images)
-            .arg("--out")
-            .arg(&out)
-            .args(extra)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let frames = read_frames(&out).unwrap();
+        let args = [&["--camera", "estimate"][..], extra].concat();
+        let (frames, err) = frontend_cli(&images, &out, &args).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(frames.len(), 6);
-        (frames, String::from_utf8_lossy(&o.stderr).into_owned())
+        (frames, err)
     };
     let off = |f: &Frame| (f.camera.expect("a camera in every frame").vp_row - truth.vp_row).abs();
     // Each image's own estimate: the blank images' is not the road's.
@@ -633,18 +649,8 @@ fn cli_time_stamps_follow_frame_numbers_and_fps() {
         }
     }
     let run = |extra: &[&str]| {
-        let out = d.join("f.jsonl");
-        let o = Command::new(env!("CARGO_BIN_EXE_stjpdacf"))
-            .args(["frontend", "--camera", "culane", "--images"])
-            .arg(&images)
-            .arg("--out")
-            .arg(&out)
-            .args(extra)
-            .output()
-            .unwrap();
-        (o.status.success())
-            .then(|| read_frames(&out).unwrap())
-            .ok_or_else(|| String::from_utf8_lossy(&o.stderr).into_owned())
+        let args = [&["--camera", "culane"][..], extra].concat();
+        frontend_cli(&images, &d.join("f.jsonl"), &args).map(|(frames, _)| frames)
     };
     let times = |frames: Vec<Frame>| -> Vec<(String, f64)> {
         frames.into_iter().map(|f| (f.clip, f.t)).collect()
