@@ -1663,9 +1663,11 @@ pub fn run_dir_cameras(
             }
         }
     }
+    let dt = 1.0 / p.fps;
     let mut frames: Vec<Frame> = Vec::with_capacity(files.len());
     let mut times = Vec::with_capacity(files.len());
     let mut cams = Vec::with_capacity(files.len());
+    let mut index_in_clip = 0usize;
     for (n, path) in files.iter().enumerate() {
         let img = load_rgb(path)?;
         let start = std::time::Instant::now();
@@ -1683,8 +1685,11 @@ pub fn run_dir_cameras(
         times.push(start.elapsed().as_secs_f64() * 1e3 + estimate_ms[n]);
         let raw_file = raw_file_of(dir, path);
         let clip = clip_of(&raw_file);
-        let index_in_clip = frames.iter().rev().take_while(|f| f.clip == clip).count();
-        let dt = 1.0 / p.fps;
+        // The image's index in its clip (files of one folder are consecutive).
+        index_in_clip = match frames.last() {
+            Some(prev) if prev.clip == clip => index_in_clip + 1,
+            _ => 0,
+        };
         let t = match frame_number(path) {
             Some(k) if zero_based.contains(clip.as_str()) => k as f64 * dt,
             Some(k) if k >= 1 => (k - 1) as f64 * dt,

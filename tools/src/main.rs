@@ -774,17 +774,17 @@ fn main() -> Result<()> {
                 camera == "estimate" || (share == ShareArg::Clip && estimate_every == 1),
                 "--share and --estimate-every go with --camera estimate"
             );
-            let estimate_mode = |guess: Camera| match share {
-                ShareArg::Image => frontend::CameraMode::Estimate(guess),
-                ShareArg::Clip | ShareArg::All => frontend::CameraMode::EstimateShared {
+            let estimate_mode = |guess: Camera| {
+                let shared = |share| frontend::CameraMode::EstimateShared {
                     guess,
-                    share: if share == ShareArg::Clip {
-                        frontend::Share::Clip
-                    } else {
-                        frontend::Share::All
-                    },
+                    share,
                     every: estimate_every,
-                },
+                };
+                match share {
+                    ShareArg::Image => frontend::CameraMode::Estimate(guess),
+                    ShareArg::Clip => shared(frontend::Share::Clip),
+                    ShareArg::All => shared(frontend::Share::All),
+                }
             };
             let mode = match (camera.as_str(), scale) {
                 ("tusimple", None) => frontend::CameraMode::TuSimple,

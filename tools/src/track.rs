@@ -537,8 +537,8 @@ pub fn track_with(
     for (k, f) in frames.iter().enumerate() {
         if stats.begin_frame(k, f, &mut clip)? {
             tracker = Some(Box::new(ReferenceTracker::with_config(tables, config)));
-            let n = frames[k..].iter().take_while(|g| g.clip == f.clip).count();
-            clip_cam = clip_camera(&frames[k..k + n], cam);
+            let clip_frames = crate::tusimple::clips(&frames[k..]).next().unwrap_or(&[]);
+            clip_cam = clip_camera(clip_frames, cam);
         }
         let cam = &clip_cam;
         let Some(tr) = tracker.as_mut() else { continue };
