@@ -125,6 +125,13 @@ enum Command {
         /// TuSimple labels drawn green on the overlays where their `raw_file` is a frame's.
         #[arg(long, requires = "overlay")]
         labels: Option<PathBuf>,
+        /// Write a prediction for every frame, not only for those with `h_samples` (labelled
+        /// frames): a frame without rows gets TuSimple's (160–710 px every 10 px of 720, scaled
+        /// to the camera's height), one without `raw_file` the name `clip/k` (k from 0). For
+        /// your own unlabelled sequences; `eval` wants one prediction per labelled frame, so
+        /// leave it off to score.
+        #[arg(long)]
+        every_frame: bool,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -388,6 +395,7 @@ fn main() -> Result<()> {
             overlay,
             images,
             labels,
+            every_frame,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -401,7 +409,14 @@ fn main() -> Result<()> {
                 }
                 None => cam,
             };
-            let frames = tusimple::read_frames(&frames)?;
+            let mut frames = tusimple::read_frames(&frames)?;
+            if every_frame {
+                stjpdacf_tools::track::predict_every_frame(&mut frames, &cam);
+            }
+            let unlabelled = frames
+                .iter()
+                .filter(|f| f.h_samples.is_none() || f.raw_file.is_none())
+                .count();
             anyhow::ensure!(
                 export_points.is_none() || frames.iter().all(|f| f.camera.is_none()),
                 "--export-points writes one camera for all frames; these frames carry their own \
@@ -502,6 +517,12 @@ fn main() -> Result<()> {
                 "{} frames in {} clips, {} predictions to {}; run_time {:.3} ms mean, {:.3} ms max (Tracker::step {:.3} / {:.3} ms); {} points above the horizon or non-finite; {} steps rejected",
                 stats.frames, stats.clips, stats.predictions, out.display(), stats.run_mean_ms, stats.run_max_ms, stats.step_mean_ms, stats.step_max_ms, stats.unmapped_points, stats.rejected_steps
             );
+            if unlabelled > 0 {
+                eprintln!(
+                    "({unlabelled} frames without h_samples rows or raw_file got no prediction; \
+                     --every-frame writes one for every frame)"
+                );
+            }
         }
         Command::Kernels => {
             print!(

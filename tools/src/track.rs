@@ -412,6 +412,36 @@ pub fn bev_points(f: &Frame, cam: &Camera, space: Space, unmapped: &mut usize) -
     bev_pts
 }
 
+/// TuSimple's label rows (160–710 px every 10 px of a 720-row image) scaled to an image
+/// `height` rows high: the rows a prediction is written at when a frame names none.
+pub fn tusimple_rows(height: f64) -> Vec<f64> {
+    let s = height / 720.0;
+    (0..56).map(|i| (160.0 + 10.0 * f64::from(i)) * s).collect()
+}
+
+/// Make every frame ask for a prediction: a frame without `h_samples` gets
+/// [`tusimple_rows`] of its camera's height (its own camera, else `cam`), one without
+/// `raw_file` the name `clip/k` (`k` its index in its clip, from 0). For frames of an
+/// unlabelled sequence, which [`track_with`] otherwise passes without a prediction.
+pub fn predict_every_frame(frames: &mut [Frame], cam: &Camera) {
+    let mut k = 0usize;
+    let mut clip: Option<String> = None;
+    for f in frames.iter_mut() {
+        k = if clip.as_deref() == Some(f.clip.as_str()) {
+            k + 1
+        } else {
+            clip = Some(f.clip.clone());
+            0
+        };
+        if f.h_samples.is_none() {
+            f.h_samples = Some(tusimple_rows(f.camera.map_or(cam.height, |c| c.height)));
+        }
+        if f.raw_file.is_none() {
+            f.raw_file = Some(format!("{}/{k}", f.clip));
+        }
+    }
+}
+
 /// A frame's time stamp as the tracker gets it, integer microseconds.
 pub fn frame_micros(f: &Frame) -> i64 {
     (f.t * 1e6).round() as i64

@@ -559,3 +559,50 @@ fn track_cli_draws_overlays_on_the_images() {
     assert_failure_mentions(&o, "--images");
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// Frames without `h_samples` or `raw_file` (an unlabelled sequence) get no prediction unless
+/// `--every-frame`: then each gets TuSimple's rows scaled to the camera and the name
+/// `clip/k`, and a labelled frame keeps its own rows and name.
+#[test]
+fn track_cli_every_frame_predicts_unlabelled_frames() {
+    let d = temp_dir("every");
+    let rows: Vec<f64> = (0..48).map(|i| 96.0 + 4.0 * f64::from(i)).collect();
+    let frames = bev_clip(&[-1.8, 1.8], 80.0, 4, &rows);
+    let fpath = d.join("f.jsonl");
+    write_frames(&fpath, &frames).unwrap();
+    let (p1, p2) = (d.join("p1.jsonl"), d.join("p2.jsonl"));
+    let bev: [&std::ffi::OsStr; 4] = [
+        "--space".as_ref(),
+        "bev".as_ref(),
+        "--scale".as_ref(),
+        "0.4".as_ref(),
+    ];
+    let o = run_track(&fpath, &p1, &bev);
+    assert_success(&o);
+    assert_eq!(read_predictions(&p1).unwrap().len(), 1);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(err.contains("3 frames without h_samples"), "{err}");
+    let mut args = bev.to_vec();
+    args.push("--every-frame".as_ref());
+    let o = run_track(&fpath, &p2, &args);
+    assert_success(&o);
+    let preds = read_predictions(&p2).unwrap();
+    let names: Vec<&str> = preds.iter().map(|p| p.raw_file.as_str()).collect();
+    assert_eq!(names, ["c/0", "c/1", "c/2", "clips/c/20.jpg"]);
+    // TuSimple's 160..=710 px rows at 288 / 720: 64..=284 every 4 px.
+    let want: Vec<f64> = (0..56).map(|i| 64.0 + 4.0 * f64::from(i)).collect();
+    for p in &preds[..3] {
+        assert_eq!(p.h_samples.len(), 56);
+        for (a, b) in p.h_samples.iter().zip(&want) {
+            assert!((a - b).abs() < 1e-9, "{:?}", p.h_samples);
+        }
+    }
+    assert_eq!(preds[3].h_samples, rows);
+    // From the second frame on, both lanes are there (the first frame only starts them).
+    for p in &preds[1..] {
+        assert_eq!(p.lanes.len(), 2, "{}", p.raw_file);
+    }
+    // The labelled frame's prediction is the one without the flag.
+    assert_eq!(preds[3].lanes, read_predictions(&p1).unwrap()[0].lanes);
+    std::fs::remove_dir_all(&d).unwrap();
+}
