@@ -132,6 +132,12 @@ enum Command {
         /// leave it off to score.
         #[arg(long)]
         every_frame: bool,
+        /// Also write the tracker's lanes of every frame with their ids (JSON lines, one per
+        /// frame: clip, t, raw_file, rejected, index_u, and per lane id, existence, age, hits,
+        /// misses, u_first, u_last, and x and var at the index points, BEV metres):
+        /// `stjpdacf_tools::track::LanesFrame`.
+        #[arg(long)]
+        lanes: Option<PathBuf>,
     },
     /// Score TuSimple predictions against ground truth with the official TuSimple metric.
     Eval {
@@ -396,6 +402,7 @@ fn main() -> Result<()> {
             images,
             labels,
             every_frame,
+            lanes,
         } => {
             let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
@@ -447,6 +454,14 @@ fn main() -> Result<()> {
                 }
                 _ => None,
             };
+            let mut lanes_out = match &lanes {
+                Some(p) => Some(std::io::BufWriter::new(
+                    std::fs::File::create(p)
+                        .with_context(|| format!("creating {}", p.display()))?,
+                )),
+                None => None,
+            };
+            let mut lanes_err: Option<anyhow::Error> = None;
             let mut overlay_err = None;
             let (mut clip_no, mut last_clip, mut export_err) = (0usize, None::<String>, None);
             let (preds, stats) = stjpdacf_tools::track::track_with(
@@ -477,6 +492,15 @@ fn main() -> Result<()> {
                 },
                 |v| {
                     bar.set_position(v.index as u64 + 1);
+                    if let (Some(w), None) = (lanes_out.as_mut(), &lanes_err) {
+                        let rec = stjpdacf_tools::track::lanes_frame(&v, tables);
+                        let res = serde_json::to_writer(&mut *w, &rec)
+                            .map_err(anyhow::Error::from)
+                            .and_then(|()| std::io::Write::write_all(w, b"\n").map_err(Into::into));
+                        if let Err(e) = res {
+                            lanes_err = Some(e);
+                        }
+                    }
                     if let Some(o) = overlays.as_mut() {
                         if overlay_err.is_none() {
                             if let Err(e) = o.frame(&v) {
@@ -500,6 +524,12 @@ fn main() -> Result<()> {
             }
             if let Some(e) = overlay_err {
                 return Err(e).context("drawing the overlays");
+            }
+            if let (Some(e), Some(p)) = (lanes_err, &lanes) {
+                return Err(e).with_context(|| format!("writing {}", p.display()));
+            }
+            if let Some(mut w) = lanes_out {
+                std::io::Write::flush(&mut w)?;
             }
             if let (Some(o), Some(dir)) = (&overlays, &overlay) {
                 eprintln!(

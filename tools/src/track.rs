@@ -17,7 +17,7 @@ use std::time::Instant as WallClock;
 
 use anyhow::{bail, Context, Result};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use stjpdacf::tables::ReferenceTables;
 use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker, StepOutput, TrackerConfig};
 
@@ -439,6 +439,86 @@ pub fn predict_every_frame(frames: &mut [Frame], cam: &Camera) {
         if f.raw_file.is_none() {
             f.raw_file = Some(format!("{}/{k}", f.clip));
         }
+    }
+}
+
+/// One frame of `stjpdacf track --lanes`: the lanes the tracker publishes (as the predictions:
+/// seen within [`MAX_REPORT_MISSES`] frames) with their ids, in the BEV.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LanesFrame {
+    /// The frame's clip.
+    pub clip: String,
+    /// The frame's time, seconds.
+    pub t: f64,
+    /// The frame's image, if it names one.
+    pub raw_file: Option<String>,
+    /// Whether the tracker refused the frame (then `lanes` is empty and the state is the
+    /// previous frame's).
+    pub rejected: bool,
+    /// Metres ahead of the index points at which [`LaneRecord::x`] and [`LaneRecord::var`] are
+    /// given.
+    pub index_u: Vec<f64>,
+    /// The published lanes, left to right at the nearest index point.
+    pub lanes: Vec<LaneRecord>,
+}
+
+/// One published lane of a [`LanesFrame`] ([`LaneEstimate`]'s fields).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LaneRecord {
+    /// Stable id: the same lane keeps it from frame to frame.
+    pub id: u32,
+    /// Existence probability.
+    pub existence: f64,
+    /// Frames since the lane started (0 in its first frame).
+    pub age: u32,
+    /// Frames in which it was observed.
+    pub hits: u32,
+    /// Frames since it was last seen.
+    pub misses: u16,
+    /// Observed extent, metres ahead: nearest.
+    pub u_first: f64,
+    /// Observed extent: farthest.
+    pub u_last: f64,
+    /// Lateral position at each index point, metres (positive to the right of the camera
+    /// axis, as the points' `x`).
+    pub x: Vec<f64>,
+    /// Its variance, m².
+    pub var: Vec<f64>,
+}
+
+/// The [`LanesFrame`] of frame `v`.
+pub fn lanes_frame(v: &FrameView<'_>, tables: &ReferenceTables) -> LanesFrame {
+    let mut lanes: Vec<LaneRecord> = v
+        .output
+        .map(|o| {
+            o.filtered
+                .iter()
+                .filter(|l| l.misses <= MAX_REPORT_MISSES)
+                .map(|l| LaneRecord {
+                    id: l.id.0,
+                    existence: f64::from(l.existence),
+                    age: l.age,
+                    hits: l.hits,
+                    misses: l.misses,
+                    u_first: f64::from(l.u_first),
+                    u_last: f64::from(l.u_last),
+                    x: l.z.iter().map(|&z| f64::from(z)).collect(),
+                    var: l.var.iter().map(|&z| f64::from(z)).collect(),
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    lanes.sort_by(|a, b| {
+        let x0 = |l: &LaneRecord| l.x.first().copied().unwrap_or(0.0);
+        x0(a).total_cmp(&x0(b))
+    });
+    LanesFrame {
+        clip: v.frame.clip.clone(),
+        t: v.frame.t,
+        raw_file: v.frame.raw_file.clone(),
+        rejected: v.output.is_none(),
+        index_u: tables.index_u.iter().map(|&u| f64::from(u)).collect(),
+        lanes,
     }
 }
 

@@ -606,3 +606,52 @@ fn track_cli_every_frame_predicts_unlabelled_frames() {
     assert_eq!(preds[3].lanes, read_predictions(&p1).unwrap()[0].lanes);
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// `--lanes` writes every frame's published lanes with their ids, in the BEV: one record per
+/// frame, the same ids from frame to frame for the same markings.
+#[test]
+fn track_cli_lanes_file_carries_ids() {
+    let d = temp_dir("lanes");
+    let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
+    let frames = bev_clip(&[-1.8, 1.8], 80.0, 4, &rows);
+    let fpath = d.join("f.jsonl");
+    write_frames(&fpath, &frames).unwrap();
+    let (p, l) = (d.join("p.jsonl"), d.join("l.jsonl"));
+    let o = run_track(
+        &fpath,
+        &p,
+        &[
+            "--space".as_ref(),
+            "bev".as_ref(),
+            "--lanes".as_ref(),
+            l.as_ref(),
+        ],
+    );
+    assert_success(&o);
+    let recs: Vec<stjpdacf_tools::track::LanesFrame> =
+        stjpdacf_tools::tusimple::read_jsonl(&l).unwrap();
+    assert_eq!(recs.len(), 4);
+    for (r, f) in recs.iter().zip(&frames) {
+        assert_eq!((r.clip.as_str(), r.t, r.rejected), ("c", f.t, false));
+        assert_eq!(r.index_u.len(), 16);
+        assert!((r.index_u[0] - 3.0).abs() < 1e-6 && (r.index_u[15] - 80.0).abs() < 1e-4);
+    }
+    let ids: Vec<Vec<u32>> = recs[1..]
+        .iter()
+        .map(|r| r.lanes.iter().map(|l| l.id).collect())
+        .collect();
+    assert_eq!(ids[0].len(), 2, "{:?}", recs[1]);
+    assert!(ids.iter().all(|v| *v == ids[0]), "{ids:?}");
+    for r in &recs[1..] {
+        for (lane, x) in r.lanes.iter().zip([-1.8, 1.8]) {
+            assert!(lane.x.iter().all(|v| (v - x).abs() < 0.3), "{lane:?}");
+            assert!(lane.var.iter().all(|&v| v > 0.0) && lane.existence >= 0.5);
+            assert!(lane.u_first < 10.0 && lane.u_last > 70.0, "{lane:?}");
+        }
+    }
+    // The last frame's prediction lists the same two lanes, left to right.
+    let pred = read_predictions(&p).unwrap();
+    assert_eq!(pred.len(), 1);
+    assert_eq!(pred[0].lanes.len(), recs[3].lanes.len());
+    std::fs::remove_dir_all(&d).unwrap();
+}
