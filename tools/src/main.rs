@@ -494,10 +494,7 @@ fn main() -> Result<()> {
                     bar.set_position(v.index as u64 + 1);
                     if let (Some(w), None) = (lanes_out.as_mut(), &lanes_err) {
                         let rec = stjpdacf_tools::track::lanes_frame(&v, tables);
-                        let res = serde_json::to_writer(&mut *w, &rec)
-                            .map_err(anyhow::Error::from)
-                            .and_then(|()| std::io::Write::write_all(w, b"\n").map_err(Into::into));
-                        if let Err(e) = res {
+                        if let Err(e) = tusimple::write_jsonl_to(&mut *w, &[rec]) {
                             lanes_err = Some(e);
                         }
                     }
@@ -527,9 +524,6 @@ fn main() -> Result<()> {
             }
             if let (Some(e), Some(p)) = (lanes_err, &lanes) {
                 return Err(e).with_context(|| format!("writing {}", p.display()));
-            }
-            if let Some(mut w) = lanes_out {
-                std::io::Write::flush(&mut w)?;
             }
             if let (Some(o), Some(dir)) = (&overlays, &overlay) {
                 eprintln!(
