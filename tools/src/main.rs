@@ -134,7 +134,8 @@ enum Command {
         every_frame: bool,
         /// Also write the tracker's lanes of every frame with their ids (JSON lines, one per
         /// frame: clip, t, raw_file, rejected, index_u, and per lane id, existence, age, hits,
-        /// misses, u_first, u_last, and x and var at the index points, BEV metres):
+        /// misses, u_first, u_last, and x and var at the index points, BEV metres; and the
+        /// fixed-lag smoother's lanes of the frame 4 frames back, `smoothed_t`, `smoothed`):
         /// `stjpdacf_tools::track::LanesFrame`.
         #[arg(long)]
         lanes: Option<PathBuf>,
@@ -462,6 +463,7 @@ fn main() -> Result<()> {
                 None => None,
             };
             let mut lanes_err: Option<anyhow::Error> = None;
+            let mut lanes_rec = stjpdacf_tools::track::LanesRecorder::default();
             let mut overlay_err = None;
             let (mut clip_no, mut last_clip, mut export_err) = (0usize, None::<String>, None);
             let (preds, stats) = stjpdacf_tools::track::track_with(
@@ -493,7 +495,7 @@ fn main() -> Result<()> {
                 |v| {
                     bar.set_position(v.index as u64 + 1);
                     if let (Some(w), None) = (lanes_out.as_mut(), &lanes_err) {
-                        let rec = stjpdacf_tools::track::lanes_frame(&v, tables);
+                        let rec = lanes_rec.record(&v, tables);
                         if let Err(e) = tusimple::write_jsonl_to(&mut *w, &[rec]) {
                             lanes_err = Some(e);
                         }

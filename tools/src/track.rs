@@ -460,6 +460,18 @@ pub struct LanesFrame {
     pub index_u: Vec<f64>,
     /// The published lanes, left to right at the nearest index point.
     pub lanes: Vec<LaneRecord>,
+    /// Time of the frame [`REFERENCE_LAG`] accepted frames back in this clip, which
+    /// [`LanesFrame::smoothed`] describes (`None` until the clip has that many frames).
+    #[serde(default)]
+    pub smoothed_t: Option<f64>,
+    /// That frame's image, if it names one.
+    #[serde(default)]
+    pub smoothed_raw_file: Option<String>,
+    /// The fixed-lag smoother's estimate of the lanes published at that frame, with what this
+    /// frame and the [`REFERENCE_LAG`] − 1 between have added (same ids, left to right;
+    /// `u_first`/`u_last` are that frame's extent, `age`/`hits`/`misses` the lane's now).
+    #[serde(default)]
+    pub smoothed: Vec<LaneRecord>,
 }
 
 /// One published lane of a [`LanesFrame`] ([`LaneEstimate`]'s fields).
@@ -486,39 +498,101 @@ pub struct LaneRecord {
     pub var: Vec<f64>,
 }
 
-/// The [`LanesFrame`] of frame `v`.
-pub fn lanes_frame(v: &FrameView<'_>, tables: &ReferenceTables) -> LanesFrame {
-    let mut lanes: Vec<LaneRecord> = v
-        .output
-        .map(|o| {
-            o.filtered
-                .iter()
-                .filter(|l| l.misses <= MAX_REPORT_MISSES)
-                .map(|l| LaneRecord {
-                    id: l.id.0,
-                    existence: f64::from(l.existence),
-                    age: l.age,
-                    hits: l.hits,
-                    misses: l.misses,
-                    u_first: f64::from(l.u_first),
-                    u_last: f64::from(l.u_last),
-                    x: l.z.iter().map(|&z| f64::from(z)).collect(),
-                    var: l.var.iter().map(|&z| f64::from(z)).collect(),
-                })
-                .collect()
-        })
-        .unwrap_or_default();
+impl LaneRecord {
+    fn new(l: &LaneEstimate<16>) -> Self {
+        LaneRecord {
+            id: l.id.0,
+            existence: f64::from(l.existence),
+            age: l.age,
+            hits: l.hits,
+            misses: l.misses,
+            u_first: f64::from(l.u_first),
+            u_last: f64::from(l.u_last),
+            x: l.z.iter().map(|&z| f64::from(z)).collect(),
+            var: l.var.iter().map(|&z| f64::from(z)).collect(),
+        }
+    }
+}
+
+/// Lane records left to right at the nearest index point.
+fn left_to_right(mut lanes: Vec<LaneRecord>) -> Vec<LaneRecord> {
     lanes.sort_by(|a, b| {
         let x0 = |l: &LaneRecord| l.x.first().copied().unwrap_or(0.0);
         x0(a).total_cmp(&x0(b))
     });
-    LanesFrame {
-        clip: v.frame.clip.clone(),
-        t: v.frame.t,
-        raw_file: v.frame.raw_file.clone(),
-        rejected: v.output.is_none(),
-        index_u: tables.index_u.iter().map(|&u| f64::from(u)).collect(),
-        lanes,
+    lanes
+}
+
+/// One accepted frame of the clip being recorded: its time, its image and the ids it published.
+type Published = (f64, Option<String>, Vec<u32>);
+
+/// Builds the [`LanesFrame`] of every frame of a run (`stjpdacf track --lanes`), remembering
+/// the last [`REFERENCE_LAG`] + 1 accepted frames of the clip to pair the smoothed lanes with
+/// the frame they describe (the same rule as the demo's smoother row: the smoothed lanes of
+/// frame k are those whose ids the filter published at frame k).
+#[derive(Debug, Default)]
+pub struct LanesRecorder {
+    clip: Option<String>,
+    history: std::collections::VecDeque<Published>,
+}
+
+impl LanesRecorder {
+    /// The [`LanesFrame`] of frame `v` (frames in the order the tracker saw them).
+    pub fn record(&mut self, v: &FrameView<'_>, tables: &ReferenceTables) -> LanesFrame {
+        if self.clip.as_deref() != Some(v.frame.clip.as_str()) {
+            self.clip = Some(v.frame.clip.clone());
+            self.history.clear();
+        }
+        let published = |l: &&LaneEstimate<16>| l.misses <= MAX_REPORT_MISSES;
+        let lanes = v
+            .output
+            .map(|o| {
+                o.filtered
+                    .iter()
+                    .filter(published)
+                    .map(LaneRecord::new)
+                    .collect()
+            })
+            .unwrap_or_default();
+        let mut smoothed = Vec::new();
+        let (mut smoothed_t, mut smoothed_raw_file) = (None, None);
+        if let Some(o) = v.output {
+            let ids = o
+                .filtered
+                .iter()
+                .filter(published)
+                .map(|l| l.id.0)
+                .collect();
+            self.history
+                .push_back((v.frame.t, v.frame.raw_file.clone(), ids));
+            if self.history.len() > REFERENCE_LAG + 1 {
+                self.history.pop_front();
+            }
+            if let (true, Some((t, raw, ids))) = (
+                self.history.len() == REFERENCE_LAG + 1,
+                self.history.front(),
+            ) {
+                smoothed_t = Some(*t);
+                smoothed_raw_file.clone_from(raw);
+                smoothed = o
+                    .smoothed
+                    .iter()
+                    .filter(|l| ids.contains(&l.id.0))
+                    .map(LaneRecord::new)
+                    .collect();
+            }
+        }
+        LanesFrame {
+            clip: v.frame.clip.clone(),
+            t: v.frame.t,
+            raw_file: v.frame.raw_file.clone(),
+            rejected: v.output.is_none(),
+            index_u: tables.index_u.iter().map(|&u| f64::from(u)).collect(),
+            lanes: left_to_right(lanes),
+            smoothed_t,
+            smoothed_raw_file,
+            smoothed: left_to_right(smoothed),
+        }
     }
 }
 

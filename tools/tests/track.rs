@@ -613,7 +613,7 @@ fn track_cli_every_frame_predicts_unlabelled_frames() {
 fn track_cli_lanes_file_carries_ids() {
     let d = temp_dir("lanes");
     let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
-    let frames = bev_clip(&[-1.8, 1.8], 80.0, 4, &rows);
+    let frames = bev_clip(&[-1.8, 1.8], 80.0, 7, &rows);
     let fpath = d.join("f.jsonl");
     write_frames(&fpath, &frames).unwrap();
     let (p, l) = (d.join("p.jsonl"), d.join("l.jsonl"));
@@ -630,7 +630,7 @@ fn track_cli_lanes_file_carries_ids() {
     assert_success(&o);
     let recs: Vec<stjpdacf_tools::track::LanesFrame> =
         stjpdacf_tools::tusimple::read_jsonl(&l).unwrap();
-    assert_eq!(recs.len(), 4);
+    assert_eq!(recs.len(), 7);
     for (r, f) in recs.iter().zip(&frames) {
         assert_eq!((r.clip.as_str(), r.t, r.rejected), ("c", f.t, false));
         assert_eq!(r.index_u.len(), 16);
@@ -652,6 +652,31 @@ fn track_cli_lanes_file_carries_ids() {
     // The last frame's prediction lists the same two lanes, left to right.
     let pred = read_predictions(&p).unwrap();
     assert_eq!(pred.len(), 1);
-    assert_eq!(pred[0].lanes.len(), recs[3].lanes.len());
+    assert_eq!(pred[0].lanes.len(), recs[6].lanes.len());
+    // The smoother's lanes of frame k come with frame k + 4: the same ids as the filter
+    // published at frame k, on the markings; none before the clip's fifth frame.
+    for (k, r) in recs.iter().enumerate() {
+        let Some(then) = k.checked_sub(4) else {
+            assert!(r.smoothed.is_empty() && r.smoothed_t.is_none(), "{r:?}");
+            continue;
+        };
+        assert_eq!(r.smoothed_t, Some(frames[then].t));
+        assert_eq!(r.smoothed_raw_file, frames[then].raw_file);
+        let ids_then: Vec<u32> = recs[then].lanes.iter().map(|l| l.id).collect();
+        let ids_smoothed: Vec<u32> = r.smoothed.iter().map(|l| l.id).collect();
+        assert_eq!(ids_smoothed, ids_then, "frame {k}");
+        for ((lane, filtered), x) in r.smoothed.iter().zip(&recs[then].lanes).zip([-1.8, 1.8]) {
+            assert!(lane.x.iter().all(|v| (v - x).abs() < 0.3), "{lane:?}");
+            // Four more frames of evidence: no index point less certain than the filter was.
+            assert!(lane.var.iter().all(|&v| v > 0.0), "{lane:?}");
+            let tighter = lane
+                .var
+                .iter()
+                .zip(&filtered.var)
+                .all(|(s, f)| *s <= f * 1.001);
+            assert!(tighter, "{lane:?} against {filtered:?}");
+        }
+    }
+    assert_eq!(recs[6].smoothed.len(), 2, "{:?}", recs[6]);
     std::fs::remove_dir_all(&d).unwrap();
 }
