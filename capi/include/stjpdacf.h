@@ -37,6 +37,11 @@
 // `STJPDACF_TRACKER_ALIGN`.
 #define STJPDACF_SMALL_TRACKER_SIZE 93240
 
+// Bytes of the rank-5 model's tracker buffer (`stjpdacf_rank5_init`; at least `sizeof` of its
+// tracker on every supported target: checked at compile time). Aligned as
+// `STJPDACF_TRACKER_ALIGN`.
+#define STJPDACF_RANK5_TRACKER_SIZE 110296
+
 // Number of stages.
 #define Stage_COUNT 13
 
@@ -105,6 +110,10 @@ typedef struct Association Association;
 // and an isolated hit pays for a switch onto paint. The rows' likelihood ratio against "its
 // gated points are clutter or other lanes'" is the forward recursion's total.
 typedef struct PaintGap PaintGap;
+
+// The rank-5 model's tracker (opaque to C): [`Rank5Tracker`] on the coupled tables with the
+// default configuration, and the lanes of the last frame.
+typedef struct stjpdacf_rank5_tracker stjpdacf_rank5_tracker;
 
 // The small model's tracker (opaque to C): [`Rank4Tracker`] on the uncoupled tables with LBP on
 // every known-lane row, and the lanes of the last frame.
@@ -355,6 +364,15 @@ stjpdacf_status stjpdacf_small_init(void *memory,
                                     size_t size,
                                     struct stjpdacf_small_tracker **tracker);
 
+// [`stjpdacf_init`] for the rank-5 model: a buffer of at least `STJPDACF_RANK5_TRACKER_SIZE`
+// bytes (else `STJPDACF_BUFFER_TOO_SMALL`), aligned to `STJPDACF_TRACKER_ALIGN`.
+//
+// # Safety
+// As [`stjpdacf_init`].
+stjpdacf_status stjpdacf_rank5_init(void *memory,
+                                    size_t size,
+                                    struct stjpdacf_rank5_tracker **tracker);
+
 // One frame: `n_points` BEV feature points `{u, x}` (metres ahead, metres lateral) at
 // `points[2 i]`, `points[2 i + 1]`, taken at `time_us` microseconds (strictly increasing).
 //
@@ -386,6 +404,18 @@ stjpdacf_status stjpdacf_step(struct stjpdacf_tracker *tracker,
 // # Safety
 // As [`stjpdacf_step`].
 stjpdacf_status stjpdacf_small_step(struct stjpdacf_small_tracker *tracker,
+                                    int64_t time_us,
+                                    const float *points,
+                                    size_t n_points,
+                                    struct stjpdacf_lane *out_lanes,
+                                    size_t capacity,
+                                    struct stjpdacf_report *report);
+
+// [`stjpdacf_step`] for the rank-5 model (`tracker` from `stjpdacf_rank5_init`).
+//
+// # Safety
+// As [`stjpdacf_step`].
+stjpdacf_status stjpdacf_rank5_step(struct stjpdacf_rank5_tracker *tracker,
                                     int64_t time_us,
                                     const float *points,
                                     size_t n_points,
@@ -435,6 +465,24 @@ stjpdacf_status stjpdacf_small_smoothed(const struct stjpdacf_small_tracker *tra
                                         size_t capacity,
                                         size_t *count);
 
+// [`stjpdacf_filtered`] for the rank-5 model (`tracker` from `stjpdacf_rank5_init`).
+//
+// # Safety
+// As [`stjpdacf_filtered`].
+stjpdacf_status stjpdacf_rank5_filtered(const struct stjpdacf_rank5_tracker *tracker,
+                                        struct stjpdacf_lane *out_lanes,
+                                        size_t capacity,
+                                        size_t *count);
+
+// [`stjpdacf_smoothed`] for the rank-5 model (`tracker` from `stjpdacf_rank5_init`).
+//
+// # Safety
+// As [`stjpdacf_filtered`].
+stjpdacf_status stjpdacf_rank5_smoothed(const struct stjpdacf_rank5_tracker *tracker,
+                                        struct stjpdacf_lane *out_lanes,
+                                        size_t capacity,
+                                        size_t *count);
+
 // A lane's lateral position `*x` (metres) and its variance `*var` (m²) at `u` metres ahead,
 // anywhere inside the BEV window: the GP evaluation of the lane in `slot` (Rust
 // `Tracker::lane_at`). `var` may be NULL.
@@ -459,6 +507,16 @@ stjpdacf_status stjpdacf_lane_at(const struct stjpdacf_tracker *tracker,
 // # Safety
 // As [`stjpdacf_lane_at`].
 stjpdacf_status stjpdacf_small_lane_at(const struct stjpdacf_small_tracker *tracker,
+                                       uint32_t slot,
+                                       float u,
+                                       float *x,
+                                       float *var);
+
+// [`stjpdacf_lane_at`] for the rank-5 model (`tracker` from `stjpdacf_rank5_init`).
+//
+// # Safety
+// As [`stjpdacf_lane_at`].
+stjpdacf_status stjpdacf_rank5_lane_at(const struct stjpdacf_rank5_tracker *tracker,
                                        uint32_t slot,
                                        float u,
                                        float *x,

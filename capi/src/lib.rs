@@ -1,15 +1,19 @@
 //! C API of the stjpdacf lane tracker: the header is `capi/include/stjpdacf.h`, generated from
-//! this file by cbindgen (`capi/cbindgen.toml`). Two models, each with its own handle type:
+//! this file by cbindgen (`capi/cbindgen.toml`). Three models, each with its own handle type:
 //! * `stjpdacf_tracker` (`stjpdacf_init`, `stjpdacf_step`, …): the reference configuration,
 //!   [`ReferenceTracker`] on the built-in coupled tables ([`DEFAULT`]) with the default
 //!   configuration;
 //! * `stjpdacf_small_tracker` (`stjpdacf_small_init`, `stjpdacf_small_step`, …): the smallest
 //!   model measured on the Cortex-M4F, [`Rank4Tracker`] on the uncoupled tables ([`UNCOUPLED`])
 //!   with LBP on every known-lane row (about 60 % of the memory and a fifth of the instructions
-//!   of the reference model; docs/measurements.md "Fitting the MCU").
+//!   of the reference model; docs/measurements.md "Fitting the MCU");
+//! * `stjpdacf_rank5_tracker` (`stjpdacf_rank5_init`, `stjpdacf_rank5_step`, …): the reference
+//!   model compiled for Gram rank 5, [`Rank5Tracker`] on the same tables and configuration
+//!   (within 0.005 of its replay accuracy for about 70 % of its memory and half its
+//!   instructions).
 //!
-//! Both take the same frames and publish the same lane records; every function of one has its
-//! `small` twin with the same contract.
+//! All take the same frames and publish the same lane records; every function of the reference
+//! model has its `small` and `rank5` twins with the same contract.
 //!
 //! # Contract
 //! * **Caller-owned memory.** The tracker lives in a buffer the caller provides, of at least
@@ -42,8 +46,8 @@ use stjpdacf::persist::PersistConfig;
 use stjpdacf::spatial::row::Association;
 use stjpdacf::tables::{DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::{
-    Instant, LaneEstimate, Rank4Tracker, ReferenceTracker, StepError, StepOutput, StepReport,
-    TrackerConfig,
+    Instant, LaneEstimate, Rank4Tracker, Rank5Tracker, ReferenceTracker, StepError, StepOutput,
+    StepReport, TrackerConfig,
 };
 use stjpdacf::wire::{self, WireError};
 
@@ -67,12 +71,19 @@ pub const STJPDACF_TRACKER_ALIGN: usize = 8;
 /// tracker on every supported target: checked at compile time). Aligned as
 /// `STJPDACF_TRACKER_ALIGN`.
 pub const STJPDACF_SMALL_TRACKER_SIZE: usize = 93_240;
+/// Bytes of the rank-5 model's tracker buffer (`stjpdacf_rank5_init`; at least `sizeof` of its
+/// tracker on every supported target: checked at compile time). Aligned as
+/// `STJPDACF_TRACKER_ALIGN`.
+pub const STJPDACF_RANK5_TRACKER_SIZE: usize = 110_296;
 
 const _: () = assert!(core::mem::size_of::<stjpdacf_tracker>() <= STJPDACF_TRACKER_SIZE);
 const _: () = assert!(core::mem::align_of::<stjpdacf_tracker>() <= STJPDACF_TRACKER_ALIGN);
 const _: () =
     assert!(core::mem::size_of::<stjpdacf_small_tracker>() <= STJPDACF_SMALL_TRACKER_SIZE);
 const _: () = assert!(core::mem::align_of::<stjpdacf_small_tracker>() <= STJPDACF_TRACKER_ALIGN);
+const _: () =
+    assert!(core::mem::size_of::<stjpdacf_rank5_tracker>() <= STJPDACF_RANK5_TRACKER_SIZE);
+const _: () = assert!(core::mem::align_of::<stjpdacf_rank5_tracker>() <= STJPDACF_TRACKER_ALIGN);
 const _: () = assert!(STJPDACF_MAX_LANES == 6 && STJPDACF_INDEX_POINTS == 16);
 const _: () = assert!(STJPDACF_MAX_POINTS == 256 && STJPDACF_LAG == 4);
 
@@ -284,6 +295,13 @@ pub struct stjpdacf_small_tracker {
     h: Handle<Rank4Tracker>,
 }
 
+/// The rank-5 model's tracker (opaque to C): [`Rank5Tracker`] on the coupled tables with the
+/// default configuration, and the lanes of the last frame.
+#[allow(non_camel_case_types)]
+pub struct stjpdacf_rank5_tracker {
+    h: Handle<Rank5Tracker>,
+}
+
 /// The small model's configuration: LBP on every known-lane row.
 const SMALL_CONFIG: TrackerConfig = TrackerConfig {
     persist: PersistConfig {
@@ -368,6 +386,40 @@ impl Model for stjpdacf_small_tracker {
         t.step(now, pts)
     }
     fn lane_at(t: &Rank4Tracker, slot: usize, u: f32) -> Option<(f32, f32)> {
+        t.lane_at(slot, u)
+    }
+}
+
+impl Model for stjpdacf_rank5_tracker {
+    type T = Rank5Tracker;
+    const ZEROED: Self = stjpdacf_rank5_tracker {
+        h: Handle {
+            magic: 0,
+            tracker: Rank5Tracker::UNINIT,
+            filtered: [NO_LANE; STJPDACF_MAX_LANES],
+            smoothed: [NO_LANE; STJPDACF_MAX_LANES],
+            n_filtered: 0,
+            n_smoothed: 0,
+        },
+    };
+    const SIZE: usize = STJPDACF_RANK5_TRACKER_SIZE;
+    fn handle(&self) -> &Handle<Rank5Tracker> {
+        &self.h
+    }
+    fn handle_mut(&mut self) -> &mut Handle<Rank5Tracker> {
+        &mut self.h
+    }
+    fn start(t: &mut Rank5Tracker) {
+        t.init(&DEFAULT, TrackerConfig::DEFAULT);
+    }
+    fn step(
+        t: &mut Rank5Tracker,
+        now: Instant,
+        pts: &[[f32; 2]],
+    ) -> Result<StepOutput<STJPDACF_MAX_LANES, STJPDACF_INDEX_POINTS>, StepError> {
+        t.step(now, pts)
+    }
+    fn lane_at(t: &Rank5Tracker, slot: usize, u: f32) -> Option<(f32, f32)> {
         t.lane_at(slot, u)
     }
 }
@@ -605,6 +657,21 @@ pub unsafe extern "C" fn stjpdacf_small_init(
     unsafe { init_model(memory, size, tracker) }
 }
 
+/// [`stjpdacf_init`] for the rank-5 model: a buffer of at least `STJPDACF_RANK5_TRACKER_SIZE`
+/// bytes (else `STJPDACF_BUFFER_TOO_SMALL`), aligned to `STJPDACF_TRACKER_ALIGN`.
+///
+/// # Safety
+/// As [`stjpdacf_init`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_rank5_init(
+    memory: *mut core::ffi::c_void,
+    size: usize,
+    tracker: *mut *mut stjpdacf_rank5_tracker,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    unsafe { init_model(memory, size, tracker) }
+}
+
 /// One frame of a tracker of model `M` (see [`stjpdacf_step`]).
 ///
 /// # Safety
@@ -695,6 +762,28 @@ pub unsafe extern "C" fn stjpdacf_step(
 #[no_mangle]
 pub unsafe extern "C" fn stjpdacf_small_step(
     tracker: *mut stjpdacf_small_tracker,
+    time_us: i64,
+    points: *const f32,
+    n_points: usize,
+    out_lanes: *mut stjpdacf_lane,
+    capacity: usize,
+    report: *mut stjpdacf_report,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    unsafe {
+        step_model(
+            tracker, time_us, points, n_points, out_lanes, capacity, report,
+        )
+    }
+}
+
+/// [`stjpdacf_step`] for the rank-5 model (`tracker` from `stjpdacf_rank5_init`).
+///
+/// # Safety
+/// As [`stjpdacf_step`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_rank5_step(
+    tracker: *mut stjpdacf_rank5_tracker,
     time_us: i64,
     points: *const f32,
     n_points: usize,
@@ -814,6 +903,36 @@ pub unsafe extern "C" fn stjpdacf_small_smoothed(
     checked(|| unsafe { read_lanes(tracker, out_lanes, capacity, count, true) })
 }
 
+/// [`stjpdacf_filtered`] for the rank-5 model (`tracker` from `stjpdacf_rank5_init`).
+///
+/// # Safety
+/// As [`stjpdacf_filtered`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_rank5_filtered(
+    tracker: *const stjpdacf_rank5_tracker,
+    out_lanes: *mut stjpdacf_lane,
+    capacity: usize,
+    count: *mut usize,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    checked(|| unsafe { read_lanes(tracker, out_lanes, capacity, count, false) })
+}
+
+/// [`stjpdacf_smoothed`] for the rank-5 model (`tracker` from `stjpdacf_rank5_init`).
+///
+/// # Safety
+/// As [`stjpdacf_filtered`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_rank5_smoothed(
+    tracker: *const stjpdacf_rank5_tracker,
+    out_lanes: *mut stjpdacf_lane,
+    capacity: usize,
+    count: *mut usize,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    checked(|| unsafe { read_lanes(tracker, out_lanes, capacity, count, true) })
+}
+
 /// A lane's GP read-out for a tracker of model `M` (see [`stjpdacf_lane_at`]).
 ///
 /// # Safety
@@ -874,6 +993,22 @@ pub unsafe extern "C" fn stjpdacf_lane_at(
 #[no_mangle]
 pub unsafe extern "C" fn stjpdacf_small_lane_at(
     tracker: *const stjpdacf_small_tracker,
+    slot: u32,
+    u: f32,
+    x: *mut f32,
+    var: *mut f32,
+) -> stjpdacf_status {
+    // SAFETY: the caller's contract above.
+    unsafe { lane_at_model(tracker, slot, u, x, var) }
+}
+
+/// [`stjpdacf_lane_at`] for the rank-5 model (`tracker` from `stjpdacf_rank5_init`).
+///
+/// # Safety
+/// As [`stjpdacf_lane_at`].
+#[no_mangle]
+pub unsafe extern "C" fn stjpdacf_rank5_lane_at(
+    tracker: *const stjpdacf_rank5_tracker,
     slot: u32,
     u: f32,
     x: *mut f32,

@@ -533,3 +533,61 @@ fn small_lanes_match_the_rust_tracker() {
     assert_eq!(UNCOUPLED.hyper.u_max, DEFAULT.hyper.u_max);
     assert_eq!(rep.smoothed_lanes, 2, "the smoother window is full");
 }
+
+#[test]
+fn the_rank5_size_constant_covers_its_tracker() {
+    let size = core::mem::size_of::<stjpdacf_rank5_tracker>();
+    std::println!("size_of::<stjpdacf_rank5_tracker>() = {size}");
+    assert!(size <= STJPDACF_RANK5_TRACKER_SIZE);
+    assert!(STJPDACF_RANK5_TRACKER_SIZE - size < 1024);
+}
+
+/// The rank-5 model's entry points refuse a short buffer and a buffer never initialised, and
+/// equal `Rank5Tracker` on the default tables frame by frame (filtered and smoothed lanes, the
+/// report and the GP read-out).
+#[test]
+fn rank5_refuses_bad_buffers_and_matches_the_rust_tracker() {
+    let mut buf = vec![0u64; STJPDACF_RANK5_TRACKER_SIZE / 8 + 1];
+    let mut t = null_mut();
+    // SAFETY: `buf` holds more than the size given; `t` is writable.
+    let st = unsafe {
+        stjpdacf_rank5_init(
+            buf.as_mut_ptr().cast(),
+            STJPDACF_RANK5_TRACKER_SIZE - 1,
+            &mut t,
+        )
+    };
+    assert_eq!((st, t.is_null()), (STJPDACF_BUFFER_TOO_SMALL, true));
+    let raw = buf.as_mut_ptr().cast::<stjpdacf_rank5_tracker>();
+    let pts = two_lanes();
+    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
+    let mut n = 0usize;
+    let (mut x, mut var) = (0.0f32, 0.0f32);
+    // SAFETY: `raw` points to writable, aligned memory of the tracker's size; the arrays are
+    // valid for their sizes.
+    unsafe {
+        let st = stjpdacf_rank5_step(raw, 0, pts.as_ptr(), 60, null_mut(), 0, null_mut());
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+        let st = stjpdacf_rank5_filtered(raw, lanes.as_mut_ptr(), lanes.len(), &mut n);
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+        let st = stjpdacf_rank5_smoothed(raw, lanes.as_mut_ptr(), lanes.len(), &mut n);
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+        let st = stjpdacf_rank5_lane_at(raw, 0, 30.0, &mut x, &mut var);
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+    }
+    let mut rust = Box::new(Rank5Tracker::new(&DEFAULT));
+    // SAFETY: `buf` holds `STJPDACF_RANK5_TRACKER_SIZE` writable, aligned bytes.
+    let st = unsafe {
+        stjpdacf_rank5_init(buf.as_mut_ptr().cast(), STJPDACF_RANK5_TRACKER_SIZE, &mut t)
+    };
+    assert_eq!(st, STJPDACF_OK);
+    let api = Entry {
+        step: stjpdacf_rank5_step,
+        filtered: stjpdacf_rank5_filtered,
+        smoothed: stjpdacf_rank5_smoothed,
+        lane_at: stjpdacf_rank5_lane_at,
+    };
+    let (rep, published) = lanes_match(t, &api, |time, pairs| want_of!(rust, time, pairs));
+    assert!(published >= 8, "lanes were published ({published})");
+    assert_eq!(rep.smoothed_lanes, 2, "the smoother window is full");
+}

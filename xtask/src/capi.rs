@@ -10,9 +10,10 @@
 //! 4. the Cortex-M4F C example (`capi/examples/m4f`), built with `arm-none-eabi-gcc` and run under
 //!    the firmware's QEMU machine, prints the same lanes as the Rust firmware's `lanes_typical`
 //!    on the same frames; its link keeps no panic path (no `rust_begin_unwind`); the sizes and
-//!    stack high-water marks of both are printed side by side. Twice: the reference model, and
+//!    stack high-water marks of both are printed side by side. Three times: the reference model,
 //!    the small model (`stjpdacf_small_*`, `-DSTJPDACF_EXAMPLE_SMALL`) against the firmware
-//!    built with the smallest model's variables;
+//!    built with the smallest model's variables, and the rank-5 model (`stjpdacf_rank5_*`,
+//!    `-DSTJPDACF_EXAMPLE_RANK5`) against the firmware built at Gram rank 5;
 //! 5. the board example (`board/`, see [`crate::board`]) reads the same frames over an emulated
 //!    SPI front end and writes the same lanes to its UART.
 //!
@@ -83,6 +84,7 @@ pub fn run_all() -> Result<()> {
     host_example()?;
     let rust_out = m4f_example(Model::Reference)?;
     m4f_example(Model::Small)?;
+    m4f_example(Model::Rank5)?;
     crate::board::run(FRAMES, &lane_lines(&rust_out))
 }
 
@@ -351,7 +353,7 @@ fn stack_used(out: &str) -> u64 {
         .unwrap_or(0)
 }
 
-/// The C API's two models.
+/// The C API's three models.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Model {
     /// `stjpdacf_init`, … (the Rust firmware's default build).
@@ -359,6 +361,9 @@ enum Model {
     /// `stjpdacf_small_init`, … (the C example with `-DSTJPDACF_EXAMPLE_SMALL`; the Rust firmware
     /// built with the smallest model's variables, as `bench/firmware/budget-mcu.json`).
     Small,
+    /// `stjpdacf_rank5_init`, … (`-DSTJPDACF_EXAMPLE_RANK5`; the Rust firmware built at Gram
+    /// rank 5, as `bench/firmware/budget-rank5.json`).
+    Rank5,
 }
 
 impl Model {
@@ -372,6 +377,7 @@ impl Model {
                 ("STJPDACF_FW_RANK", "4"),
                 ("STJPDACF_FW_RANK_CAP", "1"),
             ],
+            Model::Rank5 => &[("STJPDACF_FW_RANK", "5"), ("STJPDACF_FW_RANK_CAP", "1")],
         }
     }
 }
@@ -384,6 +390,10 @@ fn m4f_example(model: Model) -> Result<String> {
         Model::Small => (
             out_dir().join("m4f_small.elf"),
             Some("-DSTJPDACF_EXAMPLE_SMALL"),
+        ),
+        Model::Rank5 => (
+            out_dir().join("m4f_rank5.elf"),
+            Some("-DSTJPDACF_EXAMPLE_RANK5"),
         ),
     };
     run(Command::new("arm-none-eabi-gcc")

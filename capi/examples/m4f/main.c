@@ -1,7 +1,8 @@
 /* Cortex-M4F C example of the stjpdacf C API, bare metal under QEMU mps2-an386 (the machine of
  * the Rust firmware, bench/firmware): the frames of the firmware's `typical` scenario in the SPI
  * wire format (embedded with .incbin), decoded with stjpdacf_decode_frame, tracked with
- * stjpdacf_step (stjpdacf_small_step with -DSTJPDACF_EXAMPLE_SMALL), every filtered and smoothed lane printed exactly as the Rust firmware's
+ * stjpdacf_step (stjpdacf_small_step with -DSTJPDACF_EXAMPLE_SMALL, stjpdacf_rank5_step with
+ * -DSTJPDACF_EXAMPLE_RANK5), every filtered and smoothed lane printed exactly as the Rust firmware's
  * `lanes_typical` binary prints it (`cargo xtask capi` compares the two), then the stack
  * high-water mark. No C library: semihosting by hand, the tracker in a static buffer.
  *
@@ -16,14 +17,21 @@
 
 #include "stjpdacf.h"
 
-/* With -DSTJPDACF_EXAMPLE_SMALL the small model (stjpdacf_small_*); `cargo xtask capi` builds
- * both and compares each with the Rust firmware built for the same model. */
-#ifdef STJPDACF_EXAMPLE_SMALL
+/* With -DSTJPDACF_EXAMPLE_SMALL the small model (stjpdacf_small_*), with
+ * -DSTJPDACF_EXAMPLE_RANK5 the rank-5 model (stjpdacf_rank5_*); `cargo xtask capi` builds all
+ * three and compares each with the Rust firmware built for the same model. */
+#if defined(STJPDACF_EXAMPLE_SMALL)
 #define TRACKER stjpdacf_small_tracker
 #define TRACKER_SIZE STJPDACF_SMALL_TRACKER_SIZE
 #define TRACKER_INIT stjpdacf_small_init
 #define TRACKER_STEP stjpdacf_small_step
 #define TRACKER_SMOOTHED stjpdacf_small_smoothed
+#elif defined(STJPDACF_EXAMPLE_RANK5)
+#define TRACKER stjpdacf_rank5_tracker
+#define TRACKER_SIZE STJPDACF_RANK5_TRACKER_SIZE
+#define TRACKER_INIT stjpdacf_rank5_init
+#define TRACKER_STEP stjpdacf_rank5_step
+#define TRACKER_SMOOTHED stjpdacf_rank5_smoothed
 #else
 #define TRACKER stjpdacf_tracker
 #define TRACKER_SIZE STJPDACF_TRACKER_SIZE
