@@ -37,21 +37,11 @@ use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::demo::{self, Coupling, DemoOptions, Input};
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
+use stjpdacf_tools::track;
 
 /// The default tables truncated to `rank` Gram components, with the variance fraction they keep.
 fn truncated(rank: u32) -> ReferenceTables {
-    truncated_from(&DEFAULT, rank)
-}
-
-/// `base` truncated to `rank` Gram components (as [`truncated`]).
-fn truncated_from(base: &ReferenceTables, rank: u32) -> ReferenceTables {
-    let mut t = *base;
-    t.gram_rank = rank.clamp(1, base.gram_rank);
-    let ev = t.gram_eigval.as_slice();
-    let total: f32 = ev.iter().sum();
-    let kept: f32 = ev.iter().take(t.gram_rank as usize).sum();
-    t.hyper.gram_variance_fraction = if total > 0.0 { kept / total } else { 1.0 };
-    t
+    track::truncated(&DEFAULT, rank)
 }
 
 fn main() -> anyhow::Result<()> {
@@ -117,9 +107,9 @@ fn uncoupled(replays: &Replays) -> anyhow::Result<()> {
         },
         ..TrackerConfig::DEFAULT
     };
-    let r5: &'static ReferenceTables = Box::leak(Box::new(truncated_from(&UNCOUPLED, 5)));
-    let r4: &'static ReferenceTables = Box::leak(Box::new(truncated_from(&UNCOUPLED, 4)));
-    let r3: &'static ReferenceTables = Box::leak(Box::new(truncated_from(&UNCOUPLED, 3)));
+    let r5: &'static ReferenceTables = Box::leak(Box::new(track::truncated(&UNCOUPLED, 5)));
+    let r4: &'static ReferenceTables = Box::leak(Box::new(track::truncated(&UNCOUPLED, 4)));
+    let r3: &'static ReferenceTables = Box::leak(Box::new(track::truncated(&UNCOUPLED, 3)));
     let models: [(&str, &'static ReferenceTables, TrackerConfig); 6] = [
         ("coupled B (default)", &DEFAULT, TrackerConfig::DEFAULT),
         ("uncoupled B", &UNCOUPLED, TrackerConfig::DEFAULT),
@@ -159,7 +149,7 @@ fn small() -> anyhow::Result<()> {
     ];
     for rank in [7u32, 5, 4, 3] {
         let tables: &'static ReferenceTables =
-            Box::leak(Box::new(truncated_from(&UNCOUPLED, rank)));
+            Box::leak(Box::new(track::truncated(&UNCOUPLED, rank)));
         variants.push(demo::Variant {
             tables,
             ..demo::Variant::new(&format!("uncoupled B, LBP every row, rank {rank}"), lbp)

@@ -32,6 +32,18 @@ enum SpaceArg {
     Bev,
 }
 
+/// Which model `track` runs (`track::Model`).
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ModelArg {
+    /// The reference model (C `stjpdacf_init`; Rust `ReferenceTracker`).
+    Reference,
+    /// The same tables at Gram rank 5 (C `stjpdacf_rank5_init`; Rust `Rank5Tracker`).
+    Rank5,
+    /// The smallest model: uncoupled tables, Gram rank 4, LBP on every row (C
+    /// `stjpdacf_small_init`; Rust `Rank4Tracker` on `UNCOUPLED`).
+    Small,
+}
+
 /// Which images share one camera estimate (`frontend --camera estimate --share`).
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum ShareArg {
@@ -71,6 +83,11 @@ enum Command {
         /// Hyperparameter file (default: the built-in tables of data/hyper/default.json).
         #[arg(long)]
         hyper: Option<PathBuf>,
+        /// The model to run, as the firmware and the C API offer it: the same lanes, bit for
+        /// bit, as the tracker compiled for it (`small` uses the built-in uncoupled tables, so
+        /// not with --hyper).
+        #[arg(long, value_enum, default_value_t = ModelArg::Reference)]
+        model: ModelArg,
         /// Camera: `tusimple` (1280x720) or a camera JSON file (fields width, height, vp_col,
         /// vp_row, height_m, focal_px). A clip whose frames carry their own cameras (`stjpdacf
         /// frontend --camera estimate`) is mapped with the median of those instead.
@@ -404,11 +421,21 @@ fn main() -> Result<()> {
             labels,
             every_frame,
             lanes,
+            model,
         } => {
-            let tables: &'static stjpdacf::tables::ReferenceTables = match hyper {
+            let model = match model {
+                ModelArg::Reference => stjpdacf_tools::track::Model::Reference,
+                ModelArg::Rank5 => stjpdacf_tools::track::Model::Rank5,
+                ModelArg::Small => stjpdacf_tools::track::Model::Small,
+            };
+            anyhow::ensure!(
+                hyper.is_none() || model != stjpdacf_tools::track::Model::Small,
+                "--model small runs the built-in uncoupled tables: leave out --hyper"
+            );
+            let tables: &'static stjpdacf::tables::ReferenceTables = model.tables(match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
                 None => &stjpdacf::tables::DEFAULT,
-            };
+            });
             let cam = Camera::from_spec(&camera)?;
             let cam = match scale {
                 Some(s) => {
@@ -471,7 +498,7 @@ fn main() -> Result<()> {
                 tables,
                 &cam,
                 space,
-                {
+                model.config({
                     let d = stjpdacf::tracker::TrackerConfig::DEFAULT;
                     stjpdacf::tracker::TrackerConfig {
                         persist: stjpdacf::persist::PersistConfig {
@@ -491,7 +518,7 @@ fn main() -> Result<()> {
                         },
                         ..d
                     }
-                },
+                }),
                 |v| {
                     bar.set_position(v.index as u64 + 1);
                     if let (Some(w), None) = (lanes_out.as_mut(), &lanes_err) {

@@ -131,6 +131,63 @@ pub(crate) struct RunTimes {
     run: f64,
 }
 
+/// The models the firmware and the C API offer, as the host tools run them: the
+/// [`ReferenceTracker`] on tables truncated to the model's Gram rank gives the same lanes, bit
+/// for bit, as the tracker compiled for that rank (`host-tests/tests/rank_capacity.rs` checks
+/// it), so a model's accuracy can be measured on the host before it is flashed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Model {
+    /// `ReferenceTracker` on the given tables, the given configuration (C: `stjpdacf_init`).
+    #[default]
+    Reference,
+    /// `Rank5Tracker`: the given tables at Gram rank 5 (C: `stjpdacf_rank5_init`).
+    Rank5,
+    /// The smallest model measured on the MCU, `Rank4Tracker` on the built-in uncoupled tables
+    /// with LBP on every known-lane row (C: `stjpdacf_small_init`); it ignores the given tables.
+    Small,
+}
+
+impl Model {
+    /// The tables the model runs: `base` (the default or a hyperparameter file's), truncated to
+    /// the model's rank, or the uncoupled tables at rank 4 for [`Model::Small`]. A truncated
+    /// copy is leaked to `'static` (2.6 KB a call: a command-line run makes one).
+    pub fn tables(self, base: &'static ReferenceTables) -> &'static ReferenceTables {
+        match self {
+            Model::Reference => base,
+            Model::Rank5 => Box::leak(Box::new(truncated(base, 5))),
+            Model::Small => Box::leak(Box::new(truncated(&stjpdacf::tables::UNCOUPLED, 4))),
+        }
+    }
+
+    /// The configuration the model runs: `base`, with LBP on every known-lane row for
+    /// [`Model::Small`].
+    pub fn config(self, base: TrackerConfig) -> TrackerConfig {
+        match self {
+            Model::Reference | Model::Rank5 => base,
+            Model::Small => TrackerConfig {
+                persist: stjpdacf::persist::PersistConfig {
+                    association: stjpdacf::spatial::row::Association::Lbp,
+                    ..base.persist
+                },
+                ..base
+            },
+        }
+    }
+}
+
+/// `base` truncated to its first `rank` Gram components (at least 1, at most its own): the
+/// dropped components' variance goes to the residual (`hyper.gram_variance_fraction`,
+/// docs/design.md §4.1).
+pub fn truncated(base: &ReferenceTables, rank: u32) -> ReferenceTables {
+    let mut t = *base;
+    t.gram_rank = rank.clamp(1, base.gram_rank);
+    let ev = t.gram_eigval.as_slice();
+    let total: f32 = ev.iter().sum();
+    let kept: f32 = ev.iter().take(t.gram_rank as usize).sum();
+    t.hyper.gram_variance_fraction = if total > 0.0 { kept / total } else { 1.0 };
+    t
+}
+
 /// Builds f32 tables for the reference configuration from a hyperparameter file at run time (the
 /// same computation as `stjpdacf tables`, without the Rust source round trip:
 /// [`tablegen::static_tables`]), leaked to `'static`.

@@ -680,3 +680,132 @@ fn track_cli_lanes_file_carries_ids() {
     assert_eq!(recs[6].smoothed.len(), 2, "{:?}", recs[6]);
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// `track::Model` runs each model as the tracker compiled for it: the reference tracker on the
+/// model's tables and configuration publishes, frame by frame, the same lanes (every field, to
+/// the bit) as `Rank5Tracker` on the default tables and as `Rank4Tracker` on the uncoupled tables
+/// with LBP on every row, on the firmware benchmark's typical frames.
+#[test]
+fn models_run_as_the_trackers_compiled_for_them() {
+    use stjpdacf::tables::UNCOUPLED;
+    use stjpdacf::tracker::{Instant, Rank4Tracker, Rank5Tracker, StepOutput};
+    use stjpdacf_tools::track::{frame_micros, Model};
+    let typical = stjpdacf_tools::fwscenario::scenarios().unwrap().remove(0);
+    let frames: Vec<Frame> = typical
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, pts)| Frame {
+            clip: "typical".into(),
+            t: k as f64 * 0.05,
+            points: pts
+                .iter()
+                .map(|p| [f64::from(p[1]), f64::from(p[0])])
+                .collect(),
+            raw_file: None,
+            h_samples: None,
+            camera: None,
+        })
+        .collect();
+    let cam = Camera::tusimple();
+    let bits = |o: &StepOutput<6, 16>| {
+        let lane = |l: &stjpdacf::tracker::LaneEstimate<16>| {
+            let f = |v: f32| v.to_bits();
+            (
+                l.id.0,
+                l.slot,
+                (l.misses, l.age, l.hits),
+                [l.u_first, l.u_last, l.existence].map(f),
+                l.z.iter()
+                    .chain(l.var.iter())
+                    .map(|&v| f(v))
+                    .collect::<Vec<_>>(),
+            )
+        };
+        let f: Vec<_> = o.filtered.iter().map(lane).collect();
+        let s: Vec<_> = o.smoothed.iter().map(lane).collect();
+        (f, s)
+    };
+    for model in [Model::Rank5, Model::Small] {
+        let config = model.config(TrackerConfig::DEFAULT);
+        let mut rank5 = Box::new(Rank5Tracker::with_config(&DEFAULT, config));
+        let mut rank4 = Box::new(Rank4Tracker::with_config(&UNCOUPLED, config));
+        let (mut lanes, mut differs_from_reference) = (0, false);
+        let mut reference = Box::new(stjpdacf::tracker::ReferenceTracker::new(&DEFAULT));
+        let tables = model.tables(&DEFAULT);
+        track_with(&frames, tables, &cam, Space::Bev, config, |v| {
+            let at = Instant::from_micros(frame_micros(v.frame));
+            let want = match model {
+                Model::Small => rank4.step(at, v.points),
+                _ => rank5.step(at, v.points),
+            }
+            .unwrap();
+            let got = v.output.unwrap();
+            assert_eq!(bits(got), bits(&want), "{model:?}, frame {}", v.index);
+            lanes += got.filtered.len() + got.smoothed.len();
+            let r = reference.step(at, v.points).unwrap();
+            differs_from_reference |= bits(&r) != bits(got);
+        })
+        .unwrap();
+        assert!(lanes > 300, "{model:?}: {lanes} lanes compared");
+        assert!(differs_from_reference, "{model:?} runs the reference model");
+    }
+}
+
+/// `track --model`: the rank-5 and small models find the clip's two lanes, with their own
+/// numbers (not the reference model's); `small` refuses a hyperparameter file.
+#[test]
+fn track_cli_models() {
+    let d = temp_dir("models");
+    let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
+    let frames = bev_clip(&[-1.8, 1.8], 80.0, 6, &rows);
+    let fpath = d.join("f.jsonl");
+    write_frames(&fpath, &frames).unwrap();
+    let last_lanes = |model: &str| {
+        let (p, l) = (
+            d.join(format!("p_{model}.jsonl")),
+            d.join(format!("l_{model}.jsonl")),
+        );
+        let extra: [&std::ffi::OsStr; 6] = [
+            "--space".as_ref(),
+            "bev".as_ref(),
+            "--model".as_ref(),
+            model.as_ref(),
+            "--lanes".as_ref(),
+            l.as_ref(),
+        ];
+        assert_success(&run_track(&fpath, &p, &extra));
+        let recs: Vec<stjpdacf_tools::track::LanesFrame> =
+            stjpdacf_tools::tusimple::read_jsonl(&l).unwrap();
+        recs.last().unwrap().lanes.clone()
+    };
+    let reference = last_lanes("reference");
+    for model in ["rank5", "small"] {
+        let lanes = last_lanes(model);
+        assert_eq!(lanes.len(), 2, "{model}: {lanes:?}");
+        for (lane, x) in lanes.iter().zip([-1.8, 1.8]) {
+            assert!(
+                lane.x.iter().all(|v| (v - x).abs() < 0.3),
+                "{model}: {lane:?}"
+            );
+        }
+        let var = |ls: &[stjpdacf_tools::track::LaneRecord]| -> Vec<Vec<f64>> {
+            ls.iter().map(|l| l.var.clone()).collect()
+        };
+        assert_ne!(
+            var(&lanes),
+            var(&reference),
+            "{model} ran the reference model"
+        );
+    }
+    let hyper = repo_root().join(tablegen::DEFAULT_HYPER);
+    let extra: [&std::ffi::OsStr; 4] = [
+        "--model".as_ref(),
+        "small".as_ref(),
+        "--hyper".as_ref(),
+        hyper.as_ref(),
+    ];
+    let o = run_track(&fpath, &d.join("p.jsonl"), &extra);
+    assert_failure_mentions(&o, "leave out --hyper");
+    std::fs::remove_dir_all(&d).unwrap();
+}
