@@ -576,6 +576,14 @@ fn main() -> Result<()> {
                      --every-frame writes one for every frame)"
                 );
             }
+            if stats.repaired_frames > 0 {
+                eprintln!(
+                    "({} frames with a repair of the f32 temporal covariance: rounding had made \
+                     it indefinite, docs/design.md §4.2.4; frequent on near-identical frames, \
+                     a stopped vehicle, see Known limits in the README)",
+                    stats.repaired_frames
+                );
+            }
         }
         Command::Kernels => {
             print!(

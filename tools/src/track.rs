@@ -66,6 +66,9 @@ pub struct TrackStats {
     pub known_pruned_rows: u64,
     /// Known-lane rows weighed by LBP, over all frames.
     pub known_lbp_rows: u64,
+    /// Frames on which the tracker repaired its temporal covariance (f32 rounding had made it
+    /// indefinite: `StepReport::temporal_cov_repairs` > 0, docs/design.md §4.2.4).
+    pub repaired_frames: usize,
 }
 
 impl TrackStats {
@@ -113,6 +116,10 @@ impl TrackStats {
         self.predictions += o.predictions;
         self.unmapped_points += o.unmapped_points;
         self.rejected_steps += o.rejected_steps;
+        self.known_events += o.known_events;
+        self.known_pruned_rows += o.known_pruned_rows;
+        self.known_lbp_rows += o.known_lbp_rows;
+        self.repaired_frames += o.repaired_frames;
     }
 
     /// Sets the means from the run's sums.
@@ -795,6 +802,7 @@ pub fn track_with(
                 stats.known_events += u64::from(kr.events);
                 stats.known_pruned_rows += u64::from(kr.pruned_rows);
                 stats.known_lbp_rows += u64::from(kr.lbp_rows);
+                stats.repaired_frames += usize::from(o.report.temporal_cov_repairs > 0);
                 Some(o)
             }
             Err(_) => {

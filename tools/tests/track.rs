@@ -809,3 +809,46 @@ fn track_cli_models() {
     assert_failure_mentions(&o, "leave out --hyper");
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// `TrackStats::repaired_frames` counts the frames whose step report says the temporal
+/// covariance was repaired: a real frame's feature points (0313-1/25440, the bundled image)
+/// given 20 times, the stopped-vehicle case of docs/measurements.md where f32 rounding breaks
+/// the covariance on many frames.
+#[test]
+fn track_counts_the_frames_with_a_covariance_repair() {
+    use stjpdacf_tools::frontend::{detect, load_rgb, FrontendParams};
+    let dir = repo_root().join("data/tusimple/sample_512x288");
+    let img = load_rgb(&dir.join("clips/0313-1/25440/20.jpg")).unwrap();
+    let cam = Camera::tusimple().scaled(0.4);
+    let points: Vec<[f64; 2]> = detect(&img, &cam, &FrontendParams::default())
+        .unwrap()
+        .iter()
+        .filter_map(|q| cam.to_bev(q[0], q[1]))
+        .map(|(u, x)| [x, u])
+        .collect();
+    assert!(points.len() > 50, "{} points", points.len());
+    let frames: Vec<Frame> = (0..20)
+        .map(|k| Frame {
+            clip: "static".into(),
+            t: f64::from(k) * 0.05,
+            points: points.clone(),
+            raw_file: None,
+            h_samples: None,
+            camera: None,
+        })
+        .collect();
+    let mut seen = 0;
+    let (_, stats) = track_with(
+        &frames,
+        &DEFAULT,
+        &cam,
+        Space::Bev,
+        TrackerConfig::DEFAULT,
+        |v| {
+            seen += usize::from(v.output.is_some_and(|o| o.report.temporal_cov_repairs > 0));
+        },
+    )
+    .unwrap();
+    println!("{} of 20 frames repaired", stats.repaired_frames);
+    assert_eq!(stats.repaired_frames, seen);
+}
