@@ -315,7 +315,10 @@ const SMALL_CONFIG: TrackerConfig = TrackerConfig {
 trait Model: Sized + 'static {
     /// The Rust tracker.
     type T;
-    /// The all-zero handle (see [`ZEROED`]).
+    /// The all-zero handle (`magic` 0, the tracker's `UNINIT`): [`stjpdacf_init`] writes it
+    /// into the caller's buffer, which compiles to a `memset`, then initialises the tracker in
+    /// place. Neither the value (~148 KB for the reference model) nor an image of it exists
+    /// anywhere else (not on the stack, not in flash).
     const ZEROED: Self;
     /// The buffer size the C caller must give.
     const SIZE: usize;
@@ -331,98 +334,67 @@ trait Model: Sized + 'static {
     fn lane_at(t: &Self::T, slot: usize, u: f32) -> Option<(f32, f32)>;
 }
 
-impl Model for stjpdacf_tracker {
-    type T = ReferenceTracker;
-    const ZEROED: Self = ZEROED;
-    const SIZE: usize = STJPDACF_TRACKER_SIZE;
-    fn handle(&self) -> &Handle<ReferenceTracker> {
-        &self.h
-    }
-    fn handle_mut(&mut self) -> &mut Handle<ReferenceTracker> {
-        &mut self.h
-    }
-    fn start(t: &mut ReferenceTracker) {
-        t.init(&DEFAULT, TrackerConfig::DEFAULT);
-    }
-    fn step(
-        t: &mut ReferenceTracker,
-        now: Instant,
-        pts: &[[f32; 2]],
-    ) -> Result<StepOutput<STJPDACF_MAX_LANES, STJPDACF_INDEX_POINTS>, StepError> {
-        t.step(now, pts)
-    }
-    fn lane_at(t: &ReferenceTracker, slot: usize, u: f32) -> Option<(f32, f32)> {
-        t.lane_at(slot, u)
-    }
+/// `impl Model for $handle`: the Rust tracker `$tracker`, started on `$tables` with `$config`,
+/// in a buffer of `$size` bytes (one implementation for the three models).
+macro_rules! model {
+    ($handle:ident, $tracker:ty, $tables:expr, $config:expr, $size:expr) => {
+        impl Model for $handle {
+            type T = $tracker;
+            const ZEROED: Self = $handle {
+                h: Handle {
+                    magic: 0,
+                    tracker: <$tracker>::UNINIT,
+                    filtered: [NO_LANE; STJPDACF_MAX_LANES],
+                    smoothed: [NO_LANE; STJPDACF_MAX_LANES],
+                    n_filtered: 0,
+                    n_smoothed: 0,
+                },
+            };
+            const SIZE: usize = $size;
+            fn handle(&self) -> &Handle<$tracker> {
+                &self.h
+            }
+            fn handle_mut(&mut self) -> &mut Handle<$tracker> {
+                &mut self.h
+            }
+            fn start(t: &mut $tracker) {
+                t.init($tables, $config);
+            }
+            fn step(
+                t: &mut $tracker,
+                now: Instant,
+                pts: &[[f32; 2]],
+            ) -> Result<StepOutput<STJPDACF_MAX_LANES, STJPDACF_INDEX_POINTS>, StepError> {
+                t.step(now, pts)
+            }
+            fn lane_at(t: &$tracker, slot: usize, u: f32) -> Option<(f32, f32)> {
+                t.lane_at(slot, u)
+            }
+        }
+    };
 }
 
-impl Model for stjpdacf_small_tracker {
-    type T = Rank4Tracker;
-    const ZEROED: Self = stjpdacf_small_tracker {
-        h: Handle {
-            magic: 0,
-            tracker: Rank4Tracker::UNINIT,
-            filtered: [NO_LANE; STJPDACF_MAX_LANES],
-            smoothed: [NO_LANE; STJPDACF_MAX_LANES],
-            n_filtered: 0,
-            n_smoothed: 0,
-        },
-    };
-    const SIZE: usize = STJPDACF_SMALL_TRACKER_SIZE;
-    fn handle(&self) -> &Handle<Rank4Tracker> {
-        &self.h
-    }
-    fn handle_mut(&mut self) -> &mut Handle<Rank4Tracker> {
-        &mut self.h
-    }
-    fn start(t: &mut Rank4Tracker) {
-        t.init(&UNCOUPLED, SMALL_CONFIG);
-    }
-    fn step(
-        t: &mut Rank4Tracker,
-        now: Instant,
-        pts: &[[f32; 2]],
-    ) -> Result<StepOutput<STJPDACF_MAX_LANES, STJPDACF_INDEX_POINTS>, StepError> {
-        t.step(now, pts)
-    }
-    fn lane_at(t: &Rank4Tracker, slot: usize, u: f32) -> Option<(f32, f32)> {
-        t.lane_at(slot, u)
-    }
-}
-
-impl Model for stjpdacf_rank5_tracker {
-    type T = Rank5Tracker;
-    const ZEROED: Self = stjpdacf_rank5_tracker {
-        h: Handle {
-            magic: 0,
-            tracker: Rank5Tracker::UNINIT,
-            filtered: [NO_LANE; STJPDACF_MAX_LANES],
-            smoothed: [NO_LANE; STJPDACF_MAX_LANES],
-            n_filtered: 0,
-            n_smoothed: 0,
-        },
-    };
-    const SIZE: usize = STJPDACF_RANK5_TRACKER_SIZE;
-    fn handle(&self) -> &Handle<Rank5Tracker> {
-        &self.h
-    }
-    fn handle_mut(&mut self) -> &mut Handle<Rank5Tracker> {
-        &mut self.h
-    }
-    fn start(t: &mut Rank5Tracker) {
-        t.init(&DEFAULT, TrackerConfig::DEFAULT);
-    }
-    fn step(
-        t: &mut Rank5Tracker,
-        now: Instant,
-        pts: &[[f32; 2]],
-    ) -> Result<StepOutput<STJPDACF_MAX_LANES, STJPDACF_INDEX_POINTS>, StepError> {
-        t.step(now, pts)
-    }
-    fn lane_at(t: &Rank5Tracker, slot: usize, u: f32) -> Option<(f32, f32)> {
-        t.lane_at(slot, u)
-    }
-}
+model!(
+    stjpdacf_tracker,
+    ReferenceTracker,
+    &DEFAULT,
+    TrackerConfig::DEFAULT,
+    STJPDACF_TRACKER_SIZE
+);
+model!(
+    stjpdacf_small_tracker,
+    Rank4Tracker,
+    &UNCOUPLED,
+    SMALL_CONFIG,
+    STJPDACF_SMALL_TRACKER_SIZE
+);
+model!(
+    stjpdacf_rank5_tracker,
+    Rank5Tracker,
+    &DEFAULT,
+    TrackerConfig::DEFAULT,
+    STJPDACF_RANK5_TRACKER_SIZE
+);
 
 const NO_LANE: stjpdacf_lane = stjpdacf_lane {
     id: 0,
@@ -435,21 +407,6 @@ const NO_LANE: stjpdacf_lane = stjpdacf_lane {
     misses: 0,
     age: 0,
     hits: 0,
-};
-
-/// An all-zero handle (`magic` 0, [`ReferenceTracker::UNINIT`]): [`stjpdacf_init`] writes it
-/// into the caller's buffer, which compiles to a `memset`, then initialises the tracker in place.
-/// Neither the ~148 KB value nor an image of it exists anywhere else (not on the stack, not in
-/// flash).
-const ZEROED: stjpdacf_tracker = stjpdacf_tracker {
-    h: Handle {
-        magic: 0,
-        tracker: ReferenceTracker::UNINIT,
-        filtered: [NO_LANE; STJPDACF_MAX_LANES],
-        smoothed: [NO_LANE; STJPDACF_MAX_LANES],
-        n_filtered: 0,
-        n_smoothed: 0,
-    },
 };
 
 /// Checks a tracker pointer: non-null, aligned, initialised.

@@ -112,6 +112,17 @@ fn bev_clip(xs: &[f64], u_far: f64, frames: usize, rows: &[f64]) -> Vec<Frame> {
         .collect()
 }
 
+/// A temporary folder `tag` holding `f.jsonl`: a clip of `frames` frames of the two straight
+/// BEV lanes at ±1.8 m (`bev_clip`), its last frame labelled at `rows`. Returns the folder, the
+/// frames file and the frames.
+fn two_lane_clip_file(tag: &str, frames: usize, rows: &[f64]) -> (PathBuf, PathBuf, Vec<Frame>) {
+    let d = temp_dir(tag);
+    let clip = bev_clip(&[-1.8, 1.8], 80.0, frames, rows);
+    let fpath = d.join("f.jsonl");
+    write_frames(&fpath, &clip).unwrap();
+    (d, fpath, clip)
+}
+
 /// Lanes are written at every h_samples row of the window, through the inverse IPM, and −2
 /// beyond its far end (no evidence there) and outside the lane's extent.
 #[test]
@@ -565,11 +576,8 @@ fn track_cli_draws_overlays_on_the_images() {
 /// `clip/k`, and a labelled frame keeps its own rows and name.
 #[test]
 fn track_cli_every_frame_predicts_unlabelled_frames() {
-    let d = temp_dir("every");
     let rows: Vec<f64> = (0..48).map(|i| 96.0 + 4.0 * f64::from(i)).collect();
-    let frames = bev_clip(&[-1.8, 1.8], 80.0, 4, &rows);
-    let fpath = d.join("f.jsonl");
-    write_frames(&fpath, &frames).unwrap();
+    let (d, fpath, _) = two_lane_clip_file("every", 4, &rows);
     let (p1, p2) = (d.join("p1.jsonl"), d.join("p2.jsonl"));
     let bev: [&std::ffi::OsStr; 4] = [
         "--space".as_ref(),
@@ -611,11 +619,8 @@ fn track_cli_every_frame_predicts_unlabelled_frames() {
 /// frame, the same ids from frame to frame for the same markings.
 #[test]
 fn track_cli_lanes_file_carries_ids() {
-    let d = temp_dir("lanes");
     let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
-    let frames = bev_clip(&[-1.8, 1.8], 80.0, 7, &rows);
-    let fpath = d.join("f.jsonl");
-    write_frames(&fpath, &frames).unwrap();
+    let (d, fpath, frames) = two_lane_clip_file("lanes", 7, &rows);
     let (p, l) = (d.join("p.jsonl"), d.join("l.jsonl"));
     let o = run_track(
         &fpath,
@@ -756,11 +761,8 @@ fn models_run_as_the_trackers_compiled_for_them() {
 /// numbers (not the reference model's); `small` refuses a hyperparameter file.
 #[test]
 fn track_cli_models() {
-    let d = temp_dir("models");
     let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
-    let frames = bev_clip(&[-1.8, 1.8], 80.0, 6, &rows);
-    let fpath = d.join("f.jsonl");
-    write_frames(&fpath, &frames).unwrap();
+    let (d, fpath, _) = two_lane_clip_file("models", 6, &rows);
     let last_lanes = |model: &str| {
         let (p, l) = (
             d.join(format!("p_{model}.jsonl")),
