@@ -12,7 +12,11 @@
  * clustering: host-side work a front end does before the MCU) and the image rows at which a
  * prediction is due. This program does what an integrator's C code does: one tracker in a
  * caller-owned buffer, `stjpdacf_init` per clip, `stjpdacf_step` per frame, and the lanes
- * evaluated back into the image with `stjpdacf_lane_at` (the rules of `track::lane_x`). */
+ * evaluated back into the image with `stjpdacf_lane_at` (the rules of `track::lane_x`).
+ *
+ * With -DSTJPDACF_EXAMPLE_RANK5 it runs the rank-5 model (stjpdacf_rank5_*), with
+ * -DSTJPDACF_EXAMPLE_SMALL the small one (stjpdacf_small_*): compare with `stjpdacf track
+ * --model rank5` / `--model small` (CI does all three). */
 #define _POSIX_C_SOURCE 199309L /* clock_gettime */
 #include <inttypes.h>
 #include <math.h>
@@ -23,12 +27,32 @@
 
 #include "stjpdacf.h"
 
+#if defined(STJPDACF_EXAMPLE_SMALL)
+#define TRACKER stjpdacf_small_tracker
+#define TRACKER_SIZE STJPDACF_SMALL_TRACKER_SIZE
+#define TRACKER_INIT stjpdacf_small_init
+#define TRACKER_STEP stjpdacf_small_step
+#define TRACKER_LANE_AT stjpdacf_small_lane_at
+#elif defined(STJPDACF_EXAMPLE_RANK5)
+#define TRACKER stjpdacf_rank5_tracker
+#define TRACKER_SIZE STJPDACF_RANK5_TRACKER_SIZE
+#define TRACKER_INIT stjpdacf_rank5_init
+#define TRACKER_STEP stjpdacf_rank5_step
+#define TRACKER_LANE_AT stjpdacf_rank5_lane_at
+#else
+#define TRACKER stjpdacf_tracker
+#define TRACKER_SIZE STJPDACF_TRACKER_SIZE
+#define TRACKER_INIT stjpdacf_init
+#define TRACKER_STEP stjpdacf_step
+#define TRACKER_LANE_AT stjpdacf_lane_at
+#endif
+
 /* Lanes not seen for more frames than this are not written (`track::MAX_REPORT_MISSES`). */
 #define MAX_REPORT_MISSES 2u
 #define NO_POINT (-2.0)
 
 /* The tracker's memory: caller-owned, no allocation inside the library. */
-static _Alignas(STJPDACF_TRACKER_ALIGN) unsigned char memory[STJPDACF_TRACKER_SIZE];
+static _Alignas(STJPDACF_TRACKER_ALIGN) unsigned char memory[TRACKER_SIZE];
 
 typedef struct {
     double width, height, vp_col, vp_row, height_m, focal_px;
@@ -64,7 +88,7 @@ static int row_to_u(const camera *c, double row, double *u) {
 /* Where lane `l` is at `u` metres ahead (`track::lane_x`): the tracker's GP inside the window,
  * the line through the two nearest index points nearer than it, nothing beyond the window's far
  * end (no evidence there) or outside the observed extent (one index interval of margin). */
-static int lane_x(stjpdacf_tracker *t, const stjpdacf_lane *l, double u, double *x) {
+static int lane_x(TRACKER *t, const stjpdacf_lane *l, double u, double *x) {
     double u_min = model.u_min, u_max = model.u_max;
     double interval = (u_max - u_min) / 15.0;
     double first = l->u_first, last = l->u_last;
@@ -74,7 +98,7 @@ static int lane_x(stjpdacf_tracker *t, const stjpdacf_lane *l, double u, double 
     if (!reported) return 0;
     if (u >= u_min && u <= u_max) {
         float xf;
-        if (stjpdacf_lane_at(t, l->slot, (float)u, &xf, NULL) != STJPDACF_OK) return 0;
+        if (TRACKER_LANE_AT(t, l->slot, (float)u, &xf, NULL) != STJPDACF_OK) return 0;
         *x = xf;
         return 1;
     }
@@ -107,7 +131,7 @@ int main(int argc, char **argv) {
         die("bad camera line");
     if (stjpdacf_model_info(&model) != STJPDACF_OK) die("stjpdacf_model_info");
 
-    stjpdacf_tracker *t = NULL;
+    TRACKER *t = NULL;
     long clip = -1, next_clip;
     int64_t time_us;
     size_t n_points, n_rows, cap_points = 0, cap_rows = 0;
@@ -141,7 +165,7 @@ int main(int argc, char **argv) {
         for (size_t k = 0; k < n_rows; k++)
             if (fscanf(in, "%lf", &rows[k]) != 1) die("bad row");
         if (next_clip != clip) { /* a new clip: a fresh tracker in the same memory */
-            if (stjpdacf_init(memory, sizeof memory, &t) != STJPDACF_OK) die("stjpdacf_init");
+            if (TRACKER_INIT(memory, sizeof memory, &t) != STJPDACF_OK) die("stjpdacf_init");
             clip = next_clip;
             clips++;
         }
@@ -149,7 +173,7 @@ int main(int argc, char **argv) {
         double start = now_ms();
         stjpdacf_report rep;
         stjpdacf_status st =
-            stjpdacf_step(t, time_us, points, n_points, lanes, STJPDACF_MAX_LANES, &rep);
+            TRACKER_STEP(t, time_us, points, n_points, lanes, STJPDACF_MAX_LANES, &rep);
         if (st == STJPDACF_NON_INCREASING_TIME) {
             rejected++;
             continue;

@@ -6,7 +6,8 @@
 //!    when no nightly toolchain with rust-src is installed);
 //! 3. the host C example (`capi/examples/track.c`) writes the same predictions as
 //!    `stjpdacf track` on the bundled replay (mid noise, 40 clips): identical lanes, only
-//!    `run_time` differs;
+//!    `run_time` differs; for each of the three models (`--model`, `-DSTJPDACF_EXAMPLE_RANK5`,
+//!    `-DSTJPDACF_EXAMPLE_SMALL`);
 //! 4. the Cortex-M4F C example (`capi/examples/m4f`), built with `arm-none-eabi-gcc` and run under
 //!    the firmware's QEMU machine, prints the same lanes as the Rust firmware's `lanes_typical`
 //!    on the same frames; its link keeps no panic path (no `rust_begin_unwind`); the sizes and
@@ -271,58 +272,73 @@ fn host_example() -> Result<()> {
         "--noise",
         "mid",
     ])?;
-    tools(&[
-        "track",
-        "--frames",
-        &p("frames.jsonl"),
-        "--out",
-        &p("pred-rust.json"),
-        "--export-points",
-        &p("points.txt"),
-    ])?;
     let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
-    run(Command::new(cc)
-        .args([
-            "-std=c11",
-            "-O2",
-            "-Wall",
-            "-Wextra",
-            "-Werror",
-            "-ffp-contract=off",
-        ])
-        .args(["-Icapi/include", "capi/examples/track.c"])
-        .arg("target/release/libstjpdacf_capi.a")
-        .args(HOST_LIBS)
-        .arg("-o")
-        .arg(p("track_c")))?;
-    run(Command::new(p("track_c"))
-        .arg(p("points.txt"))
-        .arg(p("pred-c.json")))?;
-    let (rust, rust_ms) = read_predictions(&d.join("pred-rust.json"))?;
-    let (c, c_ms) = read_predictions(&d.join("pred-c.json"))?;
-    ensure!(
-        rust.len() == c.len() && !rust.is_empty(),
-        "{} predictions from `stjpdacf track`, {} from the C example",
-        rust.len(),
-        c.len()
-    );
-    let differ: Vec<&str> = rust
-        .iter()
-        .zip(&c)
-        .filter(|(a, b)| a != b)
-        .map(|(a, _)| a.raw_file.as_str())
-        .collect();
-    ensure!(
-        differ.is_empty(),
-        "the C example's lanes differ from `stjpdacf track` on {} frame(s), first {}",
-        differ.len(),
-        differ.first().copied().unwrap_or_default()
-    );
-    println!(
-        "host C example: {} predictions, lanes identical to `stjpdacf track` (run_time mean \
-         {c_ms:.3} ms vs {rust_ms:.3} ms)",
-        c.len()
-    );
+    // The three models: `stjpdacf track --model` and the C example built for the same one.
+    for (model, define) in [
+        ("reference", None),
+        ("rank5", Some("-DSTJPDACF_EXAMPLE_RANK5")),
+        ("small", Some("-DSTJPDACF_EXAMPLE_SMALL")),
+    ] {
+        let (rust_file, c_file, points) = (
+            format!("pred-rust-{model}.json"),
+            format!("pred-c-{model}.json"),
+            format!("points-{model}.txt"),
+        );
+        tools(&[
+            "track",
+            "--frames",
+            &p("frames.jsonl"),
+            "--out",
+            &p(&rust_file),
+            "--model",
+            model,
+            "--export-points",
+            &p(&points),
+        ])?;
+        let exe = p(&format!("track_c_{model}"));
+        run(Command::new(&cc)
+            .args([
+                "-std=c11",
+                "-O2",
+                "-Wall",
+                "-Wextra",
+                "-Werror",
+                "-ffp-contract=off",
+            ])
+            .args(define)
+            .args(["-Icapi/include", "capi/examples/track.c"])
+            .arg("target/release/libstjpdacf_capi.a")
+            .args(HOST_LIBS)
+            .arg("-o")
+            .arg(&exe))?;
+        run(Command::new(&exe).arg(p(&points)).arg(p(&c_file)))?;
+        let (rust, rust_ms) = read_predictions(&d.join(&rust_file))?;
+        let (c, c_ms) = read_predictions(&d.join(&c_file))?;
+        ensure!(
+            rust.len() == c.len() && !rust.is_empty(),
+            "{model}: {} predictions from `stjpdacf track`, {} from the C example",
+            rust.len(),
+            c.len()
+        );
+        let differ: Vec<&str> = rust
+            .iter()
+            .zip(&c)
+            .filter(|(a, b)| a != b)
+            .map(|(a, _)| a.raw_file.as_str())
+            .collect();
+        ensure!(
+            differ.is_empty(),
+            "{model}: the C example's lanes differ from `stjpdacf track --model {model}` on {} \
+             frame(s), first {}",
+            differ.len(),
+            differ.first().copied().unwrap_or_default()
+        );
+        println!(
+            "host C example ({model} model): {} predictions, lanes identical to `stjpdacf track \
+             --model {model}` (run_time mean {c_ms:.3} ms vs {rust_ms:.3} ms)",
+            c.len()
+        );
+    }
     Ok(())
 }
 
