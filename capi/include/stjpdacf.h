@@ -278,9 +278,10 @@ typedef struct stjpdacf_step_report {
   // Lane updates whose pseudo-measurement covariance was not positive definite and was
   // repaired (see [`crate::temporal::filter::TemporalFilter::update`]).
   uint32_t pseudo_cov_repairs;
-  // Pivots of the temporal covariance raised after this frame's lane updates because f32
-  // rounding had made it indefinite (see
-  // [`crate::temporal::filter::TemporalFilter::repair_covariance`]; 0 on almost every frame).
+  // Factorisations of the temporal covariance (and of the smoother's lag blocks) that failed
+  // after this frame's lane updates because f32 rounding had made it indefinite, each followed
+  // by a larger shift (see [`crate::temporal::filter::TemporalFilter::repair_covariance`]; 0
+  // on almost every frame: nothing was changed).
   uint32_t temporal_cov_repairs;
   // The known-lane stage's counters (all 0 when it is off).
   struct stjpdacf_known_report known;

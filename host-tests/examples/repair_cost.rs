@@ -29,5 +29,5 @@ fn main() {
     }
     let due = t.filter().repair_due();
     let raised = std::hint::black_box(&mut t).repair_covariance(&DEFAULT);
-    println!("repair due {due}, {raised} pivots raised");
+    println!("repair due {due}, {raised} failed factorisations");
 }

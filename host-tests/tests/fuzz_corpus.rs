@@ -266,8 +266,8 @@ fn first_unrepaired_break(data: &[u8], check: PsdCheck) -> Option<f32> {
 /// 1e-10..1e-6) leaves about two significant digits, and a posterior that is nearly singular in
 /// correlation form came out indefinite (eigenvalue −0.77 in correlation form, a variance of
 /// −4.1e-5; the smoother's lag blocks likewise). The tracker now repairs the filter covariance and
-/// the lag blocks once per frame after its updates (modified LDLᵀ in correlation form, variances
-/// only inflated, counted in `StepReport::temporal_cov_repairs`); the target does so after every
+/// the lag blocks once per frame after its updates (the smallest shift of the correlation form
+/// that factors, variances only inflated, counted in `StepReport::temporal_cov_repairs`); the target does so after every
 /// update. The inputs must still break the unrepaired update (so that this test keeps testing
 /// the repair) and must pass with it.
 #[test]

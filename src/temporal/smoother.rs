@@ -483,13 +483,15 @@ impl<
 
     /// Repairs the filter's covariance and every lagged lane's covariance block where f32
     /// rounding made them indefinite ([`TemporalFilter::repair_covariance`]: the lag blocks
-    /// `Σ_j −= K_j M K_jᵀ` cancel as the filter's covariance does); returns the pivots raised.
-    /// Call it once per frame after the lane updates (the tracker does). Like the filter's, it
-    /// runs when a lane was updated since the last call (the same updates move the lag blocks).
+    /// `Σ_j −= K_j M K_jᵀ` cancel as the filter's covariance does); returns the factorisations
+    /// that failed. Call it once per frame after the lane updates (the tracker does). Like the
+    /// filter's, it runs when a lane was updated since the last call (the same updates move the
+    /// lag blocks).
     ///
     /// # Complexity
-    /// `n³/6` multiply-adds for the filter (`n = 2r·lanes`) plus `LAG·lanes·r³/6`
-    /// for the window.
+    /// `n³/6` multiply-adds for the filter (`n = 2r·lanes`) plus `LAG·lanes·r³/6` for the
+    /// window, per factorisation: one each on a healthy covariance, at most
+    /// [`crate::temporal::filter::REPAIR_ATTEMPTS`] each.
     pub fn repair_covariance<const NT: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,

@@ -50,7 +50,7 @@ fn main() -> anyhow::Result<()> {
         .iter()
         .map(|g| demo::scale_record(g, REAL_TO_TUSIMPLE))
         .collect();
-    println!("| clip | pitch amplitude A (px at 512×288) | accuracy / FP / FN | tuning half | held-out half | frames with a covariance repair (pivots raised) | lanes merged |");
+    println!("| clip | pitch amplitude A (px at 512×288) | accuracy / FP / FN | tuning half | held-out half | frames with a covariance repair (failed factorisations) | lanes merged |");
     println!("|---|---|---|---|---|---|---|");
     for (frames_per_clip, amp) in [
         (1, 0.0),
@@ -93,7 +93,7 @@ fn main() -> anyhow::Result<()> {
         ) {
             stjpdacf_tools::tusimple::write_frames(std::path::Path::new(&path), &frames)?;
         }
-        // Frames whose temporal covariance the tracker repaired (pivots raised), and the lanes
+        // Frames whose temporal covariance the tracker repaired (failed factorisations), and the lanes
         // it merged as duplicates of another.
         let (mut repaired, mut pivots, mut merged) = (0usize, 0u64, 0u64);
         let (preds, _) = track::track_with(

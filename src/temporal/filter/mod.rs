@@ -203,6 +203,10 @@ const SAFE: f32 = 1e30;
 /// well below any correlation structure the model produces on purpose.
 pub const REPAIR_PIVOT: f32 = 1e-4;
 
+/// Factorisations [`TemporalFilter::repair_covariance`] tries before it takes the Gershgorin
+/// shift (which needs none): its worst case is this many `n³/6` factorisations.
+pub const REPAIR_ATTEMPTS: u8 = 6;
+
 /// `sqrt(Σ v²)`, a bound on every `|v|` (infinite or NaN when some value is not finite).
 fn norm_bound(v: &[f32]) -> f32 {
     math::sqrt(v.iter().map(|x| x * x).sum::<f32>())
