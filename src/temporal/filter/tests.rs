@@ -118,3 +118,76 @@ fn information_update_matches_the_innovation_form() {
         b.w
     );
 }
+
+/// The repair inflates every variance of a block by one factor (`1 + τ`, design §4.2.4), the
+/// smallest of its ladder that factors: no single coefficient takes the correction, so a lane
+/// known at its index points through correlated coefficients stays known there.
+#[test]
+fn repair_inflates_a_block_by_one_factor() {
+    let s = [1e-3f32, 2e-1, 5.0, 3e-4];
+    // Correlations 0.6 and one pair at 0.999 with a third at −0.9 to both: slightly indefinite.
+    let rho = |i: usize, j: usize| -> f32 {
+        match (i.min(j), i.max(j)) {
+            (a, b) if a == b => 1.0,
+            (0, 1) => 0.999,
+            (0, 2) | (1, 2) => -0.9,
+            _ => 0.6,
+        }
+    };
+    let mut p = SMatrix::<f32, 4, 4>::from_fn(|i, j| rho(i, j) * (s[i] * s[j]).sqrt());
+    let before = p;
+    let e0 = min_eig_corr(&p);
+    assert!(e0 < 0.0, "{e0}");
+    assert!(repair_psd::<4>(p.as_mut_slice(), 4, core::slice::from_ref(&(0..4))) > 0);
+    assert!(min_eig_corr(&p) > 0.0, "{}", min_eig_corr(&p));
+    let f0 = p[(0, 0)] / before[(0, 0)];
+    for i in 0..4 {
+        let f = p[(i, i)] / before[(i, i)];
+        assert!((f - f0).abs() <= 1e-5 * f0, "{i}: {f} vs {f0}");
+        for j in 0..4 {
+            if i != j {
+                assert_eq!(p[(i, j)], before[(i, j)]);
+            }
+        }
+    }
+    // The shift is of the order of what the matrix needs (its eigenvalue −e0), not more than
+    // the ladder's last step (eightfold) above it.
+    let tau = f64::from(f0) - 1.0;
+    assert!(
+        tau > -e0 && tau < 16.0 * (-e0 + f64::from(REPAIR_PIVOT)),
+        "τ {tau}, λ {e0}"
+    );
+}
+
+/// One lane's broken block is repaired by shifting that lane only: the other lane's variances do
+/// not move (coupled covariance, so the whole-covariance check runs too).
+#[test]
+fn repair_shifts_only_the_broken_lane() {
+    use crate::tables::DEFAULT;
+    let mut f = TemporalFilter::<6, 16, 7, 84>::new();
+    f.start_lane(&DEFAULT, 0, 0, &[0; 6]).unwrap();
+    f.start_lane(&DEFAULT, 1, 1, &[0, 1, 0, 0, 0, 0]).unwrap();
+    f.force_coupled_loops();
+    // Lane 0's first two position coefficients correlated beyond 1: its own block indefinite.
+    let (a, b) = (
+        TemporalFilter::<6, 16, 7, 84>::index(0, 0, 0),
+        TemporalFilter::<6, 16, 7, 84>::index(0, 1, 0),
+    );
+    let c = 1.5 * (f.p[(a, a)] * f.p[(b, b)]).sqrt();
+    f.p[(a, b)] = c;
+    f.p[(b, a)] = c;
+    let before = f.p;
+    f.repair_due = true;
+    assert!(f.repair_covariance(&DEFAULT) > 0);
+    let lane = |s: usize| (0..14).map(move |k| s * 14 + k);
+    for i in lane(1) {
+        assert_eq!(f.p[(i, i)], before[(i, i)], "lane 1, entry {i}");
+    }
+    assert!(lane(0).all(|i| f.p[(i, i)] > before[(i, i)]));
+    let idx: Vec<usize> = lane(0).chain(lane(1)).collect();
+    let m = SMatrix::<f64, 28, 28>::from_fn(|i, j| {
+        let (pi, pj) = (idx[i], idx[j]);
+        f64::from(f.p[(pi, pj)]) / (f64::from(f.p[(pi, pi)]) * f64::from(f.p[(pj, pj)])).sqrt()
+    });
+    assert!(m.symmetric_eigenvalues().min() > 0.0);
+}
