@@ -56,10 +56,12 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// # Complexity
     /// `n³/6` multiply-adds per factorisation for `n = 2r·lanes` active state entries (98 k at 6
     /// lanes, rank 7), on the lower triangle of `P` in place (the upper one keeps the original,
-    /// mirrored back): no stack copy of `P`. One factorisation on every frame with a lane update;
-    /// on a frame that needs the shift, one more per rung of the ladder (two or three on the
-    /// frames measured), at most [`REPAIR_ATTEMPTS`] (6, 593 k at 6 lanes) and `n²` for the
-    /// Gershgorin bound.
+    /// mirrored back): no stack copy of `P`. Coupled, one factorisation of the whole on every
+    /// frame with a lane update (uncoupled, one of each lane's block, `(2r)³/6` = 457 each); on a
+    /// frame that fails it, each lane's block and then the whole again, each with up to
+    /// [`REPAIR_ATTEMPTS`] rungs of its ladder and `n²` for a Gershgorin bound: at most
+    /// `(1 + 6)·n³/6 + 6·lanes·(2r)³/6` = 708 k multiply-adds at 6 lanes, rank 7 (the stopped
+    /// vehicle's frames: 2.8 failed factorisations a repaired frame, most of single lanes).
     // Not inlined: its stack frame must not add to its caller's (stack budget).
     #[inline(never)]
     pub fn repair_covariance<const NT: usize>(&mut self, tables: &Tables<NT, LANES, POINTS>) -> u8 {
