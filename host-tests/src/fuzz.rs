@@ -356,7 +356,7 @@ impl Op {
                 };
                 (
                     format!(
-                        "update slot {s}, {n} points, variances {lo:e}..{hi:e}, {raised} pivots repaired"
+                        "update slot {s}, {n} points, variances {lo:e}..{hi:e}, {raised} failed factorisations repaired"
                     ),
                     res,
                 )
