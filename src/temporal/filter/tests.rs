@@ -191,3 +191,22 @@ fn repair_shifts_only_the_broken_lane() {
     });
     assert!(m.symmetric_eigenvalues().min() > 0.0);
 }
+
+/// A matrix far from PSD (correlations of 3) runs the whole ladder and takes the Gershgorin
+/// shift, which is positive definite without a factorisation: `REPAIR_ATTEMPTS` failures.
+#[test]
+fn repair_falls_back_to_the_gershgorin_shift() {
+    let s = [2.0f32, 0.5, 1e-2, 7.0];
+    let mut p =
+        SMatrix::<f32, 4, 4>::from_fn(|i, j| if i == j { 1.0 } else { 3.0 } * (s[i] * s[j]).sqrt());
+    let before = p;
+    assert!(min_eig_corr(&p) < -1.9);
+    let failed = repair_psd::<4>(p.as_mut_slice(), 4, core::slice::from_ref(&(0..4)));
+    assert_eq!(failed, REPAIR_ATTEMPTS);
+    assert!(min_eig_corr(&p) > 0.0, "{}", min_eig_corr(&p));
+    for i in 0..4 {
+        // 1 + τ_G with τ_G = 3·3 − 1 + REPAIR_PIVOT.
+        let f = p[(i, i)] / before[(i, i)];
+        assert!((f - (9.0 + REPAIR_PIVOT)).abs() < 1e-4, "{i}: {f}");
+    }
+}
