@@ -44,7 +44,8 @@ fn repair_makes_an_indefinite_covariance_psd_by_inflating_variances_only() {
     assert!(min_eig_corr(&p) > 0.0, "{}", min_eig_corr(&p));
     for i in 0..4 {
         assert!(p[(i, i)] >= before[(i, i)]);
-        // Bounded inflation (multipliers within ±1): at most a few times the variance.
+        // Bounded inflation (the ladder stops within eightfold of the shift needed): at most a
+        // few times the variance.
         assert!(p[(i, i)] <= 10.0 * before[(i, i)], "{i}: {}", p[(i, i)]);
         for j in 0..4 {
             if i != j {
