@@ -364,6 +364,9 @@ pub struct SoakSummary {
     pub min_eig_rel: f64,
     /// Temporal operations that failed numerically (state kept).
     pub temporal_failures: u64,
+    /// Frames on which the temporal covariance was repaired (its check failed:
+    /// `StepReport::temporal_cov_repairs > 0`, docs/design.md §4.2.4).
+    pub repaired_frames: u64,
     /// Spatial row updates that failed numerically.
     pub spatial_rows_failed: u64,
     /// Spatial backward passes that failed.
@@ -501,6 +504,7 @@ impl SoakSummary {
         self.min_eig_corr = self.min_eig_corr.min(o.min_eig_corr);
         self.min_eig_rel = self.min_eig_rel.min(o.min_eig_rel);
         self.temporal_failures += o.temporal_failures;
+        self.repaired_frames += o.repaired_frames;
         self.spatial_rows_failed += o.spatial_rows_failed;
         self.spatial_smoother_failed += o.spatial_smoother_failed;
         self.ids_created += o.ids_created;
@@ -733,6 +737,7 @@ pub fn run_drive(
             Ok(out) => {
                 let rep = &out.report;
                 s.temporal_failures += u64::from(rep.temporal_failures);
+                s.repaired_frames += u64::from(rep.temporal_cov_repairs > 0);
                 s.spatial_rows_failed += u64::from(rep.spatial.rows_failed);
                 s.spatial_smoother_failed += u64::from(rep.spatial.smoother_failed);
                 let minvar = out
