@@ -213,7 +213,7 @@ fn repair_slices(
         };
         let lift = math::max(2.0 * tau, tau + 2.0 * (REPAIR_PIVOT - d));
         let next = if lift <= most { lift } else { most };
-        if failed >= REPAIR_ATTEMPTS || !next.is_finite() {
+        if failed.saturating_sub(flipped) >= REPAIR_ATTEMPTS || !next.is_finite() {
             tau = gershgorin_shift(ps, ld, &scale);
             break;
         }
