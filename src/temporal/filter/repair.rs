@@ -314,8 +314,10 @@ fn shifted_ldl(
                 if let Some(x) = ps.get_mut(j + ld * j) {
                     *x -= at(col, b) * lb;
                 }
-                if let Some(both) = ps.get_mut(ld * j..ld * (j + 2)) {
-                    let (c0, c1) = both.split_at_mut(ld);
+                if let Some((c0, c1)) = ps
+                    .get_mut(ld * j..ld * (j + 2))
+                    .and_then(|both| both.split_at_mut_checked(ld))
+                {
                     let mut a0 = 0usize;
                     for rg in runs {
                         let a1 = a0 + rg.len();
