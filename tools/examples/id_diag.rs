@@ -6,13 +6,21 @@
 //! the clip frame and the lane's age at its first publication, and its existence then.
 //! `ID_DIAG_LIST=1` prints every false id with its frames, existence, age and hits, and the
 //! step report of the frame after its last publication (what removed it: the ray test,
-//! connectors, merges, a yielded slot).
+//! connectors, merges, a yielded slot). `ID_DIAG_OFF=cars,road_edge,shadows,clutter,merges`
+//! switches synth sources off (which source makes the never-true ids).
 //!
 //! `cargo run --release -p stjpdacf-tools --example id_diag [-- low|mid|high]` (default mid;
 //! `newcomer_wait=0` for the publication rule of before stop 44, `newcomer_wait=1` for stop 44's).
+//!
+//! `-- heldout [clutter=K] [noise=K] [segments=S]`: the same count on the second generator
+//! ([`heldout`]: held-out label geometry, no road edges and no vehicles; clutter density × K,
+//! column noise × K, S fixed segments a clip: the demo's held-out conditions are clutter=1, 2,
+//! 4, 8, segments=8, noise=2, 4), which gives ground truth for each clip's last frame only: lane ids
+//! per clip against the label's lanes, and how many of them the last frame matched to a label.
 use std::collections::{BTreeMap, HashMap};
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::heldout::{self, HeldoutParams};
 use stjpdacf_tools::metric;
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
 use stjpdacf_tools::track::{self, Space, MAX_REPORT_MISSES};
@@ -29,20 +37,52 @@ struct Life {
 fn main() -> anyhow::Result<()> {
     let mut level = NoiseLevel::Mid;
     let mut config = TrackerConfig::DEFAULT;
+    let mut heldout: Option<HeldoutParams> = None;
     for a in std::env::args().skip(1) {
         match a.as_str() {
             "low" => level = NoiseLevel::Low,
             "mid" => level = NoiseLevel::Mid,
             "high" => level = NoiseLevel::High,
+            "heldout" => heldout = Some(HeldoutParams::default()),
             w if w.starts_with("newcomer_wait=") => {
                 config.persist.newcomer_wait = w["newcomer_wait=".len()..].parse()?;
             }
-            _ => anyhow::bail!("unknown argument {a} (low|mid|high, newcomer_wait=FRAMES)"),
+            w if w.starts_with("clutter=") => {
+                let h = heldout.get_or_insert_with(HeldoutParams::default);
+                h.clutter_density *= w["clutter=".len()..].parse::<f64>()?;
+            }
+            w if w.starts_with("noise=") => {
+                let h = heldout.get_or_insert_with(HeldoutParams::default);
+                h.pixel_noise *= w["noise=".len()..].parse::<f64>()?;
+            }
+            w if w.starts_with("segments=") => {
+                heldout.get_or_insert_with(HeldoutParams::default).segments =
+                    w["segments=".len()..].parse()?;
+            }
+            _ => anyhow::bail!(
+                "unknown argument {a} (low|mid|high, newcomer_wait=FRAMES, heldout, clutter=K, noise=K, segments=S)"
+            ),
         }
+    }
+    if let Some(params) = heldout {
+        return heldout_ids(&params, config);
     }
     let labels = stjpdacf_tools::demo::replay_labels()?;
     let cam = Camera::tusimple();
-    let params = SynthParams::preset(level);
+    let mut params = SynthParams::preset(level);
+    // ID_DIAG_OFF=cars,road_edge,shadows,clutter,merges: switch sources off (which source makes
+    // the never-true ids; the synth's random stream changes with the sources, so the clips differ).
+    let off = std::env::var("ID_DIAG_OFF").unwrap_or_default();
+    for what in off.split(',').filter(|w| !w.is_empty()) {
+        match what {
+            "cars" => params.cars = 0.0,
+            "road_edge" => params.road_edge_prob = 0.0,
+            "shadows" => params.shadows = 0.0,
+            "clutter" => params.clutter_rate = 0.0,
+            "merges" => params.merge_prob = 0.0,
+            _ => anyhow::bail!("unknown source {what} (cars|road_edge|shadows|clutter|merges)"),
+        }
+    }
     let o = synth::synthesize(&labels, &params, &cam, 1)?;
     let gt_index = o.gt_index();
     let mut lives: BTreeMap<(String, u32), Life> = BTreeMap::new();
@@ -165,5 +205,69 @@ fn main() -> anyhow::Result<()> {
             );
         }
     }
+    Ok(())
+}
+
+/// Lane ids per clip on the held-out generator: every id published in a clip (seen within
+/// `MAX_REPORT_MISSES` frames), the label's lanes, and the ids the last frame's prediction
+/// matched to a labelled lane (the metric's matching).
+fn heldout_ids(params: &HeldoutParams, config: TrackerConfig) -> anyhow::Result<()> {
+    let labels = stjpdacf_tools::tusimple::read_labels(
+        &stjpdacf_tools::repo_root()
+            .join("data")
+            .join(heldout::LABELS),
+    )?;
+    let cam = Camera::tusimple();
+    let o = heldout::generate(&labels, params, &cam, 1)?;
+    let gt: HashMap<&str, &stjpdacf_tools::tusimple::TuSimpleRecord> =
+        o.gt_last.iter().map(|g| (g.raw_file.as_str(), g)).collect();
+    // Per clip: the ids published, and those the last frame matched.
+    let mut ids: BTreeMap<String, (std::collections::BTreeSet<u32>, usize)> = BTreeMap::new();
+    let mut true_lanes = 0usize;
+    track::track_with(
+        &o.frames,
+        &stjpdacf::tables::DEFAULT,
+        &cam,
+        Space::Image,
+        config,
+        |v| {
+            let Some(out) = v.output else { return };
+            let e = ids.entry(v.frame.clip.clone()).or_default();
+            e.0.extend(
+                out.filtered
+                    .iter()
+                    .filter(|l| l.misses <= MAX_REPORT_MISSES)
+                    .map(|l| l.id.0),
+            );
+            let Some(p) = v.prediction else { return };
+            let Some(g) = gt.get(p.raw_file.as_str()) else {
+                return;
+            };
+            let lanes: Vec<Vec<f64>> = g
+                .lanes
+                .iter()
+                .filter(|l| l.iter().any(|x| *x >= 0.0))
+                .cloned()
+                .collect();
+            true_lanes += lanes.len();
+            let m = metric::match_lanes(&p.lanes, &lanes, &g.h_samples);
+            e.1 += m.gt_match.iter().flatten().count();
+        },
+    )?;
+    let clips = ids.len().max(1) as f64;
+    let all: usize = ids.values().map(|(s, _)| s.len()).sum();
+    let matched: usize = ids.values().map(|(_, m)| m).sum();
+    println!(
+        "held-out (clutter {:.3} /m², {} segments a clip, column noise {} px): clips {}, lane ids per clip {:.2} \
+         against {:.2} labelled lanes ({:.2} ×); labelled lanes matched on the last frame {:.2} a clip",
+        params.clutter_density,
+        params.segments,
+        params.pixel_noise,
+        ids.len(),
+        all as f64 / clips,
+        true_lanes as f64 / clips,
+        all as f64 / true_lanes.max(1) as f64,
+        matched as f64 / clips,
+    );
     Ok(())
 }
