@@ -9,7 +9,8 @@
 //! connectors, merges, a yielded slot). `ID_DIAG_OFF=cars,road_edge,shadows,clutter,merges`
 //! switches synth sources off (which source makes the never-true ids).
 //!
-//! `cargo run --release -p stjpdacf-tools --example id_diag [-- low|mid|high]` (default mid;
+//! `cargo run --release -p stjpdacf-tools --example id_diag [-- low|mid|high] [seed=N]` (default mid,
+//! seed 1;
 //! `newcomer_wait=0` for the publication rule of before stop 44, `newcomer_wait=1` for stop 44's).
 //!
 //! `-- heldout [clutter=K] [noise=K] [segments=S]`: the same count on the second generator
@@ -38,6 +39,7 @@ fn main() -> anyhow::Result<()> {
     let mut level = NoiseLevel::Mid;
     let mut config = TrackerConfig::DEFAULT;
     let mut heldout: Option<HeldoutParams> = None;
+    let mut seed = 1u64;
     for a in std::env::args().skip(1) {
         match a.as_str() {
             "low" => level = NoiseLevel::Low,
@@ -51,6 +53,7 @@ fn main() -> anyhow::Result<()> {
                 let h = heldout.get_or_insert_with(HeldoutParams::default);
                 h.clutter_density *= w["clutter=".len()..].parse::<f64>()?;
             }
+            w if w.starts_with("seed=") => seed = w["seed=".len()..].parse()?,
             w if w.starts_with("noise=") => {
                 let h = heldout.get_or_insert_with(HeldoutParams::default);
                 h.pixel_noise *= w["noise=".len()..].parse::<f64>()?;
@@ -60,12 +63,12 @@ fn main() -> anyhow::Result<()> {
                     w["segments=".len()..].parse()?;
             }
             _ => anyhow::bail!(
-                "unknown argument {a} (low|mid|high, newcomer_wait=FRAMES, heldout, clutter=K, noise=K, segments=S)"
+                "unknown argument {a} (low|mid|high, newcomer_wait=FRAMES, seed=N, heldout, clutter=K, noise=K, segments=S)"
             ),
         }
     }
     if let Some(params) = heldout {
-        return heldout_ids(&params, config);
+        return heldout_ids(&params, config, seed);
     }
     let labels = stjpdacf_tools::demo::replay_labels()?;
     let cam = Camera::tusimple();
@@ -83,7 +86,7 @@ fn main() -> anyhow::Result<()> {
             _ => anyhow::bail!("unknown source {what} (cars|road_edge|shadows|clutter|merges)"),
         }
     }
-    let o = synth::synthesize(&labels, &params, &cam, 1)?;
+    let o = synth::synthesize(&labels, &params, &cam, seed)?;
     let gt_index = o.gt_index();
     let mut lives: BTreeMap<(String, u32), Life> = BTreeMap::new();
     let mut k_in_clip = 0usize;
@@ -211,14 +214,14 @@ fn main() -> anyhow::Result<()> {
 /// Lane ids per clip on the held-out generator: every id published in a clip (seen within
 /// `MAX_REPORT_MISSES` frames), the label's lanes, and the ids the last frame's prediction
 /// matched to a labelled lane (the metric's matching).
-fn heldout_ids(params: &HeldoutParams, config: TrackerConfig) -> anyhow::Result<()> {
+fn heldout_ids(params: &HeldoutParams, config: TrackerConfig, seed: u64) -> anyhow::Result<()> {
     let labels = stjpdacf_tools::tusimple::read_labels(
         &stjpdacf_tools::repo_root()
             .join("data")
             .join(heldout::LABELS),
     )?;
     let cam = Camera::tusimple();
-    let o = heldout::generate(&labels, params, &cam, 1)?;
+    let o = heldout::generate(&labels, params, &cam, seed)?;
     let gt: HashMap<&str, &stjpdacf_tools::tusimple::TuSimpleRecord> =
         o.gt_last.iter().map(|g| (g.raw_file.as_str(), g)).collect();
     // Per clip: the ids published, and those the last frame matched.

@@ -2484,6 +2484,51 @@ mod tests {
     }
 
     #[test]
+    fn variant_scores_count_one_id_per_lane_on_clean_points() {
+        // Two clips of 6 frames each, every frame a label's own points (no clutter, no noise):
+        // each labelled lane is one lane id for the whole clip, and the labelled lanes per clip
+        // are those of the clips' last frames.
+        let labels =
+            tusimple::read_labels(&crate::repo_root().join("data").join(heldout::LABELS)).unwrap();
+        let mut frames = Vec::new();
+        let mut gts = Vec::new();
+        for l in labels.iter().take(2) {
+            let base = label_points_frame(l);
+            for k in 0..6 {
+                let mut f = base.clone();
+                f.t = 0.05 * f64::from(k);
+                if k < 5 {
+                    (f.raw_file, f.h_samples) = (None, None);
+                }
+                frames.push(f);
+            }
+            gts.push(l.clone());
+        }
+        let lanes: Vec<usize> = gts
+            .iter()
+            .map(|g| {
+                g.lanes
+                    .iter()
+                    .filter(|l| l.iter().any(|x| *x >= 0.0))
+                    .count()
+            })
+            .collect();
+        let v = Variant::new("tracker", TrackerConfig::DEFAULT);
+        let base = Score {
+            accuracy: 0.0,
+            fp: 0.0,
+            fn_: 0.0,
+            frames: 2,
+        };
+        let s = variant_scores(&frames, &gts, &Camera::tusimple(), &[v], &base, false).unwrap();
+        let s = &s[0];
+        let labelled = (lanes[0] + lanes[1]) as f64 / 2.0;
+        assert_eq!(s.labelled_lanes_per_clip, labelled);
+        assert_eq!(s.lane_ids_per_clip, labelled, "{s:?}");
+        assert!(s.score.accuracy > 0.9, "{s:?}");
+    }
+
+    #[test]
     fn identity_tally_counts_switches_ids_and_false_lanes() {
         let rows: Vec<f64> = (0..20).map(|i| 300.0 + 10.0 * f64::from(i)).collect();
         let lane = |x: f64| vec![x; 20];
