@@ -123,12 +123,7 @@ fn main() -> anyhow::Result<()> {
             if let Some(p) = v.prediction {
                 if let Some(&j) = gt_index.get(p.raw_file.as_str()) {
                     let g = &o.gt_all[j];
-                    let lanes: Vec<Vec<f64>> = g
-                        .lanes
-                        .iter()
-                        .filter(|l| l.iter().any(|v| *v >= 0.0))
-                        .cloned()
-                        .collect();
+                    let lanes: Vec<Vec<f64>> = g.lanes_with_points().cloned().collect();
                     let m = metric::match_lanes(&p.lanes, &lanes, &g.h_samples);
                     for gm in m.gt_match.iter().flatten() {
                         if let Some(id) = v.prediction_ids.get(*gm) {
@@ -246,12 +241,7 @@ fn heldout_ids(params: &HeldoutParams, config: TrackerConfig, seed: u64) -> anyh
             let Some(g) = gt.get(p.raw_file.as_str()) else {
                 return;
             };
-            let lanes: Vec<Vec<f64>> = g
-                .lanes
-                .iter()
-                .filter(|l| l.iter().any(|x| *x >= 0.0))
-                .cloned()
-                .collect();
+            let lanes: Vec<Vec<f64>> = g.lanes_with_points().cloned().collect();
             true_lanes += lanes.len();
             let m = metric::match_lanes(&p.lanes, &lanes, &g.h_samples);
             e.1 += m.gt_match.iter().flatten().count();

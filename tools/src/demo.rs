@@ -736,15 +736,7 @@ fn variant_scores(
             )?;
             let score = score_on(&preds, gts, timed)?;
             let clips = tusimple::clips(frames).count().max(1) as f64;
-            let labelled: usize = gts
-                .iter()
-                .map(|g| {
-                    g.lanes
-                        .iter()
-                        .filter(|l| l.iter().any(|x| *x >= 0.0))
-                        .count()
-                })
-                .sum();
+            let labelled: usize = gts.iter().map(|g| g.lanes_with_points().count()).sum();
             Ok(VariantScore {
                 name: v.name.clone(),
                 score,
@@ -2504,15 +2496,7 @@ mod tests {
             }
             gts.push(l.clone());
         }
-        let lanes: Vec<usize> = gts
-            .iter()
-            .map(|g| {
-                g.lanes
-                    .iter()
-                    .filter(|l| l.iter().any(|x| *x >= 0.0))
-                    .count()
-            })
-            .collect();
+        let lanes: Vec<usize> = gts.iter().map(|g| g.lanes_with_points().count()).collect();
         let v = Variant::new("tracker", TrackerConfig::DEFAULT);
         let base = Score {
             accuracy: 0.0,

@@ -59,6 +59,11 @@ pub fn as_predictions(gts: &[TuSimpleRecord], run_time_ms: f64) -> Vec<TuSimpleR
 }
 
 impl TuSimpleRecord {
+    /// The lanes with at least one point (a column ≥ 0).
+    pub fn lanes_with_points(&self) -> impl Iterator<Item = &Vec<f64>> {
+        self.lanes.iter().filter(|l| l.iter().any(|x| *x >= 0.0))
+    }
+
     /// The labelled points `(column, row)` of `lane` (one of [`Self::lanes`]) in `h_samples`
     /// order; the rows where the lane has no point (column < 0) are left out.
     pub fn points_of<'a>(&'a self, lane: &'a [f64]) -> impl Iterator<Item = (f64, f64)> + 'a {
