@@ -39,7 +39,9 @@
 //!    ([`crate::heldout`]) on the held-out labels of [`crate::heldout::LABELS`] (the first
 //!    [`DemoOptions::heldout_clips`]), clutter × 1, 2, 4, 8, segments, and the column noise × 2
 //!    and × 4 ([`HELDOUT_NOISE`]); the same
-//!    configurations and baseline, and the baseline capped at [`HELDOUT_BASELINE_LANES`] lanes.
+//!    configurations and baseline, and the baseline capped at [`HELDOUT_BASELINE_LANES`] lanes;
+//!    each configuration's lane ids per clip beside the lanes labelled on the clips' last
+//!    frames ([`VariantScore::lane_ids_per_clip`]).
 //!
 //! Every run is sequential on one thread, so the per-frame `run_time` is not inflated by a
 //! sibling run. Replay `run_time`: the tracker's time on a frame, from its points to its lanes
