@@ -13,6 +13,7 @@ use stjpdacf_tools::metric;
 use stjpdacf_tools::rownoise;
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
 use stjpdacf_tools::tablegen;
+use stjpdacf_tools::track::MAX_REPORT_MISSES;
 use stjpdacf_tools::trainrun;
 use stjpdacf_tools::tusimple;
 
@@ -570,6 +571,15 @@ fn main() -> Result<()> {
                 "{} frames in {} clips, {} predictions to {}; run_time {:.3} ms mean, {:.3} ms max (Tracker::step {:.3} / {:.3} ms); {} points above the horizon or non-finite; {} steps rejected",
                 stats.frames, stats.clips, stats.predictions, out.display(), stats.run_mean_ms, stats.run_max_ms, stats.step_mean_ms, stats.step_max_ms, stats.unmapped_points, stats.rejected_steps
             );
+            if stats.frames > 0 {
+                eprintln!(
+                    "lane ids per clip {:.2}, lanes published per frame {:.2} (lanes missed on at \
+                     most {MAX_REPORT_MISSES} frames in a row; a road's markings, each keeping its id, \
+                     give as many ids a clip as lanes a frame)",
+                    stats.lane_ids as f64 / stats.clips.max(1) as f64,
+                    stats.published_lanes as f64 / stats.frames as f64,
+                );
+            }
             if unlabelled > 0 {
                 eprintln!(
                     "({unlabelled} frames without h_samples rows or raw_file got no prediction; \

@@ -13,6 +13,7 @@
 //! the image is left out. `run_time` is the milliseconds spent on that frame from its points to
 //! its lanes (see [`track_with`]).
 
+use std::collections::HashSet;
 use std::time::Instant as WallClock;
 
 use anyhow::{bail, Context, Result};
@@ -69,6 +70,12 @@ pub struct TrackStats {
     /// Frames on which the tracker repaired its temporal covariance (f32 rounding had made it
     /// indefinite: `StepReport::temporal_cov_repairs` > 0, docs/design.md §4.2.4).
     pub repaired_frames: usize,
+    /// Distinct lane ids published (seen within [`MAX_REPORT_MISSES`] frames), summed over the
+    /// clips: divided by `clips`, the lane ids per clip (on a road with four markings and no
+    /// lane change, 4 when every lane keeps its id and no false lane is published).
+    pub lane_ids: usize,
+    /// Lanes published (seen within [`MAX_REPORT_MISSES`] frames), summed over the frames.
+    pub published_lanes: usize,
 }
 
 impl TrackStats {
@@ -782,8 +789,12 @@ pub fn track_with(
     let mut clip: Option<&str> = None;
     let mut times = RunTimes::default();
     let mut clip_cam = *cam;
+    // The lane ids published in the current clip (a new clip's tracker starts its ids anew).
+    let mut clip_ids: HashSet<u32> = HashSet::new();
     for (k, f) in frames.iter().enumerate() {
         if stats.begin_frame(k, f, &mut clip)? {
+            stats.lane_ids += clip_ids.len();
+            clip_ids.clear();
             tracker = Some(Box::new(ReferenceTracker::with_config(tables, config)));
             let clip_frames = crate::tusimple::clips(&frames[k..]).next().unwrap_or(&[]);
             clip_cam = clip_camera(clip_frames, cam);
@@ -803,6 +814,10 @@ pub fn track_with(
                 stats.known_pruned_rows += u64::from(kr.pruned_rows);
                 stats.known_lbp_rows += u64::from(kr.lbp_rows);
                 stats.repaired_frames += usize::from(o.report.temporal_cov_repairs > 0);
+                for l in o.filtered.iter().filter(|l| l.misses <= MAX_REPORT_MISSES) {
+                    clip_ids.insert(l.id.0);
+                    stats.published_lanes += 1;
+                }
                 Some(o)
             }
             Err(_) => {
@@ -859,6 +874,7 @@ pub fn track_with(
             stats.predictions += 1;
         }
     }
+    stats.lane_ids += clip_ids.len();
     stats.finish(&times);
     Ok((out, stats))
 }

@@ -882,3 +882,27 @@ fn the_covariance_repair_keeps_a_stopped_vehicles_lanes() {
     assert_eq!(stats.repaired_frames, seen);
     assert!(late_ids.is_empty(), "lanes started late: {late_ids:?}");
 }
+
+/// `TrackStats` counts lane ids per clip, not over the run (each clip's tracker starts its ids
+/// anew): two clips of a label's own points, 6 frames each, give one id per labelled lane in each
+/// clip and as many published lanes a frame as the label has.
+#[test]
+fn track_stats_count_lane_ids_per_clip() {
+    let labels = read_labels(&repo_root().join("data/tusimple/train_subset.json")).unwrap();
+    let label = &labels[0];
+    let lanes = label.lanes_with_points().count();
+    let mut frames = Vec::new();
+    for clip in ["a", "b"] {
+        for k in 0..6 {
+            let mut f = stjpdacf_tools::demo::label_points_frame(label);
+            f.clip = clip.to_string();
+            f.t = 0.05 * f64::from(k);
+            (f.raw_file, f.h_samples) = (None, None);
+            frames.push(f);
+        }
+    }
+    let (_, stats) = track(&frames, &DEFAULT, &Camera::tusimple(), Space::Image, |_| {}).unwrap();
+    assert_eq!(stats.clips, 2);
+    assert_eq!(stats.lane_ids, 2 * lanes, "{stats:?}");
+    assert_eq!(stats.published_lanes, 12 * lanes, "{stats:?}");
+}
