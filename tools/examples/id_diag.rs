@@ -45,7 +45,9 @@ fn main() -> anyhow::Result<()> {
             "low" => level = NoiseLevel::Low,
             "mid" => level = NoiseLevel::Mid,
             "high" => level = NoiseLevel::High,
-            "heldout" => heldout = Some(HeldoutParams::default()),
+            "heldout" => {
+                heldout.get_or_insert_with(HeldoutParams::default);
+            }
             w if w.starts_with("newcomer_wait=") => {
                 config.persist.newcomer_wait = w["newcomer_wait=".len()..].parse()?;
             }
