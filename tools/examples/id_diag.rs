@@ -221,24 +221,15 @@ fn heldout_ids(params: &HeldoutParams, config: TrackerConfig, seed: u64) -> anyh
     let o = heldout::generate(&labels, params, &cam, seed)?;
     let gt: HashMap<&str, &stjpdacf_tools::tusimple::TuSimpleRecord> =
         o.gt_last.iter().map(|g| (g.raw_file.as_str(), g)).collect();
-    // Per clip: the ids published, and those the last frame matched.
-    let mut ids: BTreeMap<String, (std::collections::BTreeSet<u32>, usize)> = BTreeMap::new();
-    let mut true_lanes = 0usize;
-    track::track_with(
+    // The labelled lanes of the clips' last frames, and how many of them each matched.
+    let (mut true_lanes, mut matched) = (0usize, 0usize);
+    let (_, stats) = track::track_with(
         &o.frames,
         &stjpdacf::tables::DEFAULT,
         &cam,
         Space::Image,
         config,
         |v| {
-            let Some(out) = v.output else { return };
-            let e = ids.entry(v.frame.clip.clone()).or_default();
-            e.0.extend(
-                out.filtered
-                    .iter()
-                    .filter(|l| l.misses <= MAX_REPORT_MISSES)
-                    .map(|l| l.id.0),
-            );
             let Some(p) = v.prediction else { return };
             let Some(g) = gt.get(p.raw_file.as_str()) else {
                 return;
@@ -246,22 +237,20 @@ fn heldout_ids(params: &HeldoutParams, config: TrackerConfig, seed: u64) -> anyh
             let lanes: Vec<Vec<f64>> = g.lanes_with_points().cloned().collect();
             true_lanes += lanes.len();
             let m = metric::match_lanes(&p.lanes, &lanes, &g.h_samples);
-            e.1 += m.gt_match.iter().flatten().count();
+            matched += m.gt_match.iter().flatten().count();
         },
     )?;
-    let clips = ids.len().max(1) as f64;
-    let all: usize = ids.values().map(|(s, _)| s.len()).sum();
-    let matched: usize = ids.values().map(|(_, m)| m).sum();
+    let clips = stats.clips.max(1) as f64;
     println!(
         "held-out (clutter {:.3} /m², {} segments a clip, column noise {} px): clips {}, lane ids per clip {:.2} \
          against {:.2} labelled lanes ({:.2} ×); labelled lanes matched on the last frame {:.2} a clip",
         params.clutter_density,
         params.segments,
         params.pixel_noise,
-        ids.len(),
-        all as f64 / clips,
+        stats.clips,
+        stats.lane_ids as f64 / clips,
         true_lanes as f64 / clips,
-        all as f64 / true_lanes.max(1) as f64,
+        stats.lane_ids as f64 / true_lanes.max(1) as f64,
         matched as f64 / clips,
     );
     Ok(())

@@ -717,33 +717,21 @@ fn variant_scores(
     variants
         .iter()
         .map(|v| {
-            // Per clip, the ids published on any of its frames.
-            let mut ids: HashMap<String, HashSet<u32>> = HashMap::new();
-            let (preds, _) = track::track_with(
+            let (preds, stats) = track::track_with(
                 frames,
                 v.tables,
                 cam,
                 Space::Image,
                 v.config,
-                |f: FrameView<'_>| {
-                    if let Some(out) = f.output {
-                        ids.entry(f.frame.clip.clone()).or_default().extend(
-                            out.filtered
-                                .iter()
-                                .filter(|l| l.misses <= MAX_REPORT_MISSES)
-                                .map(|l| l.id.0),
-                        );
-                    }
-                },
+                |_: FrameView<'_>| {},
             )?;
             let score = score_on(&preds, gts, timed)?;
-            let clips = tusimple::clips(frames).count().max(1) as f64;
             let labelled: usize = gts.iter().map(|g| g.lanes_with_points().count()).sum();
             Ok(VariantScore {
                 name: v.name.clone(),
                 score,
                 accuracy_minus_baseline: score.accuracy - baseline.accuracy,
-                lane_ids_per_clip: ids.values().map(HashSet::len).sum::<usize>() as f64 / clips,
+                lane_ids_per_clip: stats.lane_ids as f64 / stats.clips.max(1) as f64,
                 labelled_lanes_per_clip: labelled as f64 / gts.len().max(1) as f64,
             })
         })
