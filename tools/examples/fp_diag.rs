@@ -76,17 +76,7 @@ fn main() -> anyhow::Result<()> {
         let mut params = SynthParams::preset(level);
         // FP_DIAG_OFF=cars,road_edge,shadows,clutter,merges: switch sources off (which source
         // makes the false lanes); FP_DIAG_DISTRACTORS=k: k short straight distractors a frame.
-        let off = std::env::var("FP_DIAG_OFF").unwrap_or_default();
-        for what in off.split(',') {
-            match what {
-                "cars" => params.cars = 0.0,
-                "road_edge" => params.road_edge_prob = 0.0,
-                "shadows" => params.shadows = 0.0,
-                "clutter" => params.clutter_rate = 0.0,
-                "merges" => params.merge_prob = 0.0,
-                _ => {}
-            }
-        }
+        params.switch_off(&std::env::var("FP_DIAG_OFF").unwrap_or_default())?;
         if let Some(k) = std::env::var("FP_DIAG_DISTRACTORS")
             .ok()
             .and_then(|v| v.parse().ok())

@@ -77,17 +77,7 @@ fn main() -> anyhow::Result<()> {
     let mut params = SynthParams::preset(level);
     // ID_DIAG_OFF=cars,road_edge,shadows,clutter,merges: switch sources off (which source makes
     // the never-true ids; the synth's random stream changes with the sources, so the clips differ).
-    let off = std::env::var("ID_DIAG_OFF").unwrap_or_default();
-    for what in off.split(',').filter(|w| !w.is_empty()) {
-        match what {
-            "cars" => params.cars = 0.0,
-            "road_edge" => params.road_edge_prob = 0.0,
-            "shadows" => params.shadows = 0.0,
-            "clutter" => params.clutter_rate = 0.0,
-            "merges" => params.merge_prob = 0.0,
-            _ => anyhow::bail!("unknown source {what} (cars|road_edge|shadows|clutter|merges)"),
-        }
-    }
+    params.switch_off(&std::env::var("ID_DIAG_OFF").unwrap_or_default())?;
     let o = synth::synthesize(&labels, &params, &cam, seed)?;
     let gt_index = o.gt_index();
     let mut lives: BTreeMap<(String, u32), Life> = BTreeMap::new();

@@ -241,6 +241,25 @@ impl SynthParams {
         }
     }
 
+    /// Switches the named sources of false points off, a comma-separated list of `cars`,
+    /// `road_edge`, `shadows`, `clutter` and `merges` (the diagnostics' `*_DIAG_OFF` variables:
+    /// which source makes the false lanes or the extra ids). The synth's random stream changes
+    /// with its sources, so the clips differ from those with every source on. An unknown name is
+    /// an error naming the known ones.
+    pub fn switch_off(&mut self, sources: &str) -> Result<()> {
+        for what in sources.split(',').map(str::trim).filter(|w| !w.is_empty()) {
+            match what {
+                "cars" => self.cars = 0.0,
+                "road_edge" => self.road_edge_prob = 0.0,
+                "shadows" => self.shadows = 0.0,
+                "clutter" => self.clutter_rate = 0.0,
+                "merges" => self.merge_prob = 0.0,
+                _ => anyhow::bail!("unknown source {what} (cars|road_edge|shadows|clutter|merges)"),
+            }
+        }
+        Ok(())
+    }
+
     /// Check ranges (probabilities in [0, 1], positive steps, non-negative rates).
     pub fn validate(&self) -> Result<()> {
         ensure!(self.frames_per_clip >= 1, "frames_per_clip must be ≥ 1");

@@ -514,3 +514,25 @@ fn distractors_add_points_and_change_nothing_else() {
     let e = synthesize(&labels(), &bad, &cam, 0).unwrap_err();
     assert!(format!("{e:#}").contains("distractors"), "{e:#}");
 }
+
+#[test]
+fn sources_switched_off_make_no_points() {
+    let mut p = SynthParams::preset(NoiseLevel::High);
+    let all = synthesize(&labels_first(4), &p, &Camera::tusimple(), 5)
+        .unwrap()
+        .stats;
+    assert!(all.car_points > 0 && all.road_edge_points > 0 && all.shadow_points > 0);
+    p.switch_off("cars, road_edge,,shadows").unwrap();
+    let o = synthesize(&labels_first(4), &p, &Camera::tusimple(), 5).unwrap();
+    let s = &o.stats;
+    assert_eq!(
+        (s.car_points, s.road_edge_points, s.shadow_points),
+        (0, 0, 0)
+    );
+    assert!(s.clutter_points > 0 && s.lane_points > 0);
+    p.switch_off("clutter").unwrap();
+    let o = synthesize(&labels_first(4), &p, &Camera::tusimple(), 5).unwrap();
+    assert_eq!(o.stats.clutter_points, 0);
+    let e = p.switch_off("cars,trees").unwrap_err().to_string();
+    assert!(e.contains("trees") && e.contains("road_edge"), "{e}");
+}
