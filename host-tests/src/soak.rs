@@ -122,6 +122,19 @@ struct Conditions {
     until: i64,
 }
 
+/// Conditions held fixed over a whole drive instead of drawn for each stretch (`None`: drawn as
+/// the soak draws them; `Forced::default()` is the soak's drive bit for bit). A forced value
+/// replaces the drawn one after the draw, but the points then draw differently from the random
+/// stream, so a forced drive is another sample of the same road model, not the soak's drive
+/// with other conditions.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Forced {
+    /// Uniform clutter, points per metre per BEV row over ±12 m.
+    pub clutter: Option<f64>,
+    /// Dashed lines (every line but the leftmost visible one: 3 m dashes, 9 m gaps) or solid.
+    pub dashed: Option<bool>,
+}
+
 /// The synthetic road of a drive (see the module docs).
 #[derive(Debug, Clone)]
 pub struct Road {
@@ -140,6 +153,7 @@ pub struct Road {
     cond: Conditions,
     blackout_left: u32,
     frames: u64,
+    forced: Forced,
 }
 
 /// One frame of a drive.
@@ -160,6 +174,12 @@ pub struct RoadFrame {
 impl Road {
     /// A new drive.
     pub fn new(seed: u64) -> Self {
+        Self::with_forced(seed, Forced::default())
+    }
+
+    /// A new drive with some conditions held fixed ([`Forced`]); the same drive as
+    /// [`Road::new`] otherwise.
+    pub fn with_forced(seed: u64, forced: Forced) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let spacing = rng.random_range(3.4..3.8);
         let offset = rng.random_range(-0.5..0.5) * spacing;
@@ -196,6 +216,7 @@ impl Road {
             },
             blackout_left: 0,
             frames: 0,
+            forced,
         };
         r.next_change = r.rng.random_range(60_000_000..240_000_000);
         r.new_conditions();
@@ -213,6 +234,12 @@ impl Road {
             clutter,
             until: self.now + rng.random_range(10_000_000..60_000_000),
         };
+        if let Some(c) = self.forced.clutter {
+            self.cond.clutter = c;
+        }
+        if let Some(d) = self.forced.dashed {
+            self.cond.dashed = d;
+        }
     }
 
     /// Lateral position of road line `k` at `u` metres ahead, now.

@@ -106,3 +106,60 @@ fn short_soak_against_the_f64_reference() {
     assert!(r.max_dvar_rel < 5e-3, "{}", r.max_dvar_rel);
     assert!(r.max_dexistence < 1e-5, "{}", r.max_dexistence);
 }
+
+/// Forced conditions hold: without clutter no point lies off a line; with 0.05 /m/row about
+/// 64 rows × 24 m × 0.05 ≈ 77 clutter points a frame, of which the part off the lines
+/// (at most six lines × 2 m of the 24 m) shows; dashed lines keep fewer points on the lines.
+#[test]
+fn forced_conditions_hold() {
+    use stjpdacf_test_support::soak::{Forced, Road, RoadFrame};
+    let road = |clutter, dashed| {
+        Road::with_forced(
+            7,
+            Forced {
+                clutter: Some(clutter),
+                dashed: Some(dashed),
+            },
+        )
+    };
+    // Points within 1 m of a line (noise ≤ 15 cm; the truth is read at the next index point,
+    // ≤ 5.1 m ahead, where a line moves by ≤ 0.3 m) and the others, over 300 frames.
+    let count = |mut r: Road| {
+        let (mut on, mut off, mut frames) = (0usize, 0usize, 0usize);
+        for _ in 0..300 {
+            let f: RoadFrame = r.next_frame();
+            if f.blackout {
+                continue;
+            }
+            frames += 1;
+            for p in &f.points {
+                let u = f64::from(p[0]);
+                let i = stjpdacf::tables::DEFAULT
+                    .index_u
+                    .iter()
+                    .position(|&ui| f64::from(ui) >= u)
+                    .unwrap_or(15);
+                if f.truth
+                    .iter()
+                    .any(|(_, xs)| (f64::from(p[1]) - xs[i]).abs() < 1.0)
+                {
+                    on += 1;
+                } else {
+                    off += 1;
+                }
+            }
+        }
+        (on as f64 / frames as f64, off as f64 / frames as f64)
+    };
+    let (solid_on, solid_off) = count(road(0.0, false));
+    assert!(
+        solid_on > 100.0 && solid_off == 0.0,
+        "{solid_on} {solid_off}"
+    );
+    let (dashed_on, dashed_off) = count(road(0.05, true));
+    assert!(
+        (0.4 * 77.0..1.05 * 77.0).contains(&dashed_off),
+        "{dashed_off}"
+    );
+    assert!(dashed_on < 0.6 * solid_on, "{dashed_on} {solid_on}");
+}

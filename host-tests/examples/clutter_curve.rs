@@ -1,0 +1,196 @@
+//! False lanes and tracked lines against the density of uniform clutter, on the soak's roads
+//! (`stjpdacf_test_support::soak::Road`: a generator no tracker parameter was chosen on), the
+//! default tracker next to the per-frame RANSAC fit of the tools (`stjpdacf_tools::baseline`,
+//! its default parameters) on the same BEV points.
+//!
+//! Each cell drives `--drives` seeded roads of `--frames` frames (30 fps) with the uniform
+//! clutter held at one density (points per metre per BEV row over ±12 m, on every stretch) and
+//! the lines all solid or all dashed (every line but the leftmost visible one: 3 m dashes, 9 m
+//! gaps); everything else — lines, weave, lane changes, detection rate 0.6–0.97, point noise
+//! 3–15 cm, blackouts, dropped frames — varies as in the soak. Published lanes (the tracker's
+//! filtered lanes; the fit's quadratics over their inliers' extent) are matched to the true lines
+//! by the soak's rule (`soak::match_truth`: mean |Δx| < 0.5 m over the lane's observed index
+//! points, greedy). Per cell: points a frame and how many of them exceeded the tracker's
+//! budget (`MEAS` = 256, `StepReport::over_budget_points`), the true line-frames matched, false lanes a frame (published lanes matched to no
+//! line; in brackets those of lanes at least 1 s old), and the tracker's id switches on a line seen without interruption, per 1,000 frames.
+//!
+//! ```sh
+//! cargo run --release -p stjpdacf-test-support --example clutter_curve -- [--frames 9000] [--drives 3] [--clutter 0,0.01,…]
+//! ```
+
+use std::sync::Mutex;
+
+use anyhow::Result;
+use clap::Parser;
+use stjpdacf::tables::DEFAULT;
+use stjpdacf::temporal::identity::LaneId;
+use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker};
+use stjpdacf_test_support::invariants::POINTS;
+use stjpdacf_test_support::soak::{match_truth, Forced, Road};
+use stjpdacf_tools::baseline::{fit_frame, BaselineParams, Lane};
+
+/// Clutter curve on the soak's roads: tracker against the per-frame RANSAC fit.
+#[derive(Debug, Parser)]
+struct Args {
+    /// Frames per drive (30 fps: 9,000 frames = 5 min).
+    #[arg(long, default_value_t = 9_000)]
+    frames: u64,
+    /// Drives per cell (seeds `seed`, `seed + 1`, …).
+    #[arg(long, default_value_t = 3)]
+    drives: u64,
+    /// Base seed.
+    #[arg(long, default_value_t = 100)]
+    seed: u64,
+    /// Clutter densities, points per metre per row (the soak draws 0–0.05 per stretch).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0,0.01,0.02,0.03,0.05,0.08"
+    )]
+    clutter: Vec<f64>,
+}
+
+/// Counts of one cell.
+#[derive(Debug, Default, Clone, Copy)]
+struct Cell {
+    frames: u64,
+    points: u64,
+    over_budget: u64,
+    line_frames: u64,
+    matched: [u64; 2],
+    false_lanes: [u64; 2],
+    /// The tracker's false lane-frames of lanes at least 30 frames old (1 s).
+    false_old: u64,
+    id_switches: u64,
+}
+
+impl Cell {
+    fn add(&mut self, o: &Cell) {
+        self.frames += o.frames;
+        self.points += o.points;
+        self.over_budget += o.over_budget;
+        self.line_frames += o.line_frames;
+        for k in 0..2 {
+            self.matched[k] += o.matched[k];
+            self.false_lanes[k] += o.false_lanes[k];
+        }
+        self.false_old += o.false_old;
+        self.id_switches += o.id_switches;
+    }
+}
+
+/// A fitted quadratic as a published lane (its mean at the index points, its inliers' extent),
+/// so that both are matched to the truth by the same rule.
+fn as_estimate(l: &Lane, k: usize) -> LaneEstimate<POINTS> {
+    LaneEstimate {
+        id: LaneId(k as u32),
+        slot: 0,
+        z: nalgebra::SVector::from_fn(|i, _| l.x_at(f64::from(DEFAULT.index_u[i])) as f32),
+        var: nalgebra::SVector::zeros(),
+        u_first: l.u_min as f32,
+        u_last: l.u_max as f32,
+        existence: 1.0,
+        misses: 0,
+        age: 0,
+        hits: 1,
+    }
+}
+
+fn drive(seed: u64, frames: u64, forced: Forced) -> Cell {
+    let mut road = Road::with_forced(seed, forced);
+    let mut tracker = Box::new(ReferenceTracker::new(&DEFAULT));
+    let fit = BaselineParams::default();
+    let mut c = Cell::default();
+    let mut last_id = std::collections::BTreeMap::new();
+    for _ in 0..frames {
+        let f = road.next_frame();
+        let out = tracker.step(Instant::from_micros(f.t_us), &f.points);
+        if f.blackout {
+            continue;
+        }
+        c.frames += 1;
+        c.points += f.points.len() as u64;
+        c.line_frames += f.truth.len() as u64;
+        if let Ok(out) = out {
+            c.over_budget += u64::from(out.report.over_budget_points);
+            let (m, [unmatched, _]) = match_truth(&out.filtered, &f.truth);
+            c.matched[0] += m.len() as u64;
+            c.false_lanes[0] += unmatched;
+            c.false_old += out
+                .filtered
+                .iter()
+                .filter(|l| l.age >= 30 && m.iter().all(|(_, id, _)| *id != l.id.0))
+                .count() as u64;
+            let mut seen = std::collections::BTreeMap::new();
+            for (line, id, _) in m {
+                if last_id.get(&line).is_some_and(|prev| *prev != id) {
+                    c.id_switches += 1;
+                }
+                seen.insert(line, id);
+            }
+            last_id = seen;
+        }
+        let pts: Vec<(f64, f64)> = f
+            .points
+            .iter()
+            .map(|p| (f64::from(p[0]), f64::from(p[1])))
+            .collect();
+        let lanes: Vec<LaneEstimate<POINTS>> = fit_frame(&pts, &fit)
+            .iter()
+            .enumerate()
+            .map(|(k, l)| as_estimate(l, k))
+            .collect();
+        let (m, [unmatched, _]) = match_truth(&lanes, &f.truth);
+        c.matched[1] += m.len() as u64;
+        c.false_lanes[1] += unmatched;
+    }
+    c
+}
+
+fn main() -> Result<()> {
+    let a = Args::parse();
+    println!(
+        "{} drives × {} frames a cell (30 fps), soak roads, seeds {}…",
+        a.drives, a.frames, a.seed
+    );
+    println!();
+    println!("| clutter /m/row | lines | points a frame (over MEAS) | tracker: line-frames tracked | false lanes a frame (of lanes ≥ 1 s old) | id switches / 1,000 frames | RANSAC fit: line-frames tracked | false lanes a frame |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for dashed in [false, true] {
+        for &clutter in &a.clutter {
+            let forced = Forced {
+                clutter: Some(clutter),
+                dashed: Some(dashed),
+            };
+            let total = Mutex::new(Cell::default());
+            std::thread::scope(|s| {
+                for d in 0..a.drives {
+                    let total = &total;
+                    let seed = a.seed + d;
+                    s.spawn(move || {
+                        let c = drive(seed, a.frames, forced);
+                        if let Ok(mut t) = total.lock() {
+                            t.add(&c);
+                        }
+                    });
+                }
+            });
+            let t = total.into_inner().unwrap_or_default();
+            let n = t.frames.max(1) as f64;
+            let lf = t.line_frames.max(1) as f64;
+            println!(
+                "| {clutter} | {} | {:.0} ({:.1}) | {:.1} % | {:.3} ({:.3}) | {:.2} | {:.1} % | {:.3} |",
+                if dashed { "dashed" } else { "solid" },
+                t.points as f64 / n,
+                t.over_budget as f64 / n,
+                100.0 * t.matched[0] as f64 / lf,
+                t.false_lanes[0] as f64 / n,
+                t.false_old as f64 / n,
+                1000.0 * t.id_switches as f64 / n,
+                100.0 * t.matched[1] as f64 / lf,
+                t.false_lanes[1] as f64 / n,
+            );
+        }
+    }
+    Ok(())
+}
