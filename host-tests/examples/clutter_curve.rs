@@ -1,7 +1,8 @@
 //! False lanes and tracked lines against the density of uniform clutter, on the soak's roads
 //! (`stjpdacf_test_support::soak::Road`: a generator no tracker parameter was chosen on), the
 //! default tracker next to the per-frame RANSAC fit of the tools (`stjpdacf_tools::baseline`,
-//! its default parameters) on the same BEV points.
+//! its default parameters) on the same BEV points (the fit sees all of them; the tracker uses the
+//! first 256 and counts the rest).
 //!
 //! Each cell drives `--drives` seeded roads of `--frames` frames (30 fps) with the uniform
 //! clutter held at one density (points per metre per BEV row over ±12 m, on every stretch) and
