@@ -1,8 +1,9 @@
 //! False lanes and tracked lines against the density of uniform clutter, on the soak's roads
-//! (`stjpdacf_test_support::soak::Road`: a generator no tracker parameter was chosen on), the
-//! default tracker next to the per-frame RANSAC fit of the tools (`stjpdacf_tools::baseline`,
-//! its default parameters) on the same BEV points (the fit sees all of them; the tracker uses the
-//! first 256 and counts the rest).
+//! (`stjpdacf_test_support::soak::Road`; the soak's false lane-frames judged some of the
+//! tracker's rules, but no parameter was chosen on these fixed densities), the default tracker
+//! next to the per-frame RANSAC fit of the tools (`stjpdacf_tools::baseline`, its default
+//! parameters) on the same BEV points (the fit sees all of them; the tracker uses the first 256
+//! and counts the rest).
 //!
 //! Each cell drives `--drives` seeded roads of `--frames` frames (30 fps) with the uniform
 //! clutter held at one density (points per metre per BEV row over ±12 m, on every stretch) and
@@ -11,9 +12,10 @@
 //! 3–15 cm, blackouts, dropped frames — varies as in the soak. Published lanes (the tracker's
 //! filtered lanes; the fit's quadratics over their inliers' extent) are matched to the true lines
 //! by the soak's rule (`soak::match_truth`: mean |Δx| < 0.5 m over the lane's observed index
-//! points, greedy). Per cell: points a frame and how many of them exceeded the tracker's
-//! budget (`MEAS` = 256, `StepReport::over_budget_points`), the true line-frames matched, false lanes a frame (published lanes matched to no
-//! line; in brackets those of lanes at least 1 s old), and the tracker's id switches on a line seen without interruption, per 1,000 frames.
+//! points, greedy). Per cell: points a frame and how many of them exceeded the tracker's budget
+//! (`MEAS` = 256, `StepReport::over_budget_points`), the true line-frames matched, false lanes a
+//! frame (published lanes matched to no line; in brackets those of lanes at least 1 s old), and
+//! the tracker's id switches on a line seen without interruption, per 1,000 frames.
 //!
 //! ```sh
 //! cargo run --release -p stjpdacf-test-support --example clutter_curve -- [--frames 9000] [--drives 3] [--clutter 0,0.01,…]
