@@ -25,9 +25,13 @@ use std::sync::Mutex;
 
 use anyhow::Result;
 use clap::Parser;
-use stjpdacf::tables::DEFAULT;
+use stjpdacf::persist::PersistConfig;
+use stjpdacf::spatial::row::Association;
+use stjpdacf::tables::{DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::identity::LaneId;
-use stjpdacf::tracker::{Instant, LaneEstimate, ReferenceTracker};
+use stjpdacf::tracker::{
+    Instant, LaneEstimate, Rank3Tracker, ReferenceTracker, Tracker, TrackerConfig,
+};
 use stjpdacf_test_support::invariants::POINTS;
 use stjpdacf_test_support::soak::{match_truth, Forced, Road};
 use stjpdacf_tools::baseline::{fit_frame, BaselineParams, Lane};
@@ -44,6 +48,11 @@ struct Args {
     /// Base seed.
     #[arg(long, default_value_t = 100)]
     seed: u64,
+    /// The model: `default` (`ReferenceTracker`, the default tables), `uncoupled` (the same on
+    /// `tables::UNCOUPLED`) or `rank3` (`Rank3Tracker` on the uncoupled tables with LBP on every
+    /// known-lane row: the model that meets the MCU's instruction targets).
+    #[arg(long, default_value = "default", value_parser = ["default", "uncoupled", "rank3"])]
+    model: String,
     /// Clutter densities, points per metre per row (the soak draws 0–0.05 per stretch).
     #[arg(
         long,
@@ -99,9 +108,14 @@ fn as_estimate(l: &Lane, k: usize) -> LaneEstimate<POINTS> {
     }
 }
 
-fn drive(seed: u64, frames: u64, forced: Forced) -> Cell {
+/// One drive through `tracker` (any Gram rank of the reference configuration).
+fn drive<const RANK: usize, const NX: usize, const NA: usize>(
+    tracker: &mut Tracker<2, 3, 6, 16, 64, 16, 256, RANK, NX, NA, 4>,
+    seed: u64,
+    frames: u64,
+    forced: Forced,
+) -> Cell {
     let mut road = Road::with_forced(seed, forced);
-    let mut tracker = Box::new(ReferenceTracker::new(&DEFAULT));
     let fit = BaselineParams::default();
     let mut c = Cell::default();
     let mut last_id = std::collections::BTreeMap::new();
@@ -150,11 +164,23 @@ fn drive(seed: u64, frames: u64, forced: Forced) -> Cell {
     c
 }
 
+/// The MCU model's configuration: LBP on every known-lane row (as the firmware's small budget).
+fn mcu_config() -> TrackerConfig {
+    TrackerConfig {
+        persist: PersistConfig {
+            association: Association::Lbp,
+            ..PersistConfig::DEFAULT
+        },
+        ..TrackerConfig::DEFAULT
+    }
+}
+
 fn main() -> Result<()> {
     let a = Args::parse();
+    let frames = a.frames;
     println!(
-        "{} drives × {} frames a cell (30 fps), soak roads, seeds {}…",
-        a.drives, a.frames, a.seed
+        "model {}: {} drives × {} frames a cell (30 fps), soak roads, seeds {}…",
+        a.model, a.drives, a.frames, a.seed
     );
     println!();
     println!("| clutter /m/row | lines | points a frame (over MEAS) | tracker: line-frames tracked | false lanes a frame (of lanes ≥ 1 s old) | id switches / 1,000 frames | RANSAC fit: line-frames tracked | false lanes a frame |");
@@ -170,8 +196,28 @@ fn main() -> Result<()> {
                 for d in 0..a.drives {
                     let total = &total;
                     let seed = a.seed + d;
+                    let model = a.model.as_str();
                     s.spawn(move || {
-                        let c = drive(seed, a.frames, forced);
+                        let c = match model {
+                            "uncoupled" => drive(
+                                &mut Box::new(ReferenceTracker::new(&UNCOUPLED)),
+                                seed,
+                                frames,
+                                forced,
+                            ),
+                            "rank3" => drive(
+                                &mut Box::new(Rank3Tracker::with_config(&UNCOUPLED, mcu_config())),
+                                seed,
+                                frames,
+                                forced,
+                            ),
+                            _ => drive(
+                                &mut Box::new(ReferenceTracker::new(&DEFAULT)),
+                                seed,
+                                frames,
+                                forced,
+                            ),
+                        };
                         if let Ok(mut t) = total.lock() {
                             t.add(&c);
                         }
