@@ -53,6 +53,14 @@ struct Args {
     /// known-lane row: the model that meets the MCU's instruction targets).
     #[arg(long, default_value = "default", value_parser = ["default", "uncoupled", "rank3"])]
     model: String,
+    /// Hold the lateral point noise at this standard deviation, metres (> 0; default: drawn
+    /// 0.03–0.15 per stretch as in the soak).
+    #[arg(long, value_parser = positive)]
+    sigma: Option<f64>,
+    /// Hold the lines' detection probability per row at this value (in (0, 1]; default: drawn
+    /// 0.6–0.97 per stretch).
+    #[arg(long, value_parser = probability)]
+    pd: Option<f64>,
     /// Clutter densities, points per metre per row (the soak draws 0–0.05 per stretch).
     #[arg(
         long,
@@ -164,6 +172,20 @@ fn drive<const RANK: usize, const NX: usize, const NA: usize>(
     c
 }
 
+fn positive(v: &str) -> Result<f64, String> {
+    match v.parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!("{v} is not a positive number")),
+    }
+}
+
+fn probability(v: &str) -> Result<f64, String> {
+    match v.parse::<f64>() {
+        Ok(x) if x > 0.0 && x <= 1.0 => Ok(x),
+        _ => Err(format!("{v} is not in (0, 1]")),
+    }
+}
+
 /// The MCU model's configuration: LBP on every known-lane row (as the firmware's small budget).
 fn mcu_config() -> TrackerConfig {
     TrackerConfig {
@@ -179,8 +201,13 @@ fn main() -> Result<()> {
     let a = Args::parse();
     let frames = a.frames;
     println!(
-        "model {}: {} drives × {} frames a cell (30 fps), soak roads, seeds {}…",
-        a.model, a.drives, a.frames, a.seed
+        "model {}: {} drives × {} frames a cell (30 fps), soak roads, seeds {}…; point noise {}, detection {}",
+        a.model,
+        a.drives,
+        a.frames,
+        a.seed,
+        a.sigma.map_or("drawn 0.03–0.15".to_string(), |v| format!("{v}")),
+        a.pd.map_or("drawn 0.6–0.97".to_string(), |v| format!("{v}")),
     );
     println!();
     println!("| clutter /m/row | lines | points a frame (over MEAS) | tracker: line-frames tracked | false lanes a frame (of lanes ≥ 1 s old) | id switches / 1,000 frames | RANSAC fit: line-frames tracked | false lanes a frame |");
@@ -190,6 +217,8 @@ fn main() -> Result<()> {
             let forced = Forced {
                 clutter: Some(clutter),
                 dashed: Some(dashed),
+                sigma: a.sigma,
+                pd: a.pd,
             };
             let total = Mutex::new(Cell::default());
             std::thread::scope(|s| {

@@ -133,6 +133,10 @@ pub struct Forced {
     pub clutter: Option<f64>,
     /// Dashed lines (every line but the leftmost visible one: 3 m dashes, 9 m gaps) or solid.
     pub dashed: Option<bool>,
+    /// Lateral point noise, standard deviation in metres (the soak draws 0.03–0.15).
+    pub sigma: Option<f64>,
+    /// Detection probability of a line's point in a row (the soak draws 0.6–0.97).
+    pub pd: Option<f64>,
 }
 
 /// The synthetic road of a drive (see the module docs).
@@ -239,6 +243,12 @@ impl Road {
         }
         if let Some(d) = self.forced.dashed {
             self.cond.dashed = d;
+        }
+        if let Some(sigma) = self.forced.sigma {
+            self.cond.sigma = sigma;
+        }
+        if let Some(pd) = self.forced.pd {
+            self.cond.pd = pd;
         }
     }
 

@@ -119,6 +119,7 @@ fn forced_conditions_hold() {
             Forced {
                 clutter: Some(clutter),
                 dashed: Some(dashed),
+                ..Forced::default()
             },
         )
     };
