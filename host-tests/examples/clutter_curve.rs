@@ -33,7 +33,7 @@ use stjpdacf::tracker::{
     Instant, LaneEstimate, Rank3Tracker, ReferenceTracker, Tracker, TrackerConfig,
 };
 use stjpdacf_test_support::invariants::POINTS;
-use stjpdacf_test_support::soak::{match_truth, Forced, Road};
+use stjpdacf_test_support::soak::{id_switches, match_truth, Forced, Road};
 use stjpdacf_tools::baseline::{fit_frame, BaselineParams, Lane};
 
 /// Clutter curve on the soak's roads: tracker against the per-frame RANSAC fit.
@@ -146,14 +146,7 @@ fn drive<const RANK: usize, const NX: usize, const NA: usize>(
                 .iter()
                 .filter(|l| l.age >= 30 && m.iter().all(|(_, id, _)| *id != l.id.0))
                 .count() as u64;
-            let mut seen = std::collections::BTreeMap::new();
-            for (line, id, _) in m {
-                if last_id.get(&line).is_some_and(|prev| *prev != id) {
-                    c.id_switches += 1;
-                }
-                seen.insert(line, id);
-            }
-            last_id = seen;
+            c.id_switches += id_switches(&mut last_id, &m);
         }
         let pts: Vec<(f64, f64)> = f
             .points

@@ -730,6 +730,19 @@ pub fn match_truth(
     (m, [unmatched, coasting])
 }
 
+/// Counts the id switches of one frame's matches ([`match_truth`]): a line whose matched lane
+/// id differs from the one it had in the last frame it was matched. A line not matched this
+/// frame forgets its id (a new id after a gap is not a switch). `last` carries each line's id
+/// from frame to frame.
+pub fn id_switches(last: &mut BTreeMap<i64, u32>, matches: &[(i64, u32, f64)]) -> u64 {
+    let switches = matches
+        .iter()
+        .filter(|(line, id, _)| last.get(line).is_some_and(|prev| prev != id))
+        .count() as u64;
+    *last = matches.iter().map(|&(line, id, _)| (line, id)).collect();
+    switches
+}
+
 /// One drive of `frames` frames (shard `shard`); `progress` counts frames done.
 ///
 /// # Errors
@@ -829,19 +842,10 @@ pub fn run_drive(
                     s.line_frames_matched += m.len() as u64;
                     s.false_lane_frames += unmatched;
                     s.false_lane_frames_coasting += coasting;
-                    let mut seen = BTreeMap::new();
-                    for (line, id, e) in m {
+                    for (_, _, e) in &m {
                         err_sum += e;
-                        if let Some(prev) = last_id.get(&line) {
-                            if *prev != id {
-                                s.id_switches += 1;
-                            }
-                        }
-                        seen.insert(line, id);
                     }
-                    // A line not matched this frame forgets its id (a new id after a gap is
-                    // not a switch).
-                    last_id = seen;
+                    s.id_switches += id_switches(&mut last_id, &m);
                 }
             }
         }

@@ -164,3 +164,18 @@ fn forced_conditions_hold() {
     );
     assert!(dashed_on < 0.6 * solid_on, "{dashed_on} {solid_on}");
 }
+
+/// Id switches count a line whose matched id changed since the last frame it was matched in,
+/// and forget a line that was not matched.
+#[test]
+fn id_switches_follow_each_line() {
+    use std::collections::BTreeMap;
+    use stjpdacf_test_support::soak::id_switches;
+    let mut last = BTreeMap::new();
+    assert_eq!(id_switches(&mut last, &[(0, 5, 0.1), (1, 6, 0.1)]), 0);
+    // Line 0 keeps its id, line 1 changes: one switch.
+    assert_eq!(id_switches(&mut last, &[(0, 5, 0.1), (1, 7, 0.1)]), 1);
+    // Line 1 is not matched: forgotten, so a new id after the gap is not a switch.
+    assert_eq!(id_switches(&mut last, &[(0, 5, 0.1)]), 0);
+    assert_eq!(id_switches(&mut last, &[(0, 9, 0.1), (1, 8, 0.1)]), 1);
+}
