@@ -399,6 +399,8 @@ const POST_MEAN_SD: f64 = 1e-2;
 const LLR_ABS_PER_ROW: f64 = 1e-3;
 /// `Σ_r W_r` within this per row.
 const WEIGHT_ABS_PER_ROW: f64 = 1e-4;
+/// The process-noise scale's score and information (§11.7) within this per row in view.
+const Q_SCORE_ABS_PER_ROW: f64 = 1e-3;
 /// Points whose `Σ_s β_{s,j}` lies this close to the threshold are not compared (f32 may fall
 /// on either side); they are counted.
 const EXPLAINED_MARGIN: f64 = 1e-4;
@@ -488,6 +490,8 @@ struct PassDev {
     llr: f64,
     /// `max |Δ Σ ln Λ| / K`: the difference in the logit update of one frame.
     llr_design_frame: f64,
+    /// `max |Δ score|, |Δ information|` of the process-noise scale per row in view.
+    q_score: f64,
     points: usize,
     explained: usize,
     borderline: usize,
@@ -772,6 +776,19 @@ fn compare_pass(
         dev.llr_design_frame = dev
             .llr_design_frame
             .max((f64::from(e.llr) - w.llr).abs() / k_rows as f64);
+        // The process-noise scale's score and information (§11.7).
+        let n_view = in_view.max(1) as f64;
+        for (k, (core, want)) in [(e.q_score[0], w.q_score.0), (e.q_score[1], w.q_score.1)]
+            .into_iter()
+            .enumerate()
+        {
+            let d = (f64::from(core) - want).abs();
+            dev.q_score = dev.q_score.max(d / n_view);
+            assert!(
+                d <= Q_SCORE_ABS_PER_ROW * n_view,
+                "seed {seed}, slot {s}: q_score[{k}] = {core} (core) vs {want} (reference)"
+            );
+        }
         // The running counts end where the core's do.
         for (b, (h, n)) in hits.iter().zip(&looks).enumerate() {
             let (ch, cn) = (
@@ -835,8 +852,10 @@ fn known_lane_pass_matches_the_reference() {
          {:.2e} (tolerance {POST_PRECISION:.0e}), posterior mean {:.2e} sd (tolerance \
          {POST_MEAN_SD:.0e}); Σ W max {:.2e} per row (tolerance {WEIGHT_ABS_PER_ROW:.0e}); \
          Σ ln Λ max {:.2e} per row in view (P_D fixed over the pass; tolerance \
-         {LLR_ABS_PER_ROW:.0e}; {:.2e} in one frame's logit update); explained masks equal on \
-         {} points, {} of them explained ({} within {EXPLAINED_MARGIN:.0e} of the threshold skipped)",
+         {LLR_ABS_PER_ROW:.0e}; {:.2e} in one frame's logit update); process-noise score and \
+         information max {:.2e} per row in view (tolerance {Q_SCORE_ABS_PER_ROW:.0e}); explained \
+         masks equal on {} points, {} of them explained ({} within {EXPLAINED_MARGIN:.0e} of the \
+         threshold skipped)",
         dev.lanes,
         dev.j,
         dev.i,
@@ -845,8 +864,68 @@ fn known_lane_pass_matches_the_reference() {
         dev.weight,
         dev.llr,
         dev.llr_design_frame,
+        dev.q_score,
         dev.points,
         dev.explained,
         dev.borderline
     );
+}
+
+// (d) The process-noise scale's step (§11.7).
+
+/// `Persist::count_q_score` and `Persist::adapt_q_scale` against `reference::persist::
+/// q_scale_step` on random frames: lanes published or not, through two passes or not, scores of
+/// either sign (some past the cap), and frames with too few degrees of freedom. The core's `ln s`
+/// within `1e-4` of the reference's (`ln 10⁴` is `9.21` in the core).
+#[test]
+fn q_scale_step_matches_the_reference() {
+    let mut rng = ChaCha8Rng::seed_from_u64(55);
+    let p_publish = 0.5f32;
+    let (memory, min_dof) = (2.0f32, 10.0f32);
+    let (mut moved, mut held, mut worst) = (0usize, 0usize, 0.0f64);
+    let mut ps = Persist::<LANES, POINTS, ROWS>::new();
+    for frame in 0..2000 {
+        if frame % 50 == 0 {
+            ps.log_q_scale = rng.random_range(0.0..9.0);
+        }
+        let before = ps.log_q_scale;
+        let mut counted = Vec::new();
+        for s in 0..LANES {
+            let lane = &mut ps.lanes[s];
+            lane.passes = rng.random_range(0..4);
+            lane.existence = rng.random_range(0.0..1.0);
+            let info: f32 = if rng.random::<f64>() < 0.1 {
+                0.0
+            } else {
+                rng.random_range(0.0..30.0)
+            };
+            let score: f32 = info * rng.random_range(-1.5..4.0);
+            let dof = 6.0f32;
+            if lane.passes >= 2 && lane.existence >= p_publish {
+                counted.push((f64::from(score), f64::from(info), f64::from(dof)));
+            }
+            ps.count_q_score(s, [score, info], dof, p_publish);
+        }
+        let want = refp::q_scale_step(
+            f64::from(before),
+            &counted,
+            f64::from(memory),
+            f64::from(min_dof),
+        );
+        ps.adapt_q_scale(memory, min_dof);
+        let d = (f64::from(ps.log_q_scale) - want).abs();
+        worst = worst.max(d);
+        assert!(
+            d <= 1e-4,
+            "frame {frame}: ln s = {} (core) vs {want} (reference), from {before}",
+            ps.log_q_scale
+        );
+        if (want - f64::from(before)).abs() > 1e-6 {
+            moved += 1;
+        } else {
+            held += 1;
+        }
+    }
+    assert!(moved > 500 && held > 100, "moved {moved}, held {held}");
+    println!("q-scale step: {moved} frames moved, {held} held; max |Δ ln s| = {worst:.2e}");
 }

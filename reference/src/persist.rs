@@ -268,6 +268,10 @@ pub struct LaneEvidence {
     pub weight: f64,
     /// `Σ_r ln Λ_r` over the rows in view.
     pub llr: f64,
+    /// The process-noise scale's score and information over the rows in view with `W_r > 0`
+    /// (docs/design.md §11.7): `(Σ_r f_r (Σ_j β_{s,j} ν_j²/S_ss − W_r), Σ_r W_r f_r²)`,
+    /// `f_r = p/S_ss`.
+    pub q_score: (f64, f64),
     /// The lane's rows (those in its row range).
     pub rows: Vec<LaneRow>,
 }
@@ -345,6 +349,7 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             i: DVector::zeros(r),
             weight: 0.0,
             llr: 0.0,
+            q_score: (0.0, 0.0),
             rows: Vec::new(),
         })
         .collect();
@@ -454,6 +459,11 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             let log_lr =
                 log_likelihood_ratio(lane.pd[row.band], prm.pg, band.clutter, gated_likelihood);
             let ev = &mut lanes[s];
+            if in_view && w > 1e-6 {
+                let f = (p / st).clamp(0.0, 1.0);
+                ev.q_score.0 += f * (n2 / st - w);
+                ev.q_score.1 += w * f * f;
+            }
             if let Some((v, zt)) = equivalent {
                 ev.j += &c * c.transpose() / v;
                 ev.i += &c * (zt / v);
@@ -518,6 +528,28 @@ pub struct InfoUpdate {
     /// `q = wᵀ M⁻¹ w` (docs/design.md §11.4: `M⁻¹` by a Cholesky factorisation of `M` with
     /// pivots floored at `10⁻⁶ max_j M_jj`; 0 when `M` is zero).
     pub nis: f64,
+}
+
+/// One frame's step of the process-noise scale (docs/design.md §11.7): `lanes` holds each
+/// published lane's `(score, information, dof)` ([`LaneEvidence::q_score`] and the lane's rank;
+/// a lane with no information is not counted); each score is capped at twice its information; with `Σ dof ≥ min_dof` and `Σ information
+/// > 0`, `ŝ = s (1 + Σ score / Σ information)` (at least 0), then `ln s` moves `1/memory` of
+/// the way to `ln ŝ`, both in `[0, ln 10⁴]`. Returns the new `ln s`.
+pub fn q_scale_step(log_s: f64, lanes: &[(f64, f64, f64)], memory: f64, min_dof: f64) -> f64 {
+    let (g, i, dof) = lanes
+        .iter()
+        .filter(|l| l.1 > 0.0)
+        .fold((0.0, 0.0, 0.0), |(g, i, d), &(gs, is, ds)| {
+            (g + gs.min(2.0 * is), i + is, d + ds)
+        });
+    let top = 1e4f64.ln();
+    let s = log_s.clamp(0.0, top);
+    if dof < min_dof || i <= 0.0 {
+        return s;
+    }
+    let ratio = (1.0 + g / i).max(0.0);
+    let target = (ratio * s.exp()).max(1.0).ln().clamp(0.0, top);
+    (s + (target - s) / memory.max(1.0)).clamp(0.0, top)
 }
 
 /// The Kalman update of the Gaussian `N(x, P)` by measurements whose information on the entries

@@ -46,17 +46,9 @@ struct RowAt<const RANK: usize> {
     params: RowParams,
 }
 
-/// The row's PDA update of a lane's marginal as one equivalent measurement (docs/design.md
-/// §11.3): with the row prior variance `p = S − r`, `ν̄ = Σ β_j ν_j` and the spread
-/// `Σ β_j ν_j² − ν̄²`, the PDA posterior variance `p − W p²/S + p² spread/S²` equals that of a
-/// measurement of variance `v`, `1/(p + v) = W/S − spread/S²`, at `ẑ + ν̄ (p + v)/S`.
-/// Returns `(1/v, z̃)`, or `None` when the row carries no information.
-fn equivalent_measurement(
-    pts: &[f32],
-    brow: &[f32; MAX_ROW_POINTS],
-    (zh, st, w): (f32, f32, f32),
-    r: f32,
-) -> Option<(f32, f32)> {
+/// `(ν̄, Σ β_j ν_j²)` of a lane's row: the first and second moments of its innovations
+/// `ν_j = z_j − ẑ` under the association weights.
+fn moments(pts: &[f32], brow: &[f32; MAX_ROW_POINTS], zh: f32) -> (f32, f32) {
     let mut nbar = 0.0f32;
     let mut n2 = 0.0f32;
     for (z, bj) in pts.iter().zip(brow.iter()) {
@@ -64,6 +56,20 @@ fn equivalent_measurement(
         nbar += bj * d;
         n2 += bj * d * d;
     }
+    (nbar, n2)
+}
+
+/// The row's PDA update of a lane's marginal as one equivalent measurement (docs/design.md
+/// §11.3): with the row prior variance `p = S − r`, `ν̄ = Σ β_j ν_j` and the spread
+/// `Σ β_j ν_j² − ν̄²`, the PDA posterior variance `p − W p²/S + p² spread/S²` equals that of a
+/// measurement of variance `v`, `1/(p + v) = W/S − spread/S²`, at `ẑ + ν̄ (p + v)/S`.
+/// `(nbar, n2)` are the row's [`moments`]. Returns `(1/v, z̃)`, or `None` when the row carries
+/// no information.
+fn equivalent_measurement(
+    (nbar, n2): (f32, f32),
+    (zh, st, w): (f32, f32, f32),
+    r: f32,
+) -> Option<(f32, f32)> {
     let spread = math::max(n2 - nbar * nbar, 0.0);
     let q = w / st - spread / (st * st);
     let p_row = st - r;
@@ -425,6 +431,12 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         if let Some(rw) = self.rows.get_mut(s).and_then(|rs| rs.get_mut(r)) {
             *rw = [0.0; 2];
         }
+        // The share of `S` that the lane's prediction holds (the rest is point noise).
+        let f = if st > 0.0 {
+            ((st - at.params.r) / st).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         if w > 1e-6 && !out.failed {
             let zbar: f32 = pts
                 .iter()
@@ -440,7 +452,14 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                     *rw = [pts.get(jd).copied().unwrap_or(zbar), bd];
                 }
             }
-            if let Some((om, zt)) = equivalent_measurement(pts, brow, (zh, st, w), at.params.r) {
+            let mom = moments(pts, brow, zh);
+            if in_view {
+                // The score of the process-noise scale (§11.7): ∂ ln L_r / ∂ ln S_r = ½ (Σ β_j
+                // ν_j²/S − W), times the share f of S that the prediction holds.
+                e.q_score[0] += f * (mom.1 / st - w);
+                e.q_score[1] += w * f * f;
+            }
+            if let Some((om, zt)) = equivalent_measurement(mom, (zh, st, w), at.params.r) {
                 let ru = at.r_used.min(RANK);
                 let mut oc = [0.0f32; RANK];
                 for ((o, iv), cj) in oc.iter_mut().zip(e.i.iter_mut()).zip(at.c.iter()).take(ru) {

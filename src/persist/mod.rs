@@ -290,6 +290,9 @@ impl<const POINTS: usize> LaneState<POINTS> {
     }
 }
 
+/// `ln 10⁴`: the process-noise scale's upper bound (docs/design.md §11.7).
+const LN_MAX_Q_SCALE: f32 = 9.210_34;
+
 /// The stage's state: per slot [`LaneState`], per band the clutter density and the point
 /// variance, and this frame's row evidence per slot (for the noise estimate).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -306,11 +309,9 @@ pub struct Persist<const LANES: usize, const POINTS: usize, const ROWS: usize> {
     pub span: [[f32; 2]; POINTS],
     /// `ln` of the process-noise scale (≥ 0).
     pub log_q_scale: f32,
-    /// This frame's sum of `ν²/S` and count over the confidently associated rows of lanes
-    /// older than one frame.
-    nis: [f32; 2],
-    /// The last frame's ratio `Σ nis / Σ dof` (0 when not enough was counted).
-    pub last_nis_ratio: f32,
+    /// This frame's sums of the process-noise scale's score, its information and the degrees
+    /// of freedom over the lanes counted ([`Persist::count_q_score`]).
+    q_sums: [f32; 3],
 }
 
 /// One frame's evidence for one lane.
@@ -330,6 +331,10 @@ pub struct Evidence<const RANK: usize> {
     /// With [`PersistConfig::paint_gap`]: the chain's forward probabilities (paint, gap) after
     /// the rows so far, normalised to sum 1 (their scale is in `llr`).
     pub chain: [f32; 2],
+    /// Over the rows in view, `[Σ_r f_r (Σ_j β_j ν_j²/S_r − W_r), Σ_r P_D f_r²]` with
+    /// `f_r = (S_r − r_b)/S_r`: twice the score of the pass's likelihood in `ln s` (the
+    /// process-noise scale) and twice its expected information (docs/design.md §11.7).
+    pub q_score: [f32; 2],
 }
 
 impl<const RANK: usize> Evidence<RANK> {
@@ -341,6 +346,7 @@ impl<const RANK: usize> Evidence<RANK> {
         llr: 0.0,
         extent: [f32::INFINITY, f32::NEG_INFINITY],
         chain: [0.0, 1.0],
+        q_score: [0.0; 2],
     };
 }
 
@@ -397,8 +403,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         rows: [[[0.0; 2]; ROWS]; LANES],
         span: [[0.0; 2]; POINTS],
         log_q_scale: 0.0,
-        nis: [0.0; 2],
-        last_nis_ratio: 0.0,
+        q_sums: [0.0; 3],
     };
 
     /// The clutter densities not yet estimated (`NaN`), the spans empty. O(POINTS).
@@ -412,38 +417,41 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         math::exp(self.log_q_scale.max(0.0))
     }
 
-    /// Counts one lane update's normalised innovation `nis` with `dof` degrees of freedom
-    /// (lanes through at least two known-lane passes only: a new lane's velocity is unknown).
-    /// Only lanes that are published (`P ≥ p_publish`) count, and each lane's `nis` is capped at
-    /// `3·dof` (about the χ² 99.9 % point for 7 degrees of freedom): one lane gone astray must
-    /// not inflate every lane's process noise.
-    pub fn count_nis(&mut self, s: usize, nis: f32, dof: f32, p_publish: f32) {
+    /// Counts one lane's [`Evidence::q_score`] with `dof` degrees of freedom (lanes through at
+    /// least two known-lane passes only: a new lane's velocity is unknown). Only lanes that are
+    /// published (`P ≥ p_publish`) count, and each lane's score is capped at twice its
+    /// information (its own estimate of the scale at most 3× the current one): one lane gone
+    /// astray must not inflate every lane's process noise.
+    pub fn count_q_score(&mut self, s: usize, score: [f32; 2], dof: f32, p_publish: f32) {
         let ok = self
             .lanes
             .get(s)
             .is_some_and(|l| l.passes >= 2 && l.existence >= p_publish);
-        if ok && nis.is_finite() && nis >= 0.0 {
-            self.nis[0] += nis.min(3.0 * dof);
-            self.nis[1] += dof;
+        let [g, i] = score;
+        if ok && g.is_finite() && i.is_finite() && i > 0.0 {
+            self.q_sums[0] += g.min(2.0 * i);
+            self.q_sums[1] += i;
+            self.q_sums[2] += dof;
         }
     }
 
-    /// Adapts the process-noise scale to this frame's normalised innovations (covariance
-    /// matching): with `ρ = Σ nis / Σ dof` over the lane updates counted (1 when the model
-    /// holds), `ln s += ln ρ / memory`, `s` kept in `[1, 10⁴]`. Nothing changes with fewer than
-    /// `min_dof` degrees of freedom.
+    /// Adapts the process-noise scale `s` to this frame's rows (docs/design.md §11.7): one
+    /// Fisher-scoring step of the rows' PDA likelihood in `s`, `ŝ = s·(1 + Σ score / Σ
+    /// information)` (clutter scores ≈ 0 at any `s`, so a wide prediction does not hold
+    /// itself up), then `ln s += (ln ŝ − ln s) / memory` with `ŝ` and `s` kept in `[1, 10⁴]`.
+    /// Nothing changes with fewer than `min_dof` degrees of freedom.
     pub fn adapt_q_scale(&mut self, memory: f32, min_dof: f32) {
-        let [sum, n] = self.nis;
-        self.last_nis_ratio = 0.0;
-        if n >= min_dof && sum > 0.0 && sum.is_finite() {
-            let rho = sum / n;
-            self.last_nis_ratio = rho;
-            let step = math::ln(rho) / memory.max(1.0);
+        let [g, i, n] = self.q_sums;
+        if n >= min_dof && i > 0.0 && g.is_finite() && i.is_finite() {
+            let ratio = math::max(1.0 + g / i, 0.0);
+            let s = self.log_q_scale.clamp(0.0, LN_MAX_Q_SCALE);
+            let target = math::ln(math::max(ratio * math::exp(s), 1.0)).clamp(0.0, LN_MAX_Q_SCALE);
+            let step = (target - s) / memory.max(1.0);
             if step.is_finite() {
-                self.log_q_scale = (self.log_q_scale + step).clamp(0.0, 9.21);
+                self.log_q_scale = (s + step).clamp(0.0, LN_MAX_Q_SCALE);
             }
         }
-        self.nis = [0.0; 2];
+        self.q_sums = [0.0; 3];
     }
 
     /// Records this frame's lateral span per band from all its binned points (call once per

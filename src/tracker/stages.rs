@@ -167,10 +167,14 @@ impl_tracker! {
                     .temporal
                     .update_info_probed(tables, s, &e.j, &e.i, probe)
                 {
-                    Ok(u) => {
+                    Ok(_) => {
                         let dof = (tables.gram_rank as usize).min(RANK) as f32;
-                        self.persist
-                            .count_nis(s, u.nis, dof, self.cfg.persist.p_publish);
+                        self.persist.count_q_score(
+                            s,
+                            e.q_score,
+                            dof,
+                            self.cfg.persist.p_publish,
+                        );
                     }
                     Err(_) => report.temporal_failures += 1,
                 }
