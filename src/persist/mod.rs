@@ -437,8 +437,9 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
 
     /// Adapts the process-noise scale `s` to this frame's rows (docs/design.md §11.7): one
     /// Fisher-scoring step of the rows' PDA likelihood in `s`, `ŝ = s·(1 + Σ score / Σ
-    /// information)` (clutter scores ≈ 0 at any `s`, so a wide prediction does not hold
-    /// itself up), then `ln s += (ln ŝ − ln s) / memory` with `ŝ` and `s` kept in `[1, 10⁴]`.
+    /// information)` (each row's points weighed by their association probabilities against its
+    /// own predicted variance), then `ln s += (ln ŝ − ln s) / memory` with `ŝ` and `s` kept in
+    /// `[1, 10⁴]`.
     /// Nothing changes with fewer than `min_dof` degrees of freedom.
     pub fn adapt_q_scale(&mut self, memory: f32, min_dof: f32) {
         let [g, i, n] = self.q_sums;
