@@ -331,9 +331,9 @@ pub struct Evidence<const RANK: usize> {
     /// With [`PersistConfig::paint_gap`]: the chain's forward probabilities (paint, gap) after
     /// the rows so far, normalised to sum 1 (their scale is in `llr`).
     pub chain: [f32; 2],
-    /// Over the rows in view, `[Σ_r f_r (Σ_j β_j ν_j²/S_r − W_r), Σ_r P_D f_r²]` with
-    /// `f_r = (S_r − r_b)/S_r`: twice the score of the pass's likelihood in `ln s` (the
-    /// process-noise scale) and twice its expected information (docs/design.md §11.7).
+    /// Over the rows in view with `W_r > 0`, `[Σ_r f_r (Σ_j β_j ν_j²/S_r − W_r), Σ_r W_r f_r²]`
+    /// with `f_r = (S_r − r_b)/S_r`: twice the score of the pass's likelihood in `ln s` (the
+    /// process-noise scale) and twice its observed information (docs/design.md §11.7).
     pub q_score: [f32; 2],
 }
 
@@ -439,8 +439,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     /// Fisher-scoring step of the rows' PDA likelihood in `s`, `ŝ = s·(1 + Σ score / Σ
     /// information)` (each row's points weighed by their association probabilities against its
     /// own predicted variance), then `ln s += (ln ŝ − ln s) / memory` with `ŝ` and `s` kept in
-    /// `[1, 10⁴]`.
-    /// Nothing changes with fewer than `min_dof` degrees of freedom.
+    /// `[1, 10⁴]`. Nothing changes with fewer than `min_dof` degrees of freedom.
     pub fn adapt_q_scale(&mut self, memory: f32, min_dof: f32) {
         let [g, i, n] = self.q_sums;
         if n >= min_dof && i > 0.0 && g.is_finite() && i.is_finite() {
