@@ -953,7 +953,14 @@ fn pooled_ratios(alpha: f64, clutter: f64, pd_true: f64, scale: f64, passes: u64
     let r = rank_used(&m);
     let cfg = TrackerConfig::DEFAULT;
     let k_rows = 4;
-    let (n_rows, _) = refp::row_geometry(&m, k_rows);
+    let (n_rows, du) = refp::row_geometry(&m, k_rows);
+    // Each row's `u` and basis, the same in every pass.
+    let basis: Vec<(f64, DVector<f64>)> = (0..n_rows)
+        .map(|k| {
+            let u = m.hyper.window.u_min + k as f64 * du;
+            (u, refp::row_basis(&m, u).0)
+        })
+        .collect();
     let noise = 0.01;
     let lane = refp::KnownLane {
         mean: DVector::zeros(r),
@@ -979,9 +986,8 @@ fn pooled_ratios(alpha: f64, clutter: f64, pd_true: f64, scale: f64, passes: u64
         // shape whose variance at row r is scale·p_r.
         let delta = DVector::from_fn(r, |_, _| (scale * alpha).sqrt() * unit.sample(&mut rng));
         let mut pts = Vec::new();
-        for k in 0..n_rows {
-            let u = m.hyper.window.u_min + k as f64 * refp::row_geometry(&m, k_rows).1;
-            let (c, _) = refp::row_basis(&m, u);
+        for (u, c) in &basis {
+            let u = *u;
             if rng.random::<f64>() < pd_true {
                 let x = c.dot(&delta) + noise.sqrt() * unit.sample(&mut rng);
                 pts.push((u, x));
