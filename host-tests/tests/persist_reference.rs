@@ -454,6 +454,7 @@ fn pass_params(cfg: &TrackerConfig) -> refp::PassParams {
             MissModel::Textbook => MissConvention::Textbook,
         },
         explained: f64::from(cfg.persist.explained),
+        own_pd: cfg.persist.own_pd,
     }
 }
 
@@ -522,13 +523,14 @@ struct PassDev {
 fn compare_pass(
     (tables, hyper): (&'static Tables<2, LANES, POINTS>, &str),
     (seed, warmup, clutter, restrict): (u64, usize, f64, bool),
-    paint_gap: Option<PaintGap>,
+    (paint_gap, own_pd): (Option<PaintGap>, bool),
     dev: &mut PassDev,
 ) {
     let m = model_of(hyper);
     let r = rank_used(&m);
     let mut cfg = TrackerConfig::DEFAULT;
     cfg.persist.paint_gap = paint_gap;
+    cfg.persist.own_pd = own_pd;
     let mut tracker = Box::new(ReferenceTracker::new(tables));
     let dt_us = 50_000i64;
     for k in 0..warmup {
@@ -845,9 +847,12 @@ fn known_lane_pass_matches_the_reference() {
             (4, 5, 0.05, true),
         ] {
             // The existence evidence of the design's default (1/K Σ_r ln Λ_r) and of the
-            // paint / gap chain (§11.5).
+            // paint / gap chain (§11.5); the joint events at each lane's `P_D,b` and at the
+            // stage's `P_D` (§11.3).
             for paint_gap in [None, Some(PaintGap::HIGHWAY)] {
-                compare_pass(model, case, paint_gap, &mut dev);
+                for own_pd in [true, false] {
+                    compare_pass(model, case, (paint_gap, own_pd), &mut dev);
+                }
             }
         }
     }

@@ -341,6 +341,25 @@ pub fn row_step(
     zs: &[f64],
     params: &RowParams,
 ) -> Option<RowResult> {
+    let d = if h.ncols() == 0 {
+        0
+    } else {
+        xbar.len() / h.ncols()
+    };
+    row_step_with_pd(xbar, pbar, h, zs, params, &vec![params.pd; d])
+}
+
+/// [`row_step`] with a detection probability per track (`pd[t]`, in place of `params.pd`;
+/// docs/design.md §11.3): a detected track's factor is `pd[t] / λ_c` and a missed one's its
+/// miss factor at `pd[t]`. `None` as [`row_step`], or when `pd` does not hold one value per track.
+pub fn row_step_with_pd(
+    xbar: &DVector<f64>,
+    pbar: &DMatrix<f64>,
+    h: &DMatrix<f64>,
+    zs: &[f64],
+    params: &RowParams,
+    pd: &[f64],
+) -> Option<RowResult> {
     let nx = h.ncols();
     if h.nrows() != 1 || nx == 0 || xbar.len() % nx != 0 {
         return None;
@@ -349,6 +368,9 @@ pub fn row_step(
         return None;
     }
     let d = xbar.len() / nx;
+    if pd.len() != d {
+        return None;
+    }
     let m = zs.len();
     let hbar = stack_h(d, h);
     let pht = pbar * hbar.transpose();
@@ -360,8 +382,11 @@ pub fn row_step(
     let events = enumerate_events(&gating.valid);
 
     // Step 3: log weights, one factorisation per detection pattern.
-    let ln_pd = params.pd.ln();
-    let ln_miss = params.miss.miss_factor(params.pd, params.pg).ln();
+    let ln_pd: Vec<f64> = pd.iter().map(|p| p.ln()).collect();
+    let ln_miss: Vec<f64> = pd
+        .iter()
+        .map(|&p| params.miss.miss_factor(p, params.pg).ln())
+        .collect();
     let ln_lambda = params.clutter_density.ln();
     let mut cache: BTreeMap<Vec<bool>, Pattern> = BTreeMap::new();
     let mut log_weights = Vec::with_capacity(events.len());
@@ -381,11 +406,12 @@ pub fn row_step(
         // Summed per track (not `n · ln p`) so that a zero factor gives −∞, never 0 · (−∞) = NaN.
         let lw = log_normal(pat, &nu)
             + ev.iter()
-                .map(|a| {
+                .enumerate()
+                .map(|(t, a)| {
                     if a.is_some() {
-                        ln_pd - ln_lambda
+                        ln_pd[t] - ln_lambda
                     } else {
-                        ln_miss
+                        ln_miss[t]
                     }
                 })
                 .sum::<f64>();

@@ -4,7 +4,7 @@
 //! ratios.
 //!
 //! Written from the design text with dynamic nalgebra matrices; nothing here uses the core crate.
-//! Everything is exact: all joint events of a row are enumerated ([`crate::jpda::row_step`], no
+//! Everything is exact: all joint events of a row are enumerated ([`crate::jpda::row_step_with_pd`], no
 //! budget `E`, no pruning), the basis is computed in f64 from the Gram eigenpairs of
 //! [`ModelTables`], and the temporal update ([`info_update`]) is the textbook Kalman update of the
 //! whole dense state with an equivalent measurement, not the core's Woodbury algebra.
@@ -152,7 +152,8 @@ pub struct KnownLane {
     pub rank: usize,
     /// Rows looked at, `[lo, hi]` inclusive (indices into the pass's rows).
     pub rows: (usize, usize),
-    /// The lane's detection probability `P_D,b` per band (the existence update's, §11.5).
+    /// The lane's detection probability `P_D,b` per band (§11.5): its detections' weight in
+    /// the joint events (§11.3) and in the existence update.
     pub pd: Vec<f64>,
     /// `P(exists)` before the pass: the weight `P_D · P` of the lane's detections as the other
     /// lanes' competitor in their existence evidence (§11.5).
@@ -173,8 +174,11 @@ pub struct Band {
 /// The association constants of the pass (docs/design.md §4.1 steps 2–3, §11.3).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PassParams {
-    /// `P_D` of the joint events.
+    /// `P_D` of the other lanes' detections as a lane's competitor in its existence evidence
+    /// (§11.5), and of every lane in the joint events unless `own_pd`.
     pub pd: f64,
+    /// The joint events weigh each lane's detections at its own [`KnownLane::pd`] (§11.3).
+    pub own_pd: bool,
     /// `P_G`.
     pub pg: f64,
     /// Gate `γ` (inclusive, on each lane's marginal).
@@ -302,9 +306,9 @@ fn normal_pdf(x: f64, s: f64) -> f64 {
 ///
 /// For every row, the lanes whose row range holds it are predicted from their coefficients
 /// ([`row_basis`]); the joint events are all of them (§4.1 steps 2–3 without the budget of step
-/// 5: [`jpda::row_step`] on the lanes' predicted positions with covariance `P_row` (`P_row,st =
-/// c_rᵀ Cov(a_s, a_t) c_r + ρ_r B_ρ(s)ρ(t)`) and point variance `r_b`, so that its `S̄` is the
-/// joint `S` of §11.3). A lane that gates no point is missed in every event: its constant miss
+/// 5: [`jpda::row_step_with_pd`] on the lanes' predicted positions with covariance `P_row`
+/// (`P_row,st = c_rᵀ Cov(a_s, a_t) c_r + ρ_r B_ρ(s)ρ(t)`), point variance `r_b` and each lane's
+/// `P_D,b`, so that its `S̄` is the joint `S` of §11.3). A lane that gates no point is missed in every event: its constant miss
 /// factor changes no `β`, so including it equals enumerating only the lanes with candidates.
 ///
 /// # Errors
@@ -407,7 +411,18 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             miss: prm.miss,
         };
         let one = DMatrix::from_element(1, 1, 1.0);
-        let res = jpda::row_step(&zhat, &p_row, &one, &row.points, &params)
+        // Each lane's detections weighed at its own `P_D,b` (§11.3).
+        let pds: Vec<f64> = idx
+            .iter()
+            .map(|&s| {
+                if prm.own_pd {
+                    input.lanes[s].pd[row.band]
+                } else {
+                    prm.pd
+                }
+            })
+            .collect();
+        let res = jpda::row_step_with_pd(&zhat, &p_row, &one, &row.points, &params, &pds)
             .with_context(|| format!("row {ri}: the joint events cannot be weighed"))?;
         // Each point's density under the other lanes' detections: λ + Σ_t P_D P_t N(z_j; ẑ_t,
         // S_tt) over the lanes that gate it; a lane's own term is taken out below (§11.5).

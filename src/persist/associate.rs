@@ -4,7 +4,7 @@
 
 use crate::linalg::{get, set};
 use crate::math;
-use crate::spatial::row::{self, RowOutcome, RowParams, MAX_ROW_POINTS};
+use crate::spatial::row::{self, MissModel, RowOutcome, RowParams, MAX_ROW_POINTS};
 use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 
@@ -210,6 +210,26 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 *v = math::max(l.pd(b), cfg.pd_floor);
             }
         }
+        // With `own_pd`, each lane's detection odds in each band against the pass's `P_D`
+        // (docs/design.md §11.3): the rows' joint events weigh a lane's detections at its own
+        // `P_D,b` (two `ln` per lane and band, once a pass).
+        let mut odds0 = [[0.0f32; POINTS]; LANES];
+        let ln_odds = |pd: f32| {
+            let miss = match pass.params.miss {
+                MissModel::Textbook => 1.0 - pd,
+                MissModel::Gated => 1.0 - pd * pass.params.pg,
+            };
+            math::ln(pd) - math::ln(miss)
+        };
+        let own = ln_odds(pass.params.pd);
+        for &s in slot.iter().take(n).filter(|_| cfg.own_pd) {
+            if let (Some(o), Some(p)) = (odds0.get_mut(s), pd0.get(s)) {
+                for (ob, pb) in o.iter_mut().zip(p.iter()) {
+                    let v = ln_odds(*pb) - own;
+                    *ob = if v.is_finite() { v } else { 0.0 };
+                }
+            }
+        }
         let bss = |s: usize, t: usize| {
             let a = usize::from(get(lanes.ranks, s));
             let b = usize::from(get(lanes.ranks, t));
@@ -253,6 +273,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 sdiag: [0.0; LANES],
                 n: 0,
             };
+            let mut odds = [0.0f32; LANES];
             for &s in slot.iter().take(n) {
                 let (lo, hi) = get(&lanes.rows, s);
                 if r < usize::from(lo) || r > usize::from(hi) {
@@ -269,6 +290,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                     o.quad(&c, r_used) + rho * bss(s, s) + self.noise(b, pass.params.r),
                 );
                 set(&mut pred.idx, k, s);
+                set(&mut odds, k, odds0.get(s).map_or(0.0, |o| get(o, b)));
                 pred.n += 1;
             }
             let at = RowAt {
@@ -305,7 +327,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 },
                 pred.n,
                 pts,
-                &at.params,
+                (&at.params, &odds),
                 (pass.max_events, cfg.association),
                 0,
             );

@@ -106,6 +106,11 @@ pub struct PersistConfig {
     /// keeps it alive: existence and detection probability cannot both be learned from the
     /// same misses.
     pub pd_floor: f32,
+    /// The detection probability of a lane in its rows' joint events (docs/design.md §11.3):
+    /// `true` (the default since stop 56), the lane's own `P_D,b` (the estimate above, no lower
+    /// than `pd_floor`), so that a sparse dashed marking does not claim the clutter in its gaps
+    /// as a solid line would; `false`, the spatial stage's `P_D` for every lane (until stop 55).
+    pub own_pd: bool,
     /// How each row's joint events are weighed (docs/design.md §11.3): exact enumeration with
     /// pruning over the budget, LBP over the budget, or LBP everywhere.
     pub association: Association,
@@ -238,6 +243,7 @@ impl PersistConfig {
         p_visible: 0.9,
         min_spacing: 1.0,
         pd_floor: 0.2,
+        own_pd: true,
         association: Association::ExactOrLbp,
         ray_z: 3.0,
         ray_resolution: 0.5,

@@ -151,6 +151,7 @@ impl TrackerConfig {
             p_visible: 0.0,
             min_spacing: 0.0,
             pd_floor: 0.0,
+            own_pd: false,
             association: Association::Exact,
             ray_z: 0.0,
             ray_resolution: 0.0,

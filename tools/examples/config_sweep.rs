@@ -23,6 +23,7 @@ fn main() -> anyhow::Result<()> {
             "ray_resolution" => config.persist.ray_resolution = x,
             "ray_aligned" => config.persist.ray_aligned = x != 0.0,
             "slot_claims" => config.persist.slot_claims = x != 0.0,
+            "own_pd" => config.persist.own_pd = x != 0.0,
             "newcomer_wait" => config.persist.newcomer_wait = x as u8,
             "max_tentative" => config.spatial.max_tentative = x as u8,
             _ => anyhow::bail!("unknown field {k}"),

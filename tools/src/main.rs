@@ -121,6 +121,11 @@ enum Command {
         /// below the birth prior (an ablation).
         #[arg(long)]
         no_slot_claims: bool,
+        /// Weigh every known lane's detections in the joint events at the spatial stage's
+        /// `P_D` instead of the lane's learned `P_D,b` (`PersistConfig::own_pd = false`,
+        /// docs/design.md §11.3; the behaviour until stop 55, an ablation).
+        #[arg(long)]
+        no_own_pd: bool,
         /// Publish a new lane from its second frame even when it runs parallel to no lane found
         /// to be paint or lies within 2 m of a published lane (`PersistConfig::newcomer_wait =
         /// 0`, docs/design.md §11.5; an ablation).
@@ -415,6 +420,7 @@ fn main() -> Result<()> {
             interval_evidence,
             decisive_rays_only,
             no_slot_claims,
+            no_own_pd,
             no_newcomer_wait,
             newcomer_wait,
             overlay,
@@ -510,6 +516,7 @@ fn main() -> Result<()> {
                             },
                             ray_aligned: d.persist.ray_aligned && !decisive_rays_only,
                             slot_claims: d.persist.slot_claims && !no_slot_claims,
+                            own_pd: d.persist.own_pd && !no_own_pd,
                             newcomer_wait: if no_newcomer_wait {
                                 0
                             } else {

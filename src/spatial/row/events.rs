@@ -79,6 +79,8 @@ struct Member<const L: usize> {
     invd: f32,
     /// `ln det` of the leading `a + 1` members' `S`.
     logdet: f32,
+    /// The leading `a + 1` members' detection-odds offsets summed ([`Ctx::odds`]).
+    odds: f32,
     /// Row `a` of the unit lower factor `L`, in member coordinates (entries `b < a`).
     l: [f32; L],
     /// Row `a` of `L⁻¹` in track coordinates (`li[tr_b] = (L⁻¹)_ab`, `li[tr] = 1`, the rest 0).
@@ -97,6 +99,7 @@ impl<const L: usize> Member<L> {
         zh: 0.0,
         invd: 0.0,
         logdet: 0.0,
+        odds: 0.0,
         l: [0.0; L],
         li: [0.0; L],
         wsub: 0.0,
@@ -287,6 +290,9 @@ pub(super) struct Ctx<'a, const L: usize> {
     pub(super) ln_2pi: f32,
     pub(super) ln_pd_lambda: f32,
     pub(super) ln_miss: f32,
+    /// Per track, `ln` of its detection odds `P_D,t / (λ_c · miss_t)` less the row's
+    /// `P_D / (λ_c · miss)`: 0 for a track at the row's `P_D` (docs/design.md §11.4).
+    pub(super) odds: &'a [f32; L],
     pub(super) active: f32,
     /// The tracks that can be missed (bit `t`): the first `n`, not masked.
     pub(super) active_set: u32,
@@ -297,13 +303,15 @@ pub(super) struct Ctx<'a, const L: usize> {
 }
 
 impl<const L: usize> Ctx<'_, L> {
-    /// Log-weight of a pattern with `k` detected tracks and `ln det S_δ = logdet`, before the
-    /// events' Mahalanobis terms (docs/design.md §4.1 step 3).
-    pub(super) fn base(&self, k: usize, logdet: f32) -> f32 {
+    /// Log-weight of a pattern with `k` detected tracks, `ln det S_δ = logdet` and the
+    /// detected tracks' odds offsets summed `odds`, before the events' Mahalanobis terms
+    /// (docs/design.md §4.1 step 3).
+    pub(super) fn base(&self, k: usize, logdet: f32, odds: f32) -> f32 {
         let kf = k as f32;
         -0.5 * logdet - 0.5 * kf * self.ln_2pi
             + kf * self.ln_pd_lambda
             + (self.active - kf) * self.ln_miss
+            + odds
     }
 
     /// Appends eligible track `pos` to the pattern `mems[..k]` as member `k` and computes its
@@ -353,6 +361,7 @@ impl<const L: usize> Ctx<'_, L> {
             zh: get(self.zhat, t),
             invd: 1.0 / dk,
             logdet: done.last().map_or(0.0, |m| m.logdet) + math::ln(dk),
+            odds: done.last().map_or(0.0, |m| m.odds) + get(self.odds, t),
             l,
             li,
             wsub: 0.0,
@@ -531,7 +540,8 @@ impl<const L: usize> Ctx<'_, L> {
             }
             acc.patterns += 1;
             let pattern = mems.get(..k).unwrap_or(&[]);
-            let base = self.base(k, pattern.last().map_or(0.0, |m| m.logdet));
+            let (logdet, odds) = pattern.last().map_or((0.0, 0.0), |m| (m.logdet, m.odds));
+            let base = self.base(k, logdet, odds);
             let (events, wd) = self.score(pattern, base, reference, lev, acc);
             acc.events += events;
             descend = events > 0;

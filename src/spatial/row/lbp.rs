@@ -50,7 +50,7 @@ pub(super) fn marginals<const LANES: usize>(
     sdiag: &[f32; LANES],
     points: &[f32],
     n: usize,
-    lg: &Logs,
+    (lg, odds): (&Logs, &[f32; LANES]),
     skip: u32,
 ) -> Option<u32> {
     let m = points.len().min(MAX_ROW_POINTS);
@@ -66,7 +66,8 @@ pub(super) fn marginals<const LANES: usize>(
             // No gated point: its row of ψ stays 0, and no `ln`.
             continue;
         }
-        let ln_norm = lg.ln_pd_lambda - lg.ln_miss - 0.5 * (lg.ln_2pi + math::ln(st));
+        let ln_norm =
+            lg.ln_pd_lambda + get(odds, t) - lg.ln_miss - 0.5 * (lg.ln_2pi + math::ln(st));
         for (j, (p, z)) in row.iter_mut().zip(points.iter()).enumerate() {
             if mask & (1 << j) != 0 {
                 let e = z - zt;

@@ -419,7 +419,7 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
                 (&sbar, &zhat, points),
                 n,
                 max_events.max(1) as u64,
-                &lg,
+                (&lg, &[0.0; LANES]),
             );
         }
     }
@@ -443,6 +443,7 @@ pub(crate) fn update_into<const NS: usize, const LANES: usize, P: Probe>(
         points,
         (n, n_skipped, skip),
         true,
+        &[0.0; LANES],
         scratch,
     ) else {
         failed(out);
@@ -479,6 +480,7 @@ fn weigh_row<const LANES: usize>(
     points: &[f32],
     (n, n_skipped, skip): (usize, usize, u32),
     moments: bool,
+    odds: &[f32; LANES],
     scratch: &mut Scratch<LANES>,
 ) -> Option<f32> {
     let Scratch {
@@ -497,6 +499,7 @@ fn weigh_row<const LANES: usize>(
             points,
             (n, n_skipped, skip),
             moments,
+            odds,
         );
         let ok = weigh(&ctx, acc, arrays) && acc.wtot.is_finite() && acc.wtot > 0.0;
         return ok.then(|| 1.0 / acc.wtot);
@@ -517,6 +520,7 @@ fn weigh_row<const LANES: usize>(
             points,
             (n, n_skipped, skip),
             moments,
+            odds,
         );
         ctx.active_set = set_c;
         if cl > 0 {
@@ -601,7 +605,7 @@ pub fn associate<const LANES: usize>(
         cross,
         n,
         points,
-        params,
+        (params, &[0.0; LANES]),
         budget,
         skip,
     );
@@ -611,6 +615,10 @@ pub fn associate<const LANES: usize>(
 /// [`associate`] into `out` (reset first), with the event pass's arrays `scratch`: the caller
 /// keeps one of each for all its rows, so that no ~1 KiB outcome is copied and no pattern
 /// arrays are cleared per row (a memcpy and a memclr on the Cortex-M4F).
+///
+/// `odds[t]` is added to the log-weight of every event that detects track `t`: with
+/// `ln[P_D,t / miss(P_D,t)] − ln[P_D / miss(P_D)]` the row weighs track `t` at its own
+/// detection probability `P_D,t` (docs/design.md §11.3; 0 for every track: [`associate`]).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn associate_into<const LANES: usize>(
     (out, scratch): (&mut RowOutcome<LANES>, &mut Scratch<LANES>),
@@ -619,7 +627,7 @@ pub(crate) fn associate_into<const LANES: usize>(
     cross: impl Fn(usize, usize) -> f32,
     n: usize,
     points: &[f32],
-    params: &RowParams,
+    (params, odds): (&RowParams, &[f32; LANES]),
     (max_events, mode): (usize, Association),
     skip: u32,
 ) {
@@ -669,14 +677,20 @@ pub(crate) fn associate_into<const LANES: usize>(
     }
     out.approximated = over;
     if mode == Association::Lbp || (mode == Association::ExactOrLbp && out.approximated) {
-        match lbp::marginals(out, zhat, sdiag, points, n, &lg, skip) {
+        match lbp::marginals(out, zhat, sdiag, points, n, (&lg, odds), skip) {
             Some(it) => out.lbp_iterations = it.max(1),
             None => failed(out),
         }
         return;
     }
     if out.approximated {
-        prune(out, (&sbar, zhat, points), n, max_events.max(1) as u64, &lg);
+        prune(
+            out,
+            (&sbar, zhat, points),
+            n,
+            max_events.max(1) as u64,
+            (&lg, odds),
+        );
     }
     let (elig, na) = eligible(&out.valid, n, skip);
     if !sbar_known {
@@ -695,6 +709,7 @@ pub(crate) fn associate_into<const LANES: usize>(
         points,
         (n, n_skipped, skip),
         false,
+        odds,
         scratch,
     ) else {
         failed(out);
@@ -958,8 +973,10 @@ impl Logs {
         points: &'a [f32],
         (n, n_skipped, skip): (usize, usize, u32),
         moments: bool,
+        odds: &'a [f32; LANES],
     ) -> Ctx<'a, LANES> {
         Ctx {
+            odds,
             elig,
             na,
             sbar,
@@ -1088,7 +1105,7 @@ fn weigh<const LANES: usize>(
     acc: &mut Acc<LANES>,
     scratch: &mut events::Scratch<LANES>,
 ) -> bool {
-    let empty = ctx.base(0, 0.0);
+    let empty = ctx.base(0, 0.0, 0.0);
     let mut reference = if empty.is_finite() { empty } else { 0.0 };
     if !ctx.pass(reference, acc, scratch) {
         return false;
@@ -1118,7 +1135,7 @@ fn prune<const LANES: usize>(
     (sbar, zhat, points): (&[[f32; LANES]; LANES], &[f32; LANES], &[f32]),
     n: usize,
     budget: u64,
-    lg: &Logs,
+    (lg, odds): (&Logs, &[f32; LANES]),
 ) {
     let Logs {
         ln_pd_lambda,
@@ -1133,7 +1150,7 @@ fn prune<const LANES: usize>(
     for t in 0..n {
         let st = at(sbar, t, t);
         let zt = get(zhat, t);
-        let ln_norm = ln_pd_lambda - 0.5 * (ln_2pi + math::ln(st));
+        let ln_norm = ln_pd_lambda + get(odds, t) - 0.5 * (ln_2pi + math::ln(st));
         let mask = get(&out.valid, t);
         let first = nc;
         let mut lmax = ln_miss;

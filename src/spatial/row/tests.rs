@@ -445,7 +445,7 @@ fn kept_outcome_and_scratch_equal_fresh_ones_row_after_row() {
             cross,
             n,
             &pts,
-            &params,
+            (&params, &[0.0; 4]),
             (budget, mode),
             skip,
         );
@@ -473,4 +473,189 @@ fn kept_outcome_and_scratch_equal_fresh_ones_row_after_row() {
     }
     // The sequence met every path.
     assert!(kinds.iter().all(|&k| k > 0), "{kinds:?}");
+}
+
+/// `ln(P_D / miss)` of the gated miss model: the detection odds' `P_D`-dependent part.
+fn ln_odds(p: &RowParams, pd: f32) -> f32 {
+    libm::logf(pd) - libm::logf(1.0 - pd * p.pg)
+}
+
+/// The six-lane row of [`six_lane_row`] associated with per-lane odds offsets `odds`.
+fn six_lane_row_with_odds(
+    link: f32,
+    (params, odds): (&RowParams, &[f32; 6]),
+    (max_events, mode): (usize, Association),
+) -> RowOutcome<6> {
+    let zhat: [f32; 6] = core::array::from_fn(|t| -8.75 + 3.5 * t as f32);
+    let sdiag = [0.09f32, 0.12, 0.1, 0.15, 0.11, 0.2];
+    let mut pts = [0.0f32; 18];
+    for (t, z) in zhat.iter().enumerate() {
+        pts[3 * t] = z + 0.05 * (t as f32 - 2.0);
+        pts[3 * t + 1] = z - 0.31 + 0.02 * t as f32;
+        pts[3 * t + 2] = z + 0.42;
+    }
+    // Two points that neighbouring lanes share, so that LBP iterates.
+    pts[2] = -5.3;
+    pts[8] = 0.0;
+    let (mut out, mut scratch) = (RowOutcome::<6>::default(), Scratch::<6>::new());
+    associate_into(
+        (&mut out, &mut scratch),
+        &zhat,
+        &sdiag,
+        |s, t| if t == s + 1 { link } else { 0.0 },
+        6,
+        &pts,
+        (params, odds),
+        (max_events, mode),
+        0,
+    );
+    out
+}
+
+/// One odds offset for every lane is the same row at another `P_D` (the miss factors the
+/// offset leaves out are common to all events): exact enumeration, clusters, pruning and LBP.
+#[test]
+fn a_common_odds_offset_is_a_change_of_the_rows_pd() {
+    let at = RowParams {
+        pd: 0.4,
+        gamma: 16.0,
+        ..cluster_params()
+    };
+    let base = cluster_params();
+    let odds = [ln_odds(&at, 0.4) - ln_odds(&base, base.pd); 6];
+    for (link, budget, mode) in [
+        (0.0, 512, Association::Exact),
+        (0.02, 512, Association::Exact),
+        (0.02, 20, Association::Exact),
+        (0.02, 20, Association::ExactOrLbp),
+        (0.0, 512, Association::Lbp),
+    ] {
+        let want = six_lane_row_with_odds(link, (&at, &[0.0; 6]), (budget, mode));
+        let base = RowParams {
+            gamma: 16.0,
+            ..base
+        };
+        let got = six_lane_row_with_odds(link, (&base, &odds), (budget, mode));
+        assert!(!want.failed && !got.failed);
+        assert_eq!(
+            (want.approximated, want.events, want.lbp_iterations > 0),
+            (got.approximated, got.events, got.lbp_iterations > 0),
+            "{link} {budget} {mode:?}"
+        );
+        for t in 0..6 {
+            assert!(
+                (want.beta_miss[t] - got.beta_miss[t]).abs() < 1e-5,
+                "{mode:?} {t}"
+            );
+            for j in 0..18 {
+                assert!(
+                    (want.beta[t][j] - got.beta[t][j]).abs() < 1e-5,
+                    "{mode:?} {t} {j}"
+                );
+            }
+        }
+    }
+}
+
+/// Per-lane `P_D` by the odds offsets: `β` of the exact enumeration against an f64 oracle
+/// that weighs each lane's detections at its own `P_D` and its misses at its own miss factor.
+#[test]
+#[allow(clippy::needless_range_loop)]
+fn per_lane_pd_matches_the_oracle() {
+    let params = RowParams {
+        gamma: 16.0,
+        ..cluster_params()
+    };
+    let pds = [0.9f32, 0.2, 0.55, 0.8, 0.3, 0.7];
+    let odds: [f32; 6] =
+        core::array::from_fn(|t| ln_odds(&params, pds[t]) - ln_odds(&params, params.pd));
+    for link in [0.0f32, 0.02] {
+        let got = six_lane_row_with_odds(link, (&params, &odds), (1 << 20, Association::Exact));
+        assert!(!got.failed && !got.approximated);
+        // The oracle: every joint event of the gated candidates.
+        let zhat: Vec<f64> = (0..6).map(|t| -8.75 + 3.5 * t as f64).collect();
+        let sd = [0.09f64, 0.12, 0.1, 0.15, 0.11, 0.2];
+        let sb: Vec<Vec<f64>> = (0..6)
+            .map(|a| {
+                (0..6)
+                    .map(|b| {
+                        if a == b {
+                            sd[a]
+                        } else if b == a + 1 || a == b + 1 {
+                            f64::from(link)
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut z = [0.0f64; 18];
+        for t in 0..6 {
+            z[3 * t] = zhat[t] + 0.05 * (t as f64 - 2.0);
+            z[3 * t + 1] = zhat[t] - 0.31 + 0.02 * t as f64;
+            z[3 * t + 2] = zhat[t] + 0.42;
+        }
+        z[2] = -5.3;
+        z[8] = 0.0;
+        let z: Vec<f64> = z.iter().map(|v| f64::from(*v as f32)).collect();
+        let valid: Vec<Vec<usize>> = (0..6)
+            .map(|t| {
+                (0..18)
+                    .filter(|&j| (z[j] - zhat[t]).powi(2) / sb[t][t] <= f64::from(params.gamma))
+                    .collect()
+            })
+            .collect();
+        let lam = f64::from(params.clutter_density);
+        let pg = f64::from(params.pg);
+        let events = oracle_events(&valid);
+        let mut lws = Vec::new();
+        for e in &events {
+            let idx: Vec<usize> = (0..6).filter(|&t| e[t].is_some()).collect();
+            let (sinv, det) = oracle_inverse(&sb, &idx);
+            let nu: Vec<f64> = idx.iter().map(|&t| z[e[t].unwrap()] - zhat[t]).collect();
+            let q: f64 = (0..idx.len())
+                .map(|a| nu[a] * (0..idx.len()).map(|b| sinv[a][b] * nu[b]).sum::<f64>())
+                .sum();
+            let mut lw = -0.5 * q
+                - 0.5 * det.ln()
+                - 0.5 * idx.len() as f64 * (2.0 * std::f64::consts::PI).ln();
+            for t in 0..6 {
+                let pd = f64::from(pds[t]);
+                lw += if e[t].is_some() {
+                    (pd / lam).ln()
+                } else {
+                    (1.0 - pd * pg).ln()
+                };
+            }
+            lws.push(lw);
+        }
+        let mx = lws.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        let tot: f64 = lws.iter().map(|l| (l - mx).exp()).sum();
+        let mut bmiss = [0.0f64; 6];
+        let mut beta = [[0.0f64; 18]; 6];
+        for (e, l) in events.iter().zip(lws.iter()) {
+            let w = (l - mx).exp() / tot;
+            for t in 0..6 {
+                match e[t] {
+                    Some(j) => beta[t][j] += w,
+                    None => bmiss[t] += w,
+                }
+            }
+        }
+        for t in 0..6 {
+            assert!(
+                (f64::from(got.beta_miss[t]) - bmiss[t]).abs() < 1e-4,
+                "{link} {t}"
+            );
+            for j in 0..18 {
+                assert!(
+                    (f64::from(got.beta[t][j]) - beta[t][j]).abs() < 1e-4,
+                    "{link} {t} {j}"
+                );
+            }
+        }
+        // The weak lanes lose the points they share with strong ones.
+        assert!(got.beta_miss[1] > got.beta_miss[0]);
+    }
 }
