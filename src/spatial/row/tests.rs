@@ -258,14 +258,7 @@ fn cluster_params() -> RowParams {
 /// Six lanes 3.5 m apart with their points and clutter around them, `S̄_st = link` between
 /// neighbours: association by [`associate`] with `(max_events, mode)`.
 fn six_lane_row(link: f32, max_events: usize, mode: Association) -> RowOutcome<6> {
-    let zhat: [f32; 6] = core::array::from_fn(|t| -8.75 + 3.5 * t as f32);
-    let sdiag = [0.09f32, 0.12, 0.1, 0.15, 0.11, 0.2];
-    let mut pts = [0.0f32; 18];
-    for (t, z) in zhat.iter().enumerate() {
-        pts[3 * t] = z + 0.05 * (t as f32 - 2.0);
-        pts[3 * t + 1] = z - 0.31 + 0.02 * t as f32;
-        pts[3 * t + 2] = z + 0.42;
-    }
+    let (zhat, sdiag, pts) = six_lanes(false);
     let params = cluster_params();
     associate::<6>(
         &zhat,
@@ -475,6 +468,24 @@ fn kept_outcome_and_scratch_equal_fresh_ones_row_after_row() {
     assert!(kinds.iter().all(|&k| k > 0), "{kinds:?}");
 }
 
+/// Six lanes 3.5 m apart (`ẑ`, `S̄_tt`) with three points each; with `shared`, two of them
+/// moved between neighbouring lanes (so that LBP iterates).
+fn six_lanes(shared: bool) -> ([f32; 6], [f32; 6], [f32; 18]) {
+    let zhat: [f32; 6] = core::array::from_fn(|t| -8.75 + 3.5 * t as f32);
+    let sdiag = [0.09f32, 0.12, 0.1, 0.15, 0.11, 0.2];
+    let mut pts = [0.0f32; 18];
+    for (t, z) in zhat.iter().enumerate() {
+        pts[3 * t] = z + 0.05 * (t as f32 - 2.0);
+        pts[3 * t + 1] = z - 0.31 + 0.02 * t as f32;
+        pts[3 * t + 2] = z + 0.42;
+    }
+    if shared {
+        pts[2] = -5.3;
+        pts[8] = 0.0;
+    }
+    (zhat, sdiag, pts)
+}
+
 /// `ln(P_D / miss)` of the gated miss model: the detection odds' `P_D`-dependent part.
 fn ln_odds(p: &RowParams, pd: f32) -> f32 {
     libm::logf(pd) - libm::logf(1.0 - pd * p.pg)
@@ -486,17 +497,7 @@ fn six_lane_row_with_odds(
     (params, odds): (&RowParams, &[f32; 6]),
     (max_events, mode): (usize, Association),
 ) -> RowOutcome<6> {
-    let zhat: [f32; 6] = core::array::from_fn(|t| -8.75 + 3.5 * t as f32);
-    let sdiag = [0.09f32, 0.12, 0.1, 0.15, 0.11, 0.2];
-    let mut pts = [0.0f32; 18];
-    for (t, z) in zhat.iter().enumerate() {
-        pts[3 * t] = z + 0.05 * (t as f32 - 2.0);
-        pts[3 * t + 1] = z - 0.31 + 0.02 * t as f32;
-        pts[3 * t + 2] = z + 0.42;
-    }
-    // Two points that neighbouring lanes share, so that LBP iterates.
-    pts[2] = -5.3;
-    pts[8] = 0.0;
+    let (zhat, sdiag, pts) = six_lanes(true);
     let (mut out, mut scratch) = (RowOutcome::<6>::default(), Scratch::<6>::new());
     associate_into(
         (&mut out, &mut scratch),
@@ -573,14 +574,15 @@ fn per_lane_pd_matches_the_oracle() {
         let got = six_lane_row_with_odds(link, (&params, &odds), (1 << 20, Association::Exact));
         assert!(!got.failed && !got.approximated);
         // The oracle: every joint event of the gated candidates.
-        let zhat: Vec<f64> = (0..6).map(|t| -8.75 + 3.5 * t as f64).collect();
-        let sd = [0.09f64, 0.12, 0.1, 0.15, 0.11, 0.2];
+        let (zh32, sd32, z32) = six_lanes(true);
+        let zhat: Vec<f64> = zh32.iter().map(|v| f64::from(*v)).collect();
+        let z: Vec<f64> = z32.iter().map(|v| f64::from(*v)).collect();
         let sb: Vec<Vec<f64>> = (0..6)
             .map(|a| {
                 (0..6)
                     .map(|b| {
                         if a == b {
-                            sd[a]
+                            f64::from(sd32[a])
                         } else if b == a + 1 || a == b + 1 {
                             f64::from(link)
                         } else {
@@ -590,15 +592,6 @@ fn per_lane_pd_matches_the_oracle() {
                     .collect()
             })
             .collect();
-        let mut z = [0.0f64; 18];
-        for t in 0..6 {
-            z[3 * t] = zhat[t] + 0.05 * (t as f64 - 2.0);
-            z[3 * t + 1] = zhat[t] - 0.31 + 0.02 * t as f64;
-            z[3 * t + 2] = zhat[t] + 0.42;
-        }
-        z[2] = -5.3;
-        z[8] = 0.0;
-        let z: Vec<f64> = z.iter().map(|v| f64::from(*v as f32)).collect();
         let valid: Vec<Vec<usize>> = (0..6)
             .map(|t| {
                 (0..18)
