@@ -291,7 +291,7 @@ pub(super) struct Ctx<'a, const L: usize> {
     pub(super) ln_pd_lambda: f32,
     pub(super) ln_miss: f32,
     /// Per track, `ln` of its detection odds `P_D,t / (λ_c · miss_t)` less the row's
-    /// `P_D / (λ_c · miss)`: 0 for a track at the row's `P_D` (docs/design.md §11.4).
+    /// `P_D / (λ_c · miss)`: 0 for a track at the row's `P_D` (docs/design.md §11.3).
     pub(super) odds: &'a [f32; L],
     pub(super) active: f32,
     /// The tracks that can be missed (bit `t`): the first `n`, not masked.
