@@ -183,10 +183,10 @@ fn id_switches_follow_each_line() {
 /// The process-noise scale (docs/design.md §11.7) on a drive whose dashed lines sit in dense
 /// uniform clutter (0.08 points /m/row): before stop 55 covariance matching of the lanes'
 /// innovations held itself up there (clutter in a wide gate gives innovations as wide as the
-/// gate) and `q_scale` reached 2,369 within these 300 frames (10⁴ is its bound); the score of
-/// the rows' PDA likelihood is ≈ 0 for clutter at any scale, and the scale stays within 100
-/// (measured over the first 300 frames of the seeds 100 / 101 / 102: at most 12.9 / 40.8 /
-/// 15.1).
+/// gate) and `q_scale` reached 2,369 within these 300 frames (10⁴ is its bound); with the score
+/// of the rows' PDA likelihood the scale stays within 100 (measured over the first 300 frames
+/// of the seeds 100 / 101 / 102 at stop 55: at most 12.9 / 40.8 / 15.1; seed 100 at most 3.5
+/// since each lane's own `P_D` in its joint events, stop 56).
 #[test]
 fn process_noise_scale_does_not_run_away_in_clutter() {
     use stjpdacf::tables::DEFAULT;
