@@ -89,7 +89,7 @@ pub struct RunArgs {
     pub no_build: bool,
     /// The budget file (default bench/firmware/budget.json). A budget records the build-time
     /// model variables it was measured with (`build_env`: `STJPDACF_FW_TABLES`, `_RANK`,
-    /// `_ASSOC`, `_PER_LANE`, `_K`, `_RANK_CAP`): `--check` builds with exactly those, `--update-budget`
+    /// `_ASSOC`, `_PER_LANE`, `_K`, `_RANK_CAP`, `_OWN_PD`): `--check` builds with exactly those, `--update-budget`
     /// records the ones set now.
     #[arg(long)]
     pub budget: Option<PathBuf>,

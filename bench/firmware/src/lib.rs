@@ -114,6 +114,15 @@ const fn association_override(default: Association) -> Association {
     }
 }
 
+/// `false` when the build-time variable `STJPDACF_FW_OWN_PD` is `0` (the joint events at the
+/// spatial stage's `P_D`, as until stop 55: `PersistConfig::own_pd`), else `default`.
+const fn own_pd_override(default: bool) -> bool {
+    match option_env!("STJPDACF_FW_OWN_PD") {
+        Some(s) => !matches!(s.as_bytes(), [b'0']) && default,
+        None => default,
+    }
+}
+
 /// `STJPDACF_FW_K` when it is one digit `1..=default`, else `default`.
 const fn rows_override(default: u8) -> u8 {
     match option_env!("STJPDACF_FW_K") {
@@ -127,12 +136,14 @@ const fn rows_override(default: u8) -> u8 {
 
 /// The tracker's configuration: [`TrackerConfig::DEFAULT`], with the per-lane smoother when the
 /// build-time variable `STJPDACF_FW_PER_LANE` is `1`, the known-lane association of
-/// `STJPDACF_FW_ASSOC` and the rows per index interval of `STJPDACF_FW_K`
-/// ([`TrackerConfig::with_rows_per_interval`]; docs/measurements.md "Fitting the MCU").
+/// `STJPDACF_FW_ASSOC`, the lanes' own `P_D` unless `STJPDACF_FW_OWN_PD` is `0`, and the rows
+/// per index interval of `STJPDACF_FW_K` ([`TrackerConfig::with_rows_per_interval`];
+/// docs/measurements.md "Fitting the MCU").
 const CONFIG: TrackerConfig = TrackerConfig {
     smoother_per_lane: per_lane_override(),
     persist: PersistConfig {
         association: association_override(PersistConfig::DEFAULT.association),
+        own_pd: own_pd_override(PersistConfig::DEFAULT.own_pd),
         ..PersistConfig::DEFAULT
     },
     ..TrackerConfig::DEFAULT
