@@ -4,7 +4,7 @@
 
 use crate::linalg::{get, set};
 use crate::math;
-use crate::spatial::row::{self, MissModel, RowOutcome, RowParams, MAX_ROW_POINTS};
+use crate::spatial::row::{self, RowOutcome, RowParams, MAX_ROW_POINTS};
 use crate::tables::Tables;
 use crate::temporal::filter::TemporalFilter;
 
@@ -214,19 +214,15 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         // (docs/design.md §11.3): the rows' joint events weigh a lane's detections at its own
         // `P_D,b` (two `ln` per lane and band, once a pass).
         let mut odds0 = [[0.0f32; POINTS]; LANES];
-        let ln_odds = |pd: f32| {
-            let miss = match pass.params.miss {
-                MissModel::Textbook => 1.0 - pd,
-                MissModel::Gated => 1.0 - pd * pass.params.pg,
-            };
-            math::ln(pd) - math::ln(miss)
-        };
-        let own = ln_odds(pass.params.pd);
-        for &s in slot.iter().take(n).filter(|_| cfg.own_pd) {
-            if let (Some(o), Some(p)) = (odds0.get_mut(s), pd0.get(s)) {
-                for (ob, pb) in o.iter_mut().zip(p.iter()) {
-                    let v = ln_odds(*pb) - own;
-                    *ob = if v.is_finite() { v } else { 0.0 };
+        if cfg.own_pd {
+            let ln_odds = |pd: f32| math::ln(pd) - math::ln(pass.params.miss_at(pd));
+            let own = ln_odds(pass.params.pd);
+            for &s in slot.iter().take(n) {
+                if let (Some(o), Some(p)) = (odds0.get_mut(s), pd0.get(s)) {
+                    for (ob, pb) in o.iter_mut().zip(p.iter()) {
+                        let v = ln_odds(*pb) - own;
+                        *ob = if v.is_finite() { v } else { 0.0 };
+                    }
                 }
             }
         }

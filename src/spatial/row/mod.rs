@@ -139,6 +139,17 @@ impl Default for RowParams {
     }
 }
 
+impl RowParams {
+    /// The miss factor of [`RowParams::miss`] for a lane of detection probability `pd`:
+    /// `1 − pd` or `1 − pd · P_G` (docs/design.md §4.1 step 3).
+    pub fn miss_at(&self, pd: f32) -> f32 {
+        match self.miss {
+            MissModel::Textbook => 1.0 - pd,
+            MissModel::Gated => 1.0 - pd * self.pg,
+        }
+    }
+}
+
 /// What a row step did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RowOutcome<const LANES: usize> {
@@ -993,13 +1004,9 @@ impl Logs {
     }
 
     fn of(params: &RowParams) -> Self {
-        let missf = match params.miss {
-            MissModel::Textbook => 1.0 - params.pd,
-            MissModel::Gated => 1.0 - params.pd * params.pg,
-        };
         Self {
             ln_pd_lambda: math::ln(params.pd) - math::ln(params.clutter_density),
-            ln_miss: math::ln(missf),
+            ln_miss: math::ln(params.miss_at(params.pd)),
             ln_2pi: math::ln(2.0 * core::f32::consts::PI),
         }
     }

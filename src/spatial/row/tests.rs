@@ -486,9 +486,9 @@ fn six_lanes(shared: bool) -> ([f32; 6], [f32; 6], [f32; 18]) {
     (zhat, sdiag, pts)
 }
 
-/// `ln(P_D / miss)` of the gated miss model: the detection odds' `P_D`-dependent part.
+/// `ln(P_D / miss)`: the detection odds' `P_D`-dependent part.
 fn ln_odds(p: &RowParams, pd: f32) -> f32 {
-    libm::logf(pd) - libm::logf(1.0 - pd * p.pg)
+    libm::logf(pd) - libm::logf(p.miss_at(pd))
 }
 
 /// The six-lane row of [`six_lane_row`] associated with per-lane odds offsets `odds`.
