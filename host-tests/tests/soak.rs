@@ -186,7 +186,8 @@ fn id_switches_follow_each_line() {
 /// gate) and `q_scale` reached 2,369 within these 300 frames (10⁴ is its bound); with the score
 /// of the rows' PDA likelihood the scale stays within 100 (measured over the first 300 frames
 /// of the seeds 100 / 101 / 102 at stop 55: at most 12.9 / 40.8 / 15.1; seed 100 at most 3.5
-/// since each lane's own `P_D` in its joint events, stop 56).
+/// with each lane's own `P_D` in its joint events, stop 56, and 21.0 since the scale takes each
+/// frame's whole Fisher-scoring step, stop 57).
 #[test]
 fn process_noise_scale_does_not_run_away_in_clutter() {
     use stjpdacf::tables::DEFAULT;

@@ -92,7 +92,9 @@ pub struct PersistConfig {
     /// bends so freely across a dash gap that the next dash's points do not count against
     /// clutter.
     pub row_noise_scale: f32,
-    /// Frames of memory of the process-noise scale's adaptation (0: no adaptation).
+    /// Frames of memory of the process-noise scale's adaptation (0: no adaptation; 1, the
+    /// default since stop 57: `ln s` takes each frame's Fisher-scoring estimate, docs/design.md
+    /// §11.7; 2 until then, which lets a vehicle's yaw outrun the scale).
     pub q_memory: f32,
     /// Probability that a lane that exists is visible in a frame (not occluded, not blurred
     /// out): the rows' evidence of a frame counts only in that case (docs/design.md §11.5).
@@ -225,7 +227,8 @@ impl PersistConfig {
     /// 0.005 /m, `τ_s` = 10 s, `P_birth` = 0.1, publish at 0.5, delete below 0.01, a point
     /// explained at 0.5, the ray test at 3σ and 0.5 m with aligned lanes decided by their
     /// direction, new lanes' dash gaps of 11 rows and their row noise scaled by 0.043 (fitted,
-    /// design §11.12), the rows' existence evidence under the highway paint / gap chain.
+    /// design §11.12), the rows' existence evidence under the highway paint / gap chain, the
+    /// process-noise scale at each frame's Fisher-scoring estimate (`q_memory` 1).
     pub const DEFAULT: Self = Self {
         enabled: true,
         pd_memory: 10.0,
@@ -239,7 +242,7 @@ impl PersistConfig {
         confirm_hits: 3,
         gap_misses: 11,
         row_noise_scale: 0.043,
-        q_memory: 2.0,
+        q_memory: 1.0,
         p_visible: 0.9,
         min_spacing: 1.0,
         pd_floor: 0.2,
