@@ -19,7 +19,6 @@ use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::heldout::{self, HeldoutParams};
 use stjpdacf_tools::metric;
 use stjpdacf_tools::track::{self, Space};
-use stjpdacf_tools::tusimple;
 
 /// A label's lane in BEV `(u, x)`, sorted by `u`, and its lateral position at `u`.
 struct Bev(Vec<(f64, f64)>);
@@ -51,11 +50,7 @@ struct Tally {
 }
 
 fn main() -> anyhow::Result<()> {
-    let labels = tusimple::read_labels(
-        &stjpdacf_tools::repo_root()
-            .join("data")
-            .join(heldout::LABELS),
-    )?;
+    let labels = heldout::bundled_labels()?;
     let cam = Camera::tusimple();
     let verbose = std::env::var("V").is_ok();
     let iu = &stjpdacf::tables::DEFAULT.index_u;

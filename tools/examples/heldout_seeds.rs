@@ -12,7 +12,6 @@ use std::collections::BTreeMap;
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::demo::{heldout_check, Variant};
 use stjpdacf_tools::heldout;
-use stjpdacf_tools::tusimple;
 
 fn main() -> anyhow::Result<()> {
     let seeds: Vec<u64> = std::env::args()
@@ -24,11 +23,7 @@ fn main() -> anyhow::Result<()> {
     } else {
         seeds
     };
-    let labels = tusimple::read_labels(
-        &stjpdacf_tools::repo_root()
-            .join("data")
-            .join(heldout::LABELS),
-    )?;
+    let labels = heldout::bundled_labels()?;
     let variants = [Variant::new("tracker", TrackerConfig::DEFAULT)];
     // Per condition, in order: the sums of the tracker's accuracy, the better baseline's and
     // the margin.

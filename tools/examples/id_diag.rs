@@ -202,11 +202,7 @@ fn main() -> anyhow::Result<()> {
 /// `MAX_REPORT_MISSES` frames), the label's lanes, and the ids the last frame's prediction
 /// matched to a labelled lane (the metric's matching).
 fn heldout_ids(params: &HeldoutParams, config: TrackerConfig, seed: u64) -> anyhow::Result<()> {
-    let labels = stjpdacf_tools::tusimple::read_labels(
-        &stjpdacf_tools::repo_root()
-            .join("data")
-            .join(heldout::LABELS),
-    )?;
+    let labels = heldout::bundled_labels()?;
     let cam = Camera::tusimple();
     let o = heldout::generate(&labels, params, &cam, seed)?;
     let gt: HashMap<&str, &stjpdacf_tools::tusimple::TuSimpleRecord> =

@@ -12,7 +12,7 @@ use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::heldout::{self, HeldoutParams};
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
 use stjpdacf_tools::track::{self, Space};
-use stjpdacf_tools::tusimple::{self, Frame};
+use stjpdacf_tools::tusimple::Frame;
 
 fn main() -> anyhow::Result<()> {
     let mut config = TrackerConfig::DEFAULT;
@@ -30,11 +30,7 @@ fn main() -> anyhow::Result<()> {
         let o = synth::synthesize(&replay, &SynthParams::preset(level), &cam, 1)?;
         runs.push((format!("replay {level:?}"), o.frames));
     }
-    let held = tusimple::read_labels(
-        &stjpdacf_tools::repo_root()
-            .join("data")
-            .join(heldout::LABELS),
-    )?;
+    let held = heldout::bundled_labels()?;
     for m in [1.0, 2.0, 4.0, 8.0] {
         let base = HeldoutParams::default();
         let params = HeldoutParams {

@@ -55,11 +55,7 @@ fn drop_frames(frames: &[Frame], p: f64, seed: u64) -> Vec<Frame> {
 }
 
 fn main() -> anyhow::Result<()> {
-    let labels = tusimple::read_labels(
-        &stjpdacf_tools::repo_root()
-            .join("data")
-            .join(heldout::LABELS),
-    )?;
+    let labels = heldout::bundled_labels()?;
     let labels = labels.get(..40.min(labels.len())).unwrap_or_default();
     let cam = Camera::tusimple();
     let tables = &stjpdacf::tables::DEFAULT;

@@ -33,6 +33,14 @@ use crate::tusimple::{Frame, TuSimpleRecord};
 /// of the sessions `0531` (every 18th line) and `0601` (every 20th line), verbatim.
 pub const LABELS: &str = "tusimple/heldout/labels.json";
 
+/// The bundled held-out labels ([`LABELS`] under the repository's `data` folder).
+///
+/// # Errors
+/// The file cannot be read or parsed.
+pub fn bundled_labels() -> Result<Vec<TuSimpleRecord>> {
+    crate::tusimple::read_labels(&crate::repo_root().join("data").join(LABELS))
+}
+
 /// The generator's parameters (see the module doc for what each does).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct HeldoutParams {
