@@ -2,20 +2,24 @@
 //! held-out check varies: frame rate, dropped frames, a weaker detector, the vehicle's lateral
 //! motion and heading, speed, long dash gaps, wide markings. Every condition is the held-out
 //! generator (`tools/src/heldout.rs`, 40 held-out labels, seeds 1–3) at its reference parameters
-//! with one thing changed; the tracker runs its default configuration and tables, the baseline
+//! with one thing changed; the tracker runs its default configuration and tables (or a smaller model's), the baseline
 //! is the better of the RANSAC fit and the fit capped at 4 lanes (as in the demo's held-out
 //! check), official metric on the labelled last frames. Nothing was chosen on this data.
 //!
 //! Dropped frames: each frame but a clip's last (the scored one) is removed with the given
 //! probability (an irregular frame rate; the tracker predicts over the longer steps).
 //!
-//! `cargo run --release -p stjpdacf-tools --example stress [seed ...]` (default seeds 1 2 3;
-//! about 20 s a seed).
+//! `cargo run --release -p stjpdacf-tools --example stress [--model=NAME] [seed ...]` (default
+//! seeds 1 2 3, about 20 s a seed; `NAME`: `default`, `uncoupled`, `rank5`, `rank4`, `rank3`, the
+//! MCU models as the firmware runs them).
 
 use std::collections::HashSet;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use stjpdacf::persist::PersistConfig;
+use stjpdacf::spatial::row::Association;
+use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::baseline::{self, BaselineParams};
 use stjpdacf_tools::camera::Camera;
@@ -54,11 +58,33 @@ fn drop_frames(frames: &[Frame], p: f64, seed: u64) -> Vec<Frame> {
     out
 }
 
+/// The tables and configuration of a model: `default`, `uncoupled` (the uncoupled tables),
+/// `rank5` (the default's tables at Gram rank 5, as `Rank5Tracker`), `rank4` / `rank3` (the
+/// uncoupled tables at Gram rank 4 / 3 with LBP on every known-lane row, as the firmware's small
+/// models `Rank4Tracker` / `Rank3Tracker`: the same lanes to the bit).
+fn model_of(name: &str) -> anyhow::Result<(&'static ReferenceTables, TrackerConfig)> {
+    let lbp = TrackerConfig {
+        persist: PersistConfig {
+            association: Association::Lbp,
+            ..PersistConfig::DEFAULT
+        },
+        ..TrackerConfig::DEFAULT
+    };
+    let leak = |t: ReferenceTables| -> &'static ReferenceTables { Box::leak(Box::new(t)) };
+    Ok(match name {
+        "default" => (&DEFAULT, TrackerConfig::DEFAULT),
+        "uncoupled" => (&UNCOUPLED, TrackerConfig::DEFAULT),
+        "rank5" => (leak(track::truncated(&DEFAULT, 5)), TrackerConfig::DEFAULT),
+        "rank4" => (leak(track::truncated(&UNCOUPLED, 4)), lbp),
+        "rank3" => (leak(track::truncated(&UNCOUPLED, 3)), lbp),
+        other => anyhow::bail!("unknown model {other} (default, uncoupled, rank5, rank4, rank3)"),
+    })
+}
+
 fn main() -> anyhow::Result<()> {
     let labels = heldout::bundled_labels()?;
     let labels = labels.get(..40.min(labels.len())).unwrap_or_default();
     let cam = Camera::tusimple();
-    let tables = &stjpdacf::tables::DEFAULT;
     let base = HeldoutParams::default();
     let b = || base.clone();
     let conditions: Vec<(&str, HeldoutParams, f64)> = vec![
@@ -185,10 +211,15 @@ fn main() -> anyhow::Result<()> {
             0.0,
         ),
     ];
-    let seeds: Vec<u64> = std::env::args()
-        .skip(1)
-        .map(|a| a.parse())
-        .collect::<Result<_, _>>()?;
+    let mut model = "default".to_string();
+    let mut seeds: Vec<u64> = Vec::new();
+    for a in std::env::args().skip(1) {
+        match a.strip_prefix("--model=") {
+            Some(m) => model = m.to_string(),
+            None => seeds.push(a.parse()?),
+        }
+    }
+    let (tables, config) = model_of(&model)?;
     let seeds = if seeds.is_empty() {
         vec![1, 2, 3]
     } else {
@@ -196,6 +227,8 @@ fn main() -> anyhow::Result<()> {
     };
     let bp = BaselineParams::default();
     let capped = BaselineParams { max_lanes: 4, ..bp };
+    println!("model {model}");
+    println!();
     println!(
         "| condition (mean over seeds {seeds:?} × {} clips) | frames a clip | tracker accuracy / FP / FN | RANSAC (the better of uncapped / ≤ 4 lanes) accuracy / FP / FN | Δ accuracy (worst seed) | tracker lane ids / clip |",
         labels.len()
@@ -214,14 +247,8 @@ fn main() -> anyhow::Result<()> {
             } else {
                 o.frames.clone()
             };
-            let (tp, stats) = track::track_with(
-                &frames,
-                tables,
-                &cam,
-                Space::Image,
-                TrackerConfig::DEFAULT,
-                |_| {},
-            )?;
+            let (tp, stats) =
+                track::track_with(&frames, tables, &cam, Space::Image, config, |_| {})?;
             let t = score(&tp, &o.gt_last)?;
             let (bp1, _) = baseline::track(&frames, tables, &cam, Space::Image, &bp, |_| {})?;
             let (bp2, _) = baseline::track(&frames, tables, &cam, Space::Image, &capped, |_| {})?;
