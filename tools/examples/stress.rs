@@ -1,6 +1,6 @@
 //! The tracker against the per-frame RANSAC fit along axes that neither the replay nor the
 //! held-out check varies: frame rate, dropped frames, a weaker detector, the vehicle's lateral
-//! motion and heading, speed, long dash gaps, wide markings. Every condition is the held-out
+//! motion and heading, the camera's pitch, speed, long dash gaps, wide markings. Every condition is the held-out
 //! generator (`tools/src/heldout.rs`, 40 held-out labels, seeds 1–3) at its reference parameters
 //! with one thing changed; the tracker runs its default configuration and tables (or a smaller model's), the baseline
 //! is the better of the RANSAC fit and the fit capped at 4 lanes (as in the demo's held-out
@@ -173,6 +173,30 @@ fn main() -> anyhow::Result<()> {
             "heading random walk × 5",
             HeldoutParams {
                 heading_rw: 0.05,
+                ..b()
+            },
+            0.0,
+        ),
+        (
+            "pitch jitter 0.1° a frame",
+            HeldoutParams {
+                pitch_jitter: 0.1f64.to_radians(),
+                ..b()
+            },
+            0.0,
+        ),
+        (
+            "pitch jitter 0.3° a frame",
+            HeldoutParams {
+                pitch_jitter: 0.3f64.to_radians(),
+                ..b()
+            },
+            0.0,
+        ),
+        (
+            "pitch jitter 0.5° a frame",
+            HeldoutParams {
+                pitch_jitter: 0.5f64.to_radians(),
                 ..b()
             },
             0.0,

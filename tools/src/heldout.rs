@@ -79,6 +79,11 @@ pub struct HeldoutParams {
     pub lateral_tau: f64,
     /// Heading random walk, rad/√s.
     pub heading_rw: f64,
+    /// Camera pitch jitter: the standard deviation of the pitch in each frame but a clip's last,
+    /// radians, independent from frame to frame (bumps; 0 by default). The frame's points are
+    /// projected through the pitched camera, the tracker maps them with the nominal one, so the
+    /// BEV fans in and out.
+    pub pitch_jitter: f64,
     /// Uniform clutter, points per square metre of road in [`HeldoutParams::clutter_box`].
     pub clutter_density: f64,
     /// The clutter's road area: (u from, u to, |x| up to), metres.
@@ -113,6 +118,7 @@ impl Default for HeldoutParams {
             lateral_sd: 0.4,
             lateral_tau: 1.0,
             heading_rw: 0.01,
+            pitch_jitter: 0.0,
             clutter_density: 0.02,
             clutter_box: (5.0, 70.0, 15.0),
             segments: 0.0,
@@ -154,6 +160,7 @@ impl HeldoutParams {
             ("marking_width", self.marking_width),
             ("lateral_sd", self.lateral_sd),
             ("heading_rw", self.heading_rw),
+            ("pitch_jitter", self.pitch_jitter),
             ("clutter_density", self.clutter_density),
             ("segments", self.segments),
         ];
@@ -351,7 +358,24 @@ fn clip(
         .map(|j| first_row + (j * p.row_step) as f64)
         .take_while(|&r| r < cam.height)
         .collect();
+    // The camera of each frame: pitched by `pitch_jitter` but in the last frame, from a stream
+    // of its own (so that the other draws do not depend on it).
+    let mut pitch_rng = ChaCha8Rng::seed_from_u64(clip_seed.rotate_left(17) ^ 0x005E_ED0F_F1C4);
+    let cams: Vec<Camera> = (0..k)
+        .map(|f| {
+            let dz = if p.pitch_jitter > 0.0 && f + 1 < k {
+                p.pitch_jitter * gauss(&mut pitch_rng)
+            } else {
+                0.0
+            };
+            Camera {
+                vp_row: cam.vp_row + cam.focal_px * dz.tan(),
+                ..*cam
+            }
+        })
+        .collect();
     for (f, &(e, psi)) in pose.iter().enumerate() {
+        let fcam = cams.get(f).unwrap_or(cam);
         let tau = (k - 1 - f) as f64 * p.frame_step;
         // What is fixed on the road was this much farther away τ before the last frame.
         let travelled = speed * tau;
@@ -369,7 +393,7 @@ fn clip(
                 };
                 let pd = if good { p.detect_good } else { p.detect_bad };
                 let detected = rng.random_bool(pd);
-                let Some((u, _)) = cam.to_bev(cam.vp_col, row) else {
+                let Some((u, _)) = fcam.to_bev(fcam.vp_col, row) else {
                     continue;
                 };
                 let Some(xl) = lane.x_at(u) else {
@@ -385,7 +409,7 @@ fn clip(
                 if !detected {
                     continue;
                 }
-                if let Some((col, r)) = cam.to_image(u, x) {
+                if let Some((col, r)) = fcam.to_image(u, x) {
                     let col = col + n;
                     if (0.0..cam.width).contains(&col) {
                         points.push([col, r]);
@@ -397,7 +421,7 @@ fn clip(
         for s in &segments {
             let (cu, cx) = (s.u + travelled, s.x);
             for &row in &rows {
-                let Some((u, _)) = cam.to_bev(cam.vp_col, row) else {
+                let Some((u, _)) = fcam.to_bev(fcam.vp_col, row) else {
                     continue;
                 };
                 // Where the row's line u = const crosses the segment.
@@ -411,7 +435,7 @@ fn clip(
                 }
                 let x = cx + t * s.dir.1 + e + psi * u;
                 let n = noise(&mut rng);
-                if let Some((col, r)) = cam.to_image(u, x) {
+                if let Some((col, r)) = fcam.to_image(u, x) {
                     let col = col + n;
                     if (0.0..cam.width).contains(&col) {
                         points.push([col, r]);
@@ -425,7 +449,7 @@ fn clip(
         for _ in 0..poisson(&mut rng, p.clutter_density * area) {
             let u = rng.random_range(u0..u1);
             let x = rng.random_range(-xm..xm);
-            if let Some((col, r)) = cam.to_image(u, x) {
+            if let Some((col, r)) = fcam.to_image(u, x) {
                 // On the detector's rows: the nearest feature row.
                 let j = ((r - first_row) / p.row_step as f64).round();
                 let r = first_row + j * p.row_step as f64;

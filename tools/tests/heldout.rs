@@ -166,6 +166,29 @@ fn each_effect_does_what_its_parameter_says() {
     };
     assert_eq!(last_frames(&moved), last_frames(&base));
     assert_ne!(moved.frames, base.frames);
+    // Pitch jitter moves the earlier frames' points in the image (the rows stay the detector's:
+    // the columns move), never the last frame's; a few points leave the image or fall above a
+    // pitched horizon (under 2 %).
+    let pitched = run(&HeldoutParams {
+        pitch_jitter: 0.5f64.to_radians(),
+        ..clean()
+    });
+    assert_eq!(last_frames(&pitched), last_frames(&base));
+    assert!(
+        pitched.lane_points.abs_diff(base.lane_points) * 50 < base.lane_points,
+        "{} {}",
+        pitched.lane_points,
+        base.lane_points
+    );
+    let moved_points = pitched
+        .frames
+        .iter()
+        .zip(&base.frames)
+        .filter(|(a, b)| a.points != b.points)
+        .count();
+    assert!(moved_points > base.frames.len() / 2, "{moved_points}");
+    // Off by default: the reference parameters are what they were.
+    assert_eq!(HeldoutParams::default().pitch_jitter, 0.0);
 }
 
 #[test]
