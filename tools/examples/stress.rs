@@ -13,8 +13,6 @@
 //! seeds 1 2 3, about 20 s a seed; `NAME`: `default`, `uncoupled`, `rank5`, `rank4`, `rank3`, the
 //! MCU models as the firmware runs them).
 
-use std::collections::HashSet;
-
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use stjpdacf::persist::PersistConfig;
@@ -23,25 +21,10 @@ use stjpdacf::tables::{ReferenceTables, DEFAULT, UNCOUPLED};
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::baseline::{self, BaselineParams};
 use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::demo::score_on;
 use stjpdacf_tools::heldout::{self, HeldoutParams};
-use stjpdacf_tools::metric::{self, Score};
 use stjpdacf_tools::track::{self, Space};
-use stjpdacf_tools::tusimple::{self, Frame, TuSimpleRecord};
-
-/// The official metric on the predictions of `gts`' frames.
-fn score(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> anyhow::Result<Score> {
-    let files: HashSet<&str> = gts.iter().map(|g| g.raw_file.as_str()).collect();
-    let kept: Vec<TuSimpleRecord> = preds
-        .iter()
-        .filter(|p| files.contains(p.raw_file.as_str()))
-        .map(|p| TuSimpleRecord {
-            run_time: Some(0.0),
-            ..p.clone()
-        })
-        .collect();
-    metric::check_one_to_one(&kept, gts)?;
-    metric::bench_one_submit(&kept, gts)
-}
+use stjpdacf_tools::tusimple::{self, Frame};
 
 /// `frames` without each non-last frame of a clip with probability `p`.
 fn drop_frames(frames: &[Frame], p: f64, seed: u64) -> Vec<Frame> {
@@ -273,10 +256,13 @@ fn main() -> anyhow::Result<()> {
             };
             let (tp, stats) =
                 track::track_with(&frames, tables, &cam, Space::Image, config, |_| {})?;
-            let t = score(&tp, &o.gt_last)?;
+            let t = score_on(&tp, &o.gt_last, false)?;
             let (bp1, _) = baseline::track(&frames, tables, &cam, Space::Image, &bp, |_| {})?;
             let (bp2, _) = baseline::track(&frames, tables, &cam, Space::Image, &capped, |_| {})?;
-            let (s1, s2) = (score(&bp1, &o.gt_last)?, score(&bp2, &o.gt_last)?);
+            let (s1, s2) = (
+                score_on(&bp1, &o.gt_last, false)?,
+                score_on(&bp2, &o.gt_last, false)?,
+            );
             let r = if s1.accuracy >= s2.accuracy { s1 } else { s2 };
             let clips = stats.clips.max(1) as f64;
             for (a, v) in sum.iter_mut().zip([

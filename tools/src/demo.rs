@@ -534,7 +534,10 @@ fn snapshot(v: &FrameView<'_>, tables: &ReferenceTables, us: &[f64]) -> Snapshot
 /// Scores predictions against ground truth with the official metric, keeping only the
 /// predictions whose `raw_file` is in `gts`; `timed = false` scores them as if they had taken
 /// no time (see [`DemoOptions::score_run_time`]).
-fn score_on(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord], timed: bool) -> Result<Score> {
+///
+/// # Errors
+/// A prediction file the metric refuses (not one-to-one with `gts`).
+pub fn score_on(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord], timed: bool) -> Result<Score> {
     let files: HashSet<&str> = gts.iter().map(|g| g.raw_file.as_str()).collect();
     let kept: Vec<TuSimpleRecord> = preds
         .iter()
