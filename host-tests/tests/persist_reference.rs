@@ -752,6 +752,23 @@ fn compare_pass(
             "seed {seed}, slot {s}: the core's evidence changes the posterior precision by \
              {pj:.2e} (relative) and its mean by {pi:.2e} posterior sd"
         );
+        // (3) The lane's frame offset marginalised (§11.4, `Evidence::offset_marginal`) against
+        // the reference's (`offset_marginal`), by the same posterior effect, at the default σ_o
+        // and at 4× it (where the downdate takes most of the lane's offset information).
+        for sd in [0.025f32, 0.1] {
+            let (jm, im) = e.offset_marginal(sd);
+            let jm = DMatrix::from_fn(r, r, |j, k| f64::from(jm[(j, k)]));
+            let im = DVector::from_fn(r, |j, _| f64::from(im[j]));
+            let (wj, wi) = refp::offset_marginal(w, f64::from(sd));
+            let (pj, pi) = posterior_effect(&pa, &known[a].mean, (&wj, &wi), (&jm, &im));
+            dev.post_j = dev.post_j.max(pj);
+            dev.post_i = dev.post_i.max(pi);
+            assert!(
+                pj <= POST_PRECISION && pi <= POST_MEAN_SD,
+                "seed {seed}, slot {s}, σ_o {sd}: the core's offset-marginal evidence changes the \
+                 posterior precision by {pj:.2e} (relative) and its mean by {pi:.2e} posterior sd"
+            );
+        }
         let d = (f64::from(e.weight) - w.weight).abs();
         dev.weight = dev.weight.max(d / n_rows as f64);
         assert!(

@@ -276,8 +276,23 @@ pub struct LaneEvidence {
     /// (docs/design.md §11.7): `(Σ_r f_r (Σ_j β_{s,j} ν_j²/S_ss − W_r), Σ_r W_r f_r²)`,
     /// `f_r = p/S_ss`.
     pub q_score: (f64, f64),
+    /// `k_s = Σ_r c_r / v_r`, `w_s = Σ_r 1/v_r` and `ζ_s = Σ_r z̃_r / v_r` over the same rows as
+    /// `J_s`: what [`offset_marginal`] needs.
+    pub offset: (DVector<f64>, f64, f64),
     /// The lane's rows (those in its row range).
     pub rows: Vec<LaneRow>,
+}
+
+/// The lane's information with a lateral offset common to its rows in the frame marginalised
+/// (docs/design.md §11.4): the rows are `z̃_r = c_rᵀ a + o + e_r`, `o ~ N(0, σ_o²)`, `e_r ~ N(0,
+/// v_r)`, so the stacked rows have the covariance `V + σ_o² 1 1ᵀ`, whose inverse (Sherman–Morrison)
+/// is `V⁻¹ − σ_o² V⁻¹1 1ᵀV⁻¹/(1 + σ_o² 1ᵀV⁻¹1)`; with `C` the rows' `c_rᵀ`,
+/// `J' = Cᵀ(V + σ_o² 11ᵀ)⁻¹C = J − σ_o² k kᵀ/(1 + σ_o² w)`, `i' = i − σ_o² ζ k/(1 + σ_o² w)`.
+pub fn offset_marginal(ev: &LaneEvidence, sd: f64) -> (DMatrix<f64>, DVector<f64>) {
+    let (k, w, zeta) = &ev.offset;
+    let s2 = sd * sd;
+    let g = s2 / (1.0 + s2 * w);
+    (&ev.j - k * k.transpose() * g, &ev.i - k * (g * zeta))
 }
 
 /// The result of [`known_lane_pass`].
@@ -354,6 +369,7 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             weight: 0.0,
             llr: 0.0,
             q_score: (0.0, 0.0),
+            offset: (DVector::zeros(r), 0.0, 0.0),
             rows: Vec::new(),
         })
         .collect();
@@ -482,6 +498,9 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             if let Some((v, zt)) = equivalent {
                 ev.j += &c * c.transpose() / v;
                 ev.i += &c * (zt / v);
+                ev.offset.0 += &c / v;
+                ev.offset.1 += 1.0 / v;
+                ev.offset.2 += zt / v;
                 ev.weight += w;
             }
             if in_view {

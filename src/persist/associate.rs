@@ -484,6 +484,11 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                     *iv += om * zt * cj;
                     *o = om * cj;
                 }
+                for (kv, o) in e.k.iter_mut().zip(oc.iter()) {
+                    *kv += o;
+                }
+                e.offset[0] += om;
+                e.offset[1] += om * zt;
                 // J is column-major: column k holds (om c_j) c_k down j. Each entry is its own
                 // sum, so the fixed trip counts at `ru = RANK` (a tracker compiled at its
                 // model's rank) give the same bits, unrolled.

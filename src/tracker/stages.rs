@@ -163,9 +163,10 @@ impl_tracker! {
                 continue;
             }
             if e.weight > 0.0 {
+                let (j, i) = e.offset_marginal(self.cfg.persist.frame_offset_sd);
                 match self
                     .temporal
-                    .update_info_probed(tables, s, &e.j, &e.i, probe)
+                    .update_info_probed(tables, s, &j, &i, probe)
                 {
                     Ok(_) => {
                         let dof = (tables.gram_rank as usize).min(RANK) as f32;
