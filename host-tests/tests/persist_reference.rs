@@ -401,9 +401,13 @@ const LLR_ABS_PER_ROW: f64 = 1e-3;
 const WEIGHT_ABS_PER_ROW: f64 = 1e-4;
 /// The process-noise scale's score and information (§11.7) within this per row in view.
 const Q_SCORE_ABS_PER_ROW: f64 = 1e-3;
+/// A lane's mean innovation (§11.4) within this many of its noise standard deviations `1/√w`.
+const INNOVATION_SD: f64 = 1e-2;
 /// Points whose `Σ_s β_{s,j}` lies this close to the threshold are not compared (f32 may fall
 /// on either side); they are counted.
 const EXPLAINED_MARGIN: f64 = 1e-4;
+/// A point whose `(z − ẑ)²/S` lies within this relative margin of the gate `γ`.
+const GATE_MARGIN: f64 = 1e-4;
 
 /// The scene: three lanes on a shared gentle curve, drifting right 2 cm a frame; each lane
 /// detected in a row with probability 0.95 at `N(x, 0.1²)`; Poisson clutter of `clutter` /m
@@ -511,10 +515,14 @@ struct PassDev {
     llr_design_frame: f64,
     /// `max |Δ score|, |Δ information|` of the process-noise scale per row in view.
     q_score: f64,
+    /// `max |Δ m|·√w`: the lane's mean innovation in units of its noise standard deviation.
+    innovation: f64,
     points: usize,
     explained: usize,
     borderline: usize,
     lanes: usize,
+    /// Lanes not compared: a point on their gate.
+    on_gate: usize,
 }
 
 /// Runs the tracker for `warmup` frames, then compares the known-lane pass of the next frame;
@@ -701,9 +709,32 @@ fn compare_pass(
         .failed_rows;
     assert_eq!(failed, 0, "seed {seed}: rows failed in the core");
     // Per lane.
+    // A point on a lane's gate (`(z − ẑ)²/S` within GATE_MARGIN of γ) may be gated in f32 and
+    // not in f64: that lane and that row are not compared (counted).
+    let gamma = f64::from(pass.params.gamma);
+    let mut gate_rows = vec![false; n_rows];
+    let on_gate: Vec<bool> =
+        want.lanes
+            .iter()
+            .map(|w| {
+                let mut any = false;
+                for lr in &w.rows {
+                    let hit = rows[lr.row].points.iter().any(|z| {
+                        ((z - lr.zhat).powi(2) / lr.s - gamma).abs() <= GATE_MARGIN * gamma
+                    });
+                    gate_rows[lr.row] |= hit;
+                    any |= hit;
+                }
+                any
+            })
+            .collect();
     for (a, &s) in slots.iter().enumerate() {
         let w = &want.lanes[a];
         let e = &ev[s];
+        if on_gate[a] {
+            dev.on_gate += 1;
+            continue;
+        }
         // (1) The pass itself: J, i rebuilt in f64 from the reference's equivalent measurements
         // on the core's own f32 basis, entry by entry.
         let mut j_iso = DMatrix::<f64>::zeros(r, r);
@@ -767,6 +798,19 @@ fn compare_pass(
                 pj <= POST_PRECISION && pi <= POST_MEAN_SD,
                 "seed {seed}, slot {s}, σ_o {sd}: the core's offset-marginal evidence changes the \
                  posterior precision by {pj:.2e} (relative) and its mean by {pi:.2e} posterior sd"
+            );
+        }
+        // (4) The lane's mean innovation (§11.4, the frame offset's estimate), `(ζ − ζ̂)/w`,
+        // against the reference's, in units of its noise standard deviation `1/√w`.
+        let (_, rw, rz, rzh) = &w.offset;
+        if *rw > 0.0 {
+            let m_ref = (rz - rzh) / rw;
+            let m = f64::from((e.offset[1] - e.offset[2]) / e.offset[0]);
+            let d = (m - m_ref).abs() * rw.sqrt();
+            dev.innovation = dev.innovation.max(d);
+            assert!(
+                d <= INNOVATION_SD,
+                "seed {seed}, slot {s}: mean innovation {m} (core) vs {m_ref} (reference)"
             );
         }
         let d = (f64::from(e.weight) - w.weight).abs();
@@ -833,7 +877,9 @@ fn compare_pass(
     // Explained points.
     for (k, row) in want.explained.iter().enumerate() {
         for (j, &ex) in row.iter().enumerate() {
-            if (want.beta_sum[k][j] - input.params.explained).abs() < EXPLAINED_MARGIN {
+            if gate_rows[k]
+                || (want.beta_sum[k][j] - input.params.explained).abs() < EXPLAINED_MARGIN
+            {
                 dev.borderline += 1;
                 continue;
             }
@@ -877,17 +923,25 @@ fn known_lane_pass_matches_the_reference() {
         dev.explained > 0 && dev.explained < dev.points,
         "the masks must hold explained and unexplained points"
     );
+    assert!(
+        dev.on_gate * 10 <= dev.lanes,
+        "{} lanes with a point on the gate, {} compared",
+        dev.on_gate,
+        dev.lanes
+    );
     println!(
-        "known-lane pass ({} lanes): on the core's basis J max {:.2e}, i max {:.2e} (tolerance \
+        "known-lane pass ({} lanes, {} more with a point within {GATE_MARGIN:.0e} of the gate \
+         not compared): on the core's basis J max {:.2e}, i max {:.2e} (tolerance \
          {PASS_REL:.0e} of the diagonal scale); with the reference's basis, posterior precision \
          {:.2e} (tolerance {POST_PRECISION:.0e}), posterior mean {:.2e} sd (tolerance \
          {POST_MEAN_SD:.0e}); Σ W max {:.2e} per row (tolerance {WEIGHT_ABS_PER_ROW:.0e}); \
          Σ ln Λ max {:.2e} per row in view (P_D fixed over the pass; tolerance \
          {LLR_ABS_PER_ROW:.0e}; {:.2e} in one frame's logit update); process-noise score and \
-         information max {:.2e} per row in view (tolerance {Q_SCORE_ABS_PER_ROW:.0e}); explained \
-         masks equal on {} points, {} of them explained ({} within {EXPLAINED_MARGIN:.0e} of the \
-         threshold skipped)",
+         information max {:.2e} per row in view (tolerance {Q_SCORE_ABS_PER_ROW:.0e}); mean \
+         innovation max {:.2e} noise sd (tolerance {INNOVATION_SD:.0e}); explained masks equal on {} points, {} of them explained ({} within \
+         {EXPLAINED_MARGIN:.0e} of the threshold or in a row with a point on a gate skipped)",
         dev.lanes,
+        dev.on_gate,
         dev.j,
         dev.i,
         dev.post_j,
@@ -896,10 +950,79 @@ fn known_lane_pass_matches_the_reference() {
         dev.llr,
         dev.llr_design_frame,
         dev.q_score,
+        dev.innovation,
         dev.points,
         dev.explained,
         dev.borderline
     );
+}
+
+// (d') The frame offset's estimate (§11.4).
+
+/// `Persist::update_frame_offset` against `reference::persist::FrameOffset` on random frames:
+/// lanes with rows or not, mean innovations with a true frame offset `σ_o` that changes every
+/// 400 frames (0, 2 cm, 6 cm) plus noise of predicted variance `a`, and one lane in ten frames
+/// that jumps by 1 m (a lane that took another marking). The core's `σ_o²` within `1e-4`
+/// relative + `1e-8` m² of the reference's every frame; and the estimate itself, the mean over
+/// each regime's last 200 frames, within 15 % of the true `σ_o²` plus [`ZERO_BIAS`].
+/// What the estimate may read where there is no offset: the noise of an estimate held ≥ 0 and
+/// the outliers that get past the winsorisation, `(1.5 cm)²`.
+const ZERO_BIAS: f64 = 2.25e-4;
+
+#[test]
+fn frame_offset_estimate_matches_the_reference() {
+    let mut rng = ChaCha8Rng::seed_from_u64(59);
+    let memory = 20.0f32;
+    let mut ps = Persist::<LANES, POINTS, ROWS>::new();
+    let mut want = refp::FrameOffset::new(LANES);
+    let mut worst = 0.0f64;
+    let regimes = [0.0f64, 0.02, 0.06, 0.0];
+    for (g, &sd) in regimes.iter().enumerate() {
+        let mut tail = (0.0f64, 0usize);
+        for frame in 0..400 {
+            let mut inn = [[0.0f32; 2]; LANES];
+            let mut inn_ref = vec![None; LANES];
+            for s in 0..LANES {
+                if rng.random::<f64>() < 0.15 {
+                    continue;
+                }
+                let a: f64 = rng.random_range(1e-4..2e-3);
+                let mut m = Normal::new(0.0, (a + sd * sd).sqrt())
+                    .unwrap()
+                    .sample(&mut rng);
+                if rng.random::<f64>() < 0.1 / LANES as f64 {
+                    m += 1.0;
+                }
+                inn[s] = [m as f32, a as f32];
+                inn_ref[s] = Some((f64::from(m as f32), f64::from(a as f32)));
+            }
+            ps.update_frame_offset(&inn, memory);
+            want.update(&inn_ref, f64::from(memory));
+            let core = f64::from(ps.frame_offset_sd()).powi(2);
+            let d = (core - want.var).abs();
+            worst = worst.max(d / (want.var + 1e-6));
+            assert!(
+                d <= 1e-4 * want.var + 1e-8,
+                "regime {g}, frame {frame}: σ_o² {core:.4e} (core) vs {:.4e} (reference)",
+                want.var
+            );
+            if frame >= 200 {
+                tail.0 += want.var;
+                tail.1 += 1;
+            }
+        }
+        let est = tail.0 / tail.1 as f64;
+        let truth = sd * sd;
+        println!(
+            "frame offset: true σ_o {sd:.3} m, estimated {:.4} m (mean σ_o² over 200 frames)",
+            est.sqrt()
+        );
+        assert!(
+            (est - truth).abs() <= 0.15 * truth + ZERO_BIAS,
+            "regime {g}: estimated σ_o² {est:.3e} against the true {truth:.3e}"
+        );
+    }
+    println!("frame offset: max relative |Δ σ_o²| core vs reference {worst:.2e}");
 }
 
 // (d) The process-noise scale's step (§11.7).

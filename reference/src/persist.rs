@@ -276,9 +276,10 @@ pub struct LaneEvidence {
     /// (docs/design.md §11.7): `(Σ_r f_r (Σ_j β_{s,j} ν_j²/S_ss − W_r), Σ_r W_r f_r²)`,
     /// `f_r = p/S_ss`.
     pub q_score: (f64, f64),
-    /// `k_s = Σ_r c_r / v_r`, `w_s = Σ_r 1/v_r` and `ζ_s = Σ_r z̃_r / v_r` over the same rows as
-    /// `J_s`: what [`offset_marginal`] needs.
-    pub offset: (DVector<f64>, f64, f64),
+    /// `k_s = Σ_r c_r / v_r`, `w_s = Σ_r 1/v_r`, `ζ_s = Σ_r z̃_r / v_r` and `ζ̂_s = Σ_r ẑ_r /
+    /// v_r` over the same rows as `J_s`: what [`offset_marginal`] needs, and the lane's mean
+    /// innovation `(ζ_s − ζ̂_s)/w_s` ([`FrameOffset`]).
+    pub offset: (DVector<f64>, f64, f64, f64),
     /// The lane's rows (those in its row range).
     pub rows: Vec<LaneRow>,
 }
@@ -289,10 +290,60 @@ pub struct LaneEvidence {
 /// is `V⁻¹ − σ_o² V⁻¹1 1ᵀV⁻¹/(1 + σ_o² 1ᵀV⁻¹1)`; with `C` the rows' `c_rᵀ`,
 /// `J' = Cᵀ(V + σ_o² 11ᵀ)⁻¹C = J − σ_o² k kᵀ/(1 + σ_o² w)`, `i' = i − σ_o² ζ k/(1 + σ_o² w)`.
 pub fn offset_marginal(ev: &LaneEvidence, sd: f64) -> (DMatrix<f64>, DVector<f64>) {
-    let (k, w, zeta) = &ev.offset;
+    let (k, w, zeta, _) = &ev.offset;
     let s2 = sd * sd;
     let g = s2 / (1.0 + s2 * w);
     (&ev.j - k * k.transpose() * g, &ev.i - k * (g * zeta))
+}
+
+/// The estimate of the frame offset's variance `σ_o²` (docs/design.md §11.4), written from the
+/// design: per lane with rows in two consecutive frames, `Δ = m_t − m_{t−1}` (its mean
+/// innovations) has the variance `V = a_t + a_{t−1} + 2σ_o²` (`a` the mean innovation's predicted
+/// variance without the offset); the moment sample `e = ½(min(Δ², 4V)/E min(χ²₁, 4) − a_t −
+/// a_{t−1})` enters one Fisher-scoring step for `σ_o²` with weight `1/V²` (the Fisher information
+/// of `σ_o²` in `N(0, V)` up to a constant factor), the information being discounted by
+/// `1 − 1/memory` a frame; `σ_o² ≥ 0`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameOffset {
+    /// `σ_o²`, m².
+    pub var: f64,
+    /// Its discounted information.
+    pub info: f64,
+    /// Per lane, the last frame's `(m, a)`.
+    pub last: Vec<Option<(f64, f64)>>,
+}
+
+impl FrameOffset {
+    /// No estimate yet (`σ_o = 0`), `lanes` lanes.
+    pub fn new(lanes: usize) -> Self {
+        Self {
+            var: 0.0,
+            info: 0.0,
+            last: vec![None; lanes],
+        }
+    }
+
+    /// One frame: `innovation[s] = Some((m_s, a_s))` for the lanes with rows in it.
+    pub fn update(&mut self, innovation: &[Option<(f64, f64)>], memory: f64) {
+        // E min(χ²₁, c) = P(χ²₃ ≤ c) + c P(χ²₁ > c), at c = 4: erf(√2) − √(8/π) e^{−2} +
+        // 4 erfc(√2) (evaluated with Python's math.erf).
+        let c = 4.0;
+        let mean = 0.920_536_925_636_323;
+        let (mut num, mut den) = (0.0, 0.0);
+        for (last, inn) in self.last.iter_mut().zip(innovation) {
+            if let (Some((m0, a0)), Some((m, a))) = (*last, *inn) {
+                let v = a + a0 + 2.0 * self.var;
+                let e = 0.5 * (((m - m0) * (m - m0)).min(c * v) / mean - a - a0);
+                num += (e - self.var) / (v * v);
+                den += 1.0 / (v * v);
+            }
+            *last = *inn;
+        }
+        self.info = self.info * (1.0 - 1.0 / memory) + den;
+        if self.info > 0.0 {
+            self.var = (self.var + num / self.info).max(0.0);
+        }
+    }
 }
 
 /// The result of [`known_lane_pass`].
@@ -369,7 +420,7 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             weight: 0.0,
             llr: 0.0,
             q_score: (0.0, 0.0),
-            offset: (DVector::zeros(r), 0.0, 0.0),
+            offset: (DVector::zeros(r), 0.0, 0.0, 0.0),
             rows: Vec::new(),
         })
         .collect();
@@ -501,6 +552,7 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
                 ev.offset.0 += &c / v;
                 ev.offset.1 += 1.0 / v;
                 ev.offset.2 += zt / v;
+                ev.offset.3 += zh / v;
                 ev.weight += w;
             }
             if in_view {

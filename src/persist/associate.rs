@@ -489,6 +489,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 }
                 e.offset[0] += om;
                 e.offset[1] += om * zt;
+                e.offset[2] += om * zh;
                 // J is column-major: column k holds (om c_j) c_k down j. Each entry is its own
                 // sum, so the fixed trip counts at `ru = RANK` (a tracker compiled at its
                 // model's rank) give the same bits, unrolled.

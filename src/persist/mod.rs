@@ -99,13 +99,13 @@ pub struct PersistConfig {
     /// Probability that a lane that exists is visible in a frame (not occluded, not blurred
     /// out): the rows' evidence of a frame counts only in that case (docs/design.md §11.5).
     pub p_visible: f32,
-    /// Standard deviation of a lane's lateral offset common to its rows in one frame, metres
-    /// (docs/design.md §11.4): the edge of a marking the detector sees, a double line's side.
-    /// Marginalised from each lane's row information before the temporal update, so that a
-    /// frame's offset does not move the lane as motion. 0.025 by default (chosen on the bundled
-    /// replay, where 0.05 loses; the held-out generator's stress rows showed that the term pays);
-    /// 0 turns it off (before stop 59).
-    pub frame_offset_sd: f32,
+    /// Memory, in frames, of the estimate of a lane's lateral offset common to its rows in one
+    /// frame (docs/design.md §11.4: the edge of a marking the detector sees, a camera's pitch
+    /// or roll jitter): `σ_o` is estimated from the lanes' consecutive mean innovations and
+    /// marginalised from each lane's row information before the temporal update, so that a
+    /// frame's offset does not move the lane as motion. 20 by default (chosen a priori, about a
+    /// second at 15–30 fps; not swept); 0 turns the term off (as before stop 59).
+    pub frame_offset_memory: f32,
     /// Two lanes closer than this on average over their common observed extent are one
     /// marking (docs/design.md §11.9), metres: half of a 2 m minimum spacing of markings.
     pub min_spacing: f32,
@@ -251,7 +251,7 @@ impl PersistConfig {
         row_noise_scale: 0.043,
         q_memory: 1.0,
         p_visible: 0.9,
-        frame_offset_sd: 0.025,
+        frame_offset_memory: 20.0,
         min_spacing: 1.0,
         pd_floor: 0.2,
         own_pd: true,
@@ -290,6 +290,10 @@ pub struct LaneState<const POINTS: usize> {
     pub looks: [f32; POINTS],
     /// `P(exists)`.
     pub existence: f32,
+    /// The last frame's mean innovation of the lane's rows and its predicted variance
+    /// without the frame offset, `[m, a]` (`a = 0`: the lane had no rows that frame), for the
+    /// frame offset's estimate ([`Persist::update_frame_offset`]).
+    pub innovation: [f32; 2],
 }
 
 impl<const POINTS: usize> LaneState<POINTS> {
@@ -299,6 +303,7 @@ impl<const POINTS: usize> LaneState<POINTS> {
         hits: [0.0; POINTS],
         looks: [0.0; POINTS],
         existence: 0.0,
+        innovation: [0.0; 2],
     };
 
     /// `P_D` in band `b`: the Beta(1, 1) posterior mean.
@@ -309,6 +314,14 @@ impl<const POINTS: usize> LaneState<POINTS> {
 
 /// `ln 10⁴`: the process-noise scale's upper bound (docs/design.md §11.7).
 const LN_MAX_Q_SCALE: f32 = 9.210_34;
+
+/// The frame offset's estimate winsorises `Δ²` at `WINSOR` times its variance (2 standard
+/// deviations; docs/design.md §11.4).
+const WINSOR: f32 = 4.0;
+
+/// `E min(χ²₁, 4) = P(χ²₃ ≤ 4) + 4 P(χ²₁ > 4) = erf(√2) − √(8/π) e^{−2} + 4 erfc(√2)`: the
+/// winsorised sample's mean in units of its variance.
+const WINSOR_MEAN: f32 = 0.920_537;
 
 /// The stage's state: per slot [`LaneState`], per band the clutter density and the point
 /// variance, and this frame's row evidence per slot (for the noise estimate).
@@ -329,6 +342,9 @@ pub struct Persist<const LANES: usize, const POINTS: usize, const ROWS: usize> {
     /// This frame's sums of the process-noise scale's score, its information and the degrees
     /// of freedom over the lanes counted ([`Persist::count_q_score`]).
     q_sums: [f32; 3],
+    /// The estimate of the frame offset's variance `σ_o²` (m², ≥ 0) and its discounted
+    /// information (docs/design.md §11.4).
+    frame_offset: [f32; 2],
 }
 
 /// One frame's evidence for one lane.
@@ -355,8 +371,9 @@ pub struct Evidence<const RANK: usize> {
     /// `k = Σ_r ω_r c_r` over the rows that gave information: the direction of a lateral offset
     /// common to the lane's rows in this frame (docs/design.md §11.4).
     pub k: SVector<f32, RANK>,
-    /// `[w, ζ] = [Σ_r ω_r, Σ_r ω_r z̃_r]` over the same rows.
-    pub offset: [f32; 2],
+    /// `[w, ζ, ζ̂] = [Σ_r ω_r, Σ_r ω_r z̃_r, Σ_r ω_r ẑ_r]` over the same rows (`ẑ_r` the
+    /// lane's predicted position in row `r`): `(ζ − ζ̂)/w` is the lane's mean innovation.
+    pub offset: [f32; 3],
 }
 
 impl<const RANK: usize> Evidence<RANK> {
@@ -367,6 +384,7 @@ impl<const RANK: usize> Evidence<RANK> {
     ///
     /// # Complexity
     /// One outer product, `RANK²` multiply-adds.
+    #[inline(never)]
     pub fn offset_marginal(&self, sd: f32) -> (SMatrix<f32, RANK, RANK>, SVector<f32, RANK>) {
         let s2 = sd * sd;
         let den = 1.0 + s2 * self.offset[0];
@@ -390,7 +408,7 @@ impl<const RANK: usize> Evidence<RANK> {
         chain: [0.0, 1.0],
         q_score: [0.0; 2],
         k: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; 1])),
-        offset: [0.0; 2],
+        offset: [0.0; 3],
     };
 }
 
@@ -448,6 +466,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         span: [[0.0; 2]; POINTS],
         log_q_scale: 0.0,
         q_sums: [0.0; 3],
+        frame_offset: [0.0; 2],
     };
 
     /// The clutter densities not yet estimated (`NaN`), the spans empty. O(POINTS).
@@ -600,6 +619,57 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 *h = k * rate;
                 *n = k;
             }
+        }
+    }
+
+    /// The estimated standard deviation `σ_o` of a lane's frame offset, metres (0 until
+    /// estimated; docs/design.md §11.4).
+    pub fn frame_offset_sd(&self) -> f32 {
+        math::sqrt(self.frame_offset[0].max(0.0))
+    }
+
+    /// One frame of the frame offset's estimate (docs/design.md §11.4) from `innovation[s] =
+    /// [m_s, a_s]`: lane `s`'s mean innovation over its rows and its predicted variance without
+    /// the offset (`a_s ≤ 0`: no rows this frame). Every lane with rows in this frame and the
+    /// last gives `Δ = m_t − m_{t−1}`, whose variance is `V = a_t + a_{t−1} + 2σ_o²` (the
+    /// innovations of a consistent filter are white; the offset is drawn anew each frame). The
+    /// sample `e = ½(min(Δ², 4V)/0.9205 − a_t − a_{t−1})` (Δ² winsorised at 2 standard
+    /// deviations, `0.9205 = E min(χ²₁, 4)` restoring the mean: a lane that jumps to another
+    /// marking does not count as an offset) enters a Fisher-scoring step with weight `1/V²`, its
+    /// information discounted by `1 − 1/memory` a frame; the estimate stays ≥ 0. `memory ≤ 0`
+    /// (or not finite) leaves the estimate as it is and only records the innovations.
+    ///
+    /// # Complexity
+    /// `LANES` steps of a few flops.
+    #[inline(never)]
+    pub fn update_frame_offset(&mut self, innovation: &[[f32; 2]; LANES], memory: f32) {
+        let [var, info] = self.frame_offset;
+        let mut acc = [0.0f32; 2];
+        for (l, &[m, a]) in self.lanes.iter_mut().zip(innovation.iter()) {
+            let [m0, a0] = l.innovation;
+            let ok = a > 0.0 && m.is_finite() && a.is_finite();
+            l.innovation = if ok { [m, a] } else { [0.0; 2] };
+            if !(ok && a0 > 0.0) {
+                continue;
+            }
+            let a2 = a + a0;
+            let v = a2 + 2.0 * var;
+            let d2 = (m - m0) * (m - m0);
+            let e = 0.5 * (d2.min(WINSOR * v) / WINSOR_MEAN - a2);
+            let w = 1.0 / (v * v);
+            let t = (e - var) * w;
+            if t.is_finite() && w.is_finite() {
+                acc[0] += t;
+                acc[1] += w;
+            }
+        }
+        if !(memory > 0.0 && memory.is_finite()) {
+            return;
+        }
+        let info = info * (1.0 - 1.0 / memory.max(1.0)) + acc[1];
+        let var = var + acc[0] / info;
+        if info > 0.0 && info.is_finite() && var.is_finite() {
+            self.frame_offset = [var.max(0.0), info];
         }
     }
 

@@ -158,12 +158,32 @@ impl_tracker! {
             .paint_gap
             .and_then(|c| c.rates(pass.du))
             .is_some();
+        // The frame offset's estimate (§11.4) from the lanes' mean innovations, against the
+        // prediction (before any lane's update: with coupled tables an update moves the others).
+        let r = (tables.gram_rank as usize).min(RANK);
+        let mut innovation = [[0.0f32; 2]; LANES];
+        for ((s, e), inn) in ev.iter().enumerate().zip(innovation.iter_mut()) {
+            let w = e.offset[0];
+            let has_rows = live & (1 << s) != 0 && e.weight > 0.0 && w > 0.0;
+            if !has_rows {
+                continue;
+            }
+            let mut k = [0.0f32; POINTS];
+            for (d, kv) in k.iter_mut().zip(e.k.iter()).take(r) {
+                *d = *kv;
+            }
+            let kpk = self.temporal.filter().coefficient_var(s, &k, r);
+            *inn = [(e.offset[1] - e.offset[2]) / w, kpk / (w * w) + 1.0 / w];
+        }
+        self.persist
+            .update_frame_offset(&innovation, self.cfg.persist.frame_offset_memory);
+        let offset_sd = self.persist.frame_offset_sd();
         for (s, e) in ev.iter().enumerate() {
             if live & (1 << s) == 0 {
                 continue;
             }
             if e.weight > 0.0 {
-                let (j, i) = e.offset_marginal(self.cfg.persist.frame_offset_sd);
+                let (j, i) = e.offset_marginal(offset_sd);
                 match self
                     .temporal
                     .update_info_probed(tables, s, &j, &i, probe)

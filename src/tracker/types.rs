@@ -149,7 +149,7 @@ impl TrackerConfig {
             row_noise_scale: 0.0,
             q_memory: 0.0,
             p_visible: 0.0,
-            frame_offset_sd: 0.0,
+            frame_offset_memory: 0.0,
             min_spacing: 0.0,
             pd_floor: 0.0,
             own_pd: false,
