@@ -158,14 +158,18 @@ impl_tracker! {
             .paint_gap
             .and_then(|c| c.rates(pass.du))
             .is_some();
-        // The frame offset's estimate (§11.4) from the lanes' mean innovations, against the
+        // The frame offset's estimate (§11.4) from the lanes' mean innovations against the
         // prediction (before any lane's update: with coupled tables an update moves the others).
         let r = (tables.gram_rank as usize).min(RANK);
         let mut innovation = [[0.0f32; 2]; LANES];
         for ((s, e), inn) in ev.iter().enumerate().zip(innovation.iter_mut()) {
             let w = e.offset[0];
-            let has_rows = live & (1 << s) != 0 && e.weight > 0.0 && w > 0.0;
-            if !has_rows {
+            // Published lanes through two passes only, as the process-noise score (§11.7): a
+            // lane on a distractor or a new lane's unknown velocity is not the frame's offset.
+            let counted = self.persist.lanes.get(s).is_some_and(|l| {
+                l.passes >= 2 && l.existence >= self.cfg.persist.p_publish
+            });
+            if !(counted && live & (1 << s) != 0 && e.weight > 0.0 && w > 0.0) {
                 continue;
             }
             let mut k = [0.0f32; POINTS];
