@@ -635,7 +635,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     /// innovations of a consistent filter are white; the offset is drawn anew each frame). The
     /// sample `e = ½(min(Δ², 4V)/0.9205 − a_t − a_{t−1})` (Δ² winsorised at 2 standard
     /// deviations, `0.9205 = E min(χ²₁, 4)` restoring the mean: a lane that jumps to another
-    /// marking does not count as an offset) enters a Fisher-scoring step with weight `1/V²`, its
+    /// marking counts as a 2σ sample, not as its jump) enters a Fisher-scoring step with weight `1/V²`, its
     /// information discounted by `1 − 1/memory` a frame; the estimate stays ≥ 0. `memory ≤ 0`
     /// (or not finite) leaves the estimate as it is and only records the innovations.
     ///
