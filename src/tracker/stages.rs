@@ -172,11 +172,7 @@ impl_tracker! {
             if !(counted && live & (1 << s) != 0 && e.weight > 0.0 && w > 0.0) {
                 continue;
             }
-            let mut k = [0.0f32; POINTS];
-            for (d, kv) in k.iter_mut().zip(e.k.iter()).take(r) {
-                *d = *kv;
-            }
-            let kpk = self.temporal.filter().coefficient_var(s, &k, r);
+            let kpk = self.temporal.filter().coefficient_var(s, e.k.as_slice(), r);
             *inn = [(e.offset[1] - e.offset[2]) / w, kpk / (w * w) + 1.0 / w];
         }
         self.persist

@@ -5,7 +5,7 @@
 //! `cargo run --release -p stjpdacf-tools --example config_sweep -- [seed=N] [field=value ...]`
 //! (`seed`: the replay's and the robustness curve's synth seed, default 1)
 //! with fields of `PersistConfig`: `ray_z`, `ray_resolution` (`inf` allowed),
-//! `ray_aligned` (0 or 1); of the spatial `Config`: `max_tentative`.
+//! `ray_aligned` (0 or 1), `gap_misses`; of the spatial `Config`: `max_tentative`.
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::demo::{self, DemoOptions, Variant};
 
@@ -26,6 +26,7 @@ fn main() -> anyhow::Result<()> {
             "own_pd" => config.persist.own_pd = x != 0.0,
             "newcomer_wait" => config.persist.newcomer_wait = x as u8,
             "max_tentative" => config.spatial.max_tentative = x as u8,
+            "gap_misses" => config.persist.gap_misses = x as u16,
             _ => anyhow::bail!("unknown field {k}"),
         }
     }

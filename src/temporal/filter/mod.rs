@@ -697,17 +697,19 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
 
     /// `cᵀ Cov(a_s) c` over the first `r` position coefficients of slot `s` (0 for a free slot),
     /// not below the rounding bound of its f32 computation (see [`TemporalFilter::lane`]).
-    pub fn coefficient_var(&self, s: usize, c: &[f32; POINTS], r: usize) -> f32 {
+    /// `c` holds the coefficients (any length: entries past its end count as 0).
+    pub fn coefficient_var(&self, s: usize, c: &[f32], r: usize) -> f32 {
         if !self.is_active(s) {
             return 0.0;
         }
+        let cj = |j: usize| c.get(j).copied().unwrap_or(0.0);
         let mut acc = 0.0f32;
         let mut bound = 0.0f32;
         for j in 0..r.min(RANK) {
             let ij = Self::idx(s, j, 0);
-            bound += get(c, j).abs() * math::sqrt(self.pg(ij, ij).abs());
+            bound += cj(j).abs() * math::sqrt(self.pg(ij, ij).abs());
             for j2 in 0..r.min(RANK) {
-                acc += get(c, j) * get(c, j2) * self.pg(ij, Self::idx(s, j2, 0));
+                acc += cj(j) * cj(j2) * self.pg(ij, Self::idx(s, j2, 0));
             }
         }
         // Not below the rounding bound of its computation (see `project`).
