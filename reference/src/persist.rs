@@ -280,6 +280,10 @@ pub struct LaneEvidence {
     /// v_r` over the same rows as `J_s`: what [`offset_marginal`] needs, and the lane's mean
     /// innovation `(ζ_s − ζ̂_s)/w_s` ([`FrameOffset`]).
     pub offset: (DVector<f64>, f64, f64, f64),
+    /// With the paint / gap chain: `ln` of the paint state's emission (the row's likelihood
+    /// ratio at `p_on`) of each row in view, in order (§11.5: what [`chain_expectations`]
+    /// needs).
+    pub chain_lr: Vec<f64>,
     /// The lane's rows (those in its row range).
     pub rows: Vec<LaneRow>,
 }
@@ -421,6 +425,7 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             llr: 0.0,
             q_score: (0.0, 0.0),
             offset: (DVector::zeros(r), 0.0, 0.0, 0.0),
+            chain_lr: Vec::new(),
             rows: Vec::new(),
         })
         .collect();
@@ -561,6 +566,7 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
                     Some((p_on, to_off, to_on, _)) => {
                         let on_lr =
                             log_likelihood_ratio(p_on, prm.pg, band.clutter, gated_likelihood);
+                        ev.chain_lr.push(on_lr);
                         let [on, off] = alpha[s];
                         alpha[s] = [
                             lse(on + (1.0 - to_off).ln(), off + to_on.ln()) + on_lr,
@@ -832,6 +838,113 @@ pub fn ray_stat(
     let saa = (fa.transpose() * cov * &fa)[(0, 0)];
     let scc = (fc.transpose() * cov * &fc)[(0, 0)];
     (saa > 0.0 && scc > 0.0).then(|| (a, saa.sqrt(), a * a / saa, c * c / scc))
+}
+
+/// The expected gap rows `E[T]` and gap → paint transitions `E[N]` of one lane's rows in view
+/// under the paint / gap chain, given all of them (docs/design.md §11.5), written from the
+/// design by the forward–backward recursions: the chain starts at its stationary shares
+/// before the first row; row `r` is reached by one transition `A` and emits `e_r = (Λ_r, 1)`
+/// (`ln Λ_r = ln_lr[r]`: paint at `p_on`; a gap emits nothing); `E[T] = Σ_r P(x_r = gap | all)`,
+/// `E[N] = Σ_r P(x_{r−1} = gap, x_r = paint | all)`, `x_{−1}` the start.
+pub fn chain_expectations(ln_lr: &[f64], c: &PaintGap) -> (f64, f64) {
+    let to_off = (c.du / c.paint).min(0.95);
+    let to_on = (c.du / c.gap).min(0.95);
+    let pi_on = c.paint / (c.paint + c.gap);
+    // A[i][j]: from i to j, 0 = paint, 1 = gap.
+    let a = [[1.0 - to_off, to_off], [to_on, 1.0 - to_on]];
+    let n = ln_lr.len();
+    if n == 0 {
+        return (0.0, 0.0);
+    }
+    // Emissions scaled by each row's larger one (the scale cancels in the posteriors).
+    let em: Vec<[f64; 2]> = ln_lr
+        .iter()
+        .map(|&l| {
+            let m = l.max(0.0);
+            [(l - m).exp(), (-m).exp()]
+        })
+        .collect();
+    // Forward, normalised: alpha[r] ∝ p(x_r, rows ≤ r); alpha_prev[0] the start.
+    let mut alpha = vec![[0.0f64; 2]; n + 1];
+    alpha[0] = [pi_on, 1.0 - pi_on];
+    for r in 0..n {
+        let mut v = [0.0; 2];
+        for j in 0..2 {
+            v[j] = (alpha[r][0] * a[0][j] + alpha[r][1] * a[1][j]) * em[r][j];
+        }
+        let z = v[0] + v[1];
+        alpha[r + 1] = [v[0] / z, v[1] / z];
+    }
+    // Backward, normalised: beta[r] ∝ p(rows > r | x_r).
+    let mut beta = vec![[1.0f64; 2]; n + 1];
+    for r in (0..n).rev() {
+        let mut v = [0.0; 2];
+        for (i, vi) in v.iter_mut().enumerate() {
+            *vi = a[i][0] * em[r][0] * beta[r + 1][0] + a[i][1] * em[r][1] * beta[r + 1][1];
+        }
+        let z = v[0] + v[1];
+        beta[r] = [v[0] / z, v[1] / z];
+    }
+    let (mut t, mut nn) = (0.0, 0.0);
+    for r in 0..n {
+        // Row r is alpha[r + 1], beta[r + 1]; its predecessor alpha[r].
+        let g = [
+            alpha[r + 1][0] * beta[r + 1][0],
+            alpha[r + 1][1] * beta[r + 1][1],
+        ];
+        t += g[1] / (g[0] + g[1]);
+        let mut xi = [[0.0f64; 2]; 2];
+        let mut z = 0.0;
+        for i in 0..2 {
+            for j in 0..2 {
+                xi[i][j] = alpha[r][i] * a[i][j] * em[r][j] * beta[r + 1][j];
+                z += xi[i][j];
+            }
+        }
+        nn += xi[1][0] / z;
+    }
+    (t, nn)
+}
+
+/// The estimate of the paint / gap chain's mean gap (docs/design.md §11.5), written from the
+/// design: one EM step a frame, the M-step `gap = (Σ E[T]·du + gap0)/(Σ E[N] + 1)` over the
+/// counted lanes' expectations ([`chain_expectations`]) summed with a discount of
+/// `1 − 1/memory` a frame, the prior gap `gap0` worth one transition.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChainGap {
+    /// Discounted expected gap metres.
+    pub t: f64,
+    /// Discounted expected gap → paint transitions.
+    pub n: f64,
+}
+
+impl ChainGap {
+    /// No data yet: the prior.
+    pub fn new() -> Self {
+        Self { t: 0.0, n: 0.0 }
+    }
+
+    /// The mean gap, metres.
+    pub fn gap(&self, gap0: f64) -> f64 {
+        (self.t + gap0) / (self.n + 1.0)
+    }
+
+    /// One frame: `stats[s] = Some((E[T], E[N]))` for the lanes counted, rows `du` metres apart.
+    pub fn update(&mut self, stats: &[Option<(f64, f64)>], du: f64, memory: f64) {
+        let d = 1.0 - 1.0 / memory.max(1.0);
+        self.t *= d;
+        self.n *= d;
+        for (et, en) in stats.iter().flatten() {
+            self.t += et * du;
+            self.n += en;
+        }
+    }
+}
+
+impl Default for ChainGap {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 #[cfg(test)]

@@ -232,8 +232,15 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             tables.coreg.get((a, b)).copied().unwrap_or(0.0)
         };
         let uncoupled = filter.uncoupled();
-        // The paint / gap chain (§11.5): every lane of the pass starts at its stationary share.
-        let chain = cfg.paint_gap.and_then(|c| c.rates(pass.du));
+        // The paint / gap chain (§11.5) at the estimated mean gap: every lane of the pass
+        // starts at its stationary share.
+        let chain = cfg
+            .paint_gap
+            .map(|c| super::PaintGap {
+                gap: self.chain_gap(c.gap),
+                ..c
+            })
+            .and_then(|c| c.rates(pass.du));
         if let Some(c) = chain {
             for &s in slot.iter().take(n) {
                 if let Some(e) = ev.get_mut(s) {
@@ -432,12 +439,27 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             if in_view {
                 let lr_on = 1.0 - c.p_on * at.params.pg + c.p_on * get(&out.dens, a) / lambda;
                 let [on, off] = e.chain;
-                let a_on = (on * (1.0 - c.to_off) + off * c.to_on) * lr_on;
-                let a_off = on * c.to_off + off * (1.0 - c.to_on);
+                // The forward weights of the step's four transitions, paint / gap to paint / gap.
+                let (w_oo, w_fo) = (on * (1.0 - c.to_off), off * c.to_on);
+                let (w_of, w_ff) = (on * c.to_off, off * (1.0 - c.to_on));
+                let (p_on, p_off) = (w_oo + w_fo, w_of + w_ff);
+                let a_on = p_on * lr_on;
+                let a_off = p_off;
                 let sum = a_on + a_off;
                 if sum.is_finite() && sum > 0.0 {
                     e.chain = [a_on / sum, a_off / sum];
                     e.llr += math::ln(sum);
+                    // Forward-only smoothing of the gap statistics (§11.5): with the backward
+                    // kernel p(x' | x, rows before) = α(x') A(x', x) / Σ, ρ(x) ← Σ_x' p(x' | x)
+                    // (ρ(x') + s(x', x)), s counting a gap → paint step (N) and a gap row (T).
+                    let div = |v: f32, p: f32| if p > 0.0 { v / p } else { 0.0 };
+                    let [n_on, n_off, t_on, t_off] = e.chain_em;
+                    e.chain_em = [
+                        div(w_oo * n_on + w_fo * (n_off + 1.0), p_on),
+                        div(w_of * n_on + w_ff * n_off, p_off),
+                        div(w_oo * t_on + w_fo * t_off, p_on),
+                        div(w_of * t_on + w_ff * t_off, p_off) + 1.0,
+                    ];
                 }
             }
         } else {

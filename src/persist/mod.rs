@@ -106,6 +106,13 @@ pub struct PersistConfig {
     /// frame's offset does not move the lane as motion. 20 by default (chosen a priori, about a
     /// second at 15–30 fps; not swept); 0 turns the term off (as before stop 59).
     pub frame_offset_memory: f32,
+    /// Memory, in frames, of the estimate of the paint / gap chain's mean gap (docs/design.md
+    /// §11.5, "The chain's gap, estimated"): the expected gap rows and gap → paint transitions
+    /// of the published lanes' rows under the chain (forward-only smoothing, one EM step a
+    /// frame), discounted by `1 − 1/chain_memory` a frame, with [`PaintGap::gap`] as the prior
+    /// worth one transition. 20 by default (chosen a priori, as `frame_offset_memory`; not
+    /// swept); 0 keeps the prior's gap (as before stop 60).
+    pub chain_memory: f32,
     /// Two lanes closer than this on average over their common observed extent are one
     /// marking (docs/design.md §11.9), metres: half of a 2 m minimum spacing of markings.
     pub min_spacing: f32,
@@ -252,6 +259,7 @@ impl PersistConfig {
         q_memory: 1.0,
         p_visible: 0.9,
         frame_offset_memory: 20.0,
+        chain_memory: 20.0,
         min_spacing: 1.0,
         pd_floor: 0.2,
         own_pd: true,
@@ -345,6 +353,9 @@ pub struct Persist<const LANES: usize, const POINTS: usize, const ROWS: usize> {
     /// The estimate of the frame offset's variance `σ_o²` (m², ≥ 0) and its discounted
     /// information (docs/design.md §11.4).
     frame_offset: [f32; 2],
+    /// The paint / gap chain's mean gap: discounted `[Σ E[metres in a gap], Σ E[gap → paint
+    /// transitions]]` over the counted lanes' rows (docs/design.md §11.5).
+    chain_gap: [f32; 2],
 }
 
 /// One frame's evidence for one lane.
@@ -374,9 +385,23 @@ pub struct Evidence<const RANK: usize> {
     /// `[w, ζ, ζ̂] = [Σ_r ω_r, Σ_r ω_r z̃_r, Σ_r ω_r ẑ_r]` over the same rows (`ẑ_r` the
     /// lane's predicted position in row `r`): `(ζ − ζ̂)/w` is the lane's mean innovation.
     pub offset: [f32; 3],
+    /// With [`PersistConfig::paint_gap`]: the forward-only smoothing of the chain's additive
+    /// statistics (Cappé 2011), `[ρ_N(paint), ρ_N(gap), ρ_T(paint), ρ_T(gap)]`: the expected
+    /// gap → paint transitions and gap rows over the rows so far, given the current row's
+    /// state and the rows (docs/design.md §11.5).
+    pub chain_em: [f32; 4],
 }
 
 impl<const RANK: usize> Evidence<RANK> {
+    /// `[E[T], E[N]]`: the expected gap rows and gap → paint transitions over the pass's rows
+    /// in view under the chain, given all of them (docs/design.md §11.5): `Σ_x α(x) ρ(x)` of
+    /// the forward-only smoothing in [`Evidence::chain_em`]. Zero without the chain.
+    pub fn chain_expectations(&self) -> [f32; 2] {
+        let [on, off] = self.chain;
+        let [n_on, n_off, t_on, t_off] = self.chain_em;
+        [on * t_on + off * t_off, on * n_on + off * n_off]
+    }
+
     /// `(J', i')`: the information with the lane's frame offset `o ~ N(0, σ_o²)` marginalised
     /// (docs/design.md §11.4): the rows `z̃_r = c_rᵀ a + o + e_r` have the covariance
     /// `V + σ_o² 1 1ᵀ`, so `J' = J − σ_o² k kᵀ/(1 + σ_o² w)` and
@@ -409,6 +434,7 @@ impl<const RANK: usize> Evidence<RANK> {
         q_score: [0.0; 2],
         k: SMatrix::from_array_storage(nalgebra::ArrayStorage([[0.0; RANK]; 1])),
         offset: [0.0; 3],
+        chain_em: [0.0; 4],
     };
 }
 
@@ -467,6 +493,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         log_q_scale: 0.0,
         q_sums: [0.0; 3],
         frame_offset: [0.0; 2],
+        chain_gap: [0.0; 2],
     };
 
     /// The clutter densities not yet estimated (`NaN`), the spans empty. O(POINTS).
@@ -670,6 +697,48 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         let var = var + acc[0] / info;
         if info > 0.0 && info.is_finite() && var.is_finite() {
             self.frame_offset = [var.max(0.0), info];
+        }
+    }
+
+    /// The paint / gap chain's mean gap, metres: `(Σ E[T] + gap0)/(Σ E[N] + 1)`, the discounted
+    /// expected gap metres and gap → paint transitions of the lanes counted
+    /// ([`Persist::update_chain_gap`]) with the prior `gap0` as one transition's worth
+    /// (docs/design.md §11.5). `gap0` when the sums are not usable.
+    pub fn chain_gap(&self, gap0: f32) -> f32 {
+        let [t, n] = self.chain_gap;
+        let g = (t + gap0) / (n + 1.0);
+        if g.is_finite() && g > 0.0 {
+            g
+        } else {
+            gap0
+        }
+    }
+
+    /// One frame of the chain's gap estimate (docs/design.md §11.5): the sums are discounted
+    /// by `1 − 1/memory` and gain each counted lane's `stats[s] = [E[T], E[N]]`, its expected
+    /// gap rows and gap → paint transitions over this frame's rows in view
+    /// ([`Evidence::chain_expectations`]; `[0, 0]` for a lane not counted), `T` in metres at
+    /// `du` a row. `memory ≤ 0` (or not finite) leaves the estimate at its prior.
+    ///
+    /// # Complexity
+    /// `LANES` steps of a few flops.
+    pub fn update_chain_gap(&mut self, stats: &[[f32; 2]; LANES], du: f32, memory: f32) {
+        if !(memory > 0.0 && memory.is_finite() && du > 0.0 && du.is_finite()) {
+            return;
+        }
+        let d = 1.0 - 1.0 / memory.max(1.0);
+        let [mut t, mut n] = self.chain_gap;
+        t *= d;
+        n *= d;
+        for &[et, en] in stats {
+            let (tm, nn) = (et * du, en);
+            if tm.is_finite() && nn.is_finite() && tm >= 0.0 && nn >= 0.0 {
+                t += tm;
+                n += nn;
+            }
+        }
+        if t.is_finite() && n.is_finite() {
+            self.chain_gap = [t, n];
         }
     }
 

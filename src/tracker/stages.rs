@@ -177,6 +177,20 @@ impl_tracker! {
         }
         self.persist
             .update_frame_offset(&innovation, self.cfg.persist.frame_offset_memory);
+        // The chain's mean gap (§11.5) from the same lanes: the next frame's chain.
+        if chain {
+            let mut stats = [[0.0f32; 2]; LANES];
+            for ((s, e), st) in ev.iter().enumerate().zip(stats.iter_mut()) {
+                let counted = self.persist.lanes.get(s).is_some_and(|l| {
+                    l.passes >= 2 && l.existence >= self.cfg.persist.p_publish
+                });
+                if counted && live & (1 << s) != 0 {
+                    *st = e.chain_expectations();
+                }
+            }
+            self.persist
+                .update_chain_gap(&stats, pass.du, self.cfg.persist.chain_memory);
+        }
         let offset_sd = self.persist.frame_offset_sd();
         for (s, e) in ev.iter().enumerate() {
             if live & (1 << s) == 0 {

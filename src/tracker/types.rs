@@ -150,6 +150,7 @@ impl TrackerConfig {
             q_memory: 0.0,
             p_visible: 0.0,
             frame_offset_memory: 0.0,
+            chain_memory: 0.0,
             min_spacing: 0.0,
             pd_floor: 0.0,
             own_pd: false,

@@ -5,7 +5,8 @@
 //! `cargo run --release -p stjpdacf-tools --example config_sweep -- [seed=N] [field=value ...]`
 //! (`seed`: the replay's and the robustness curve's synth seed, default 1)
 //! with fields of `PersistConfig`: `ray_z`, `ray_resolution` (`inf` allowed),
-//! `ray_aligned` (0 or 1), `gap_misses`; of the spatial `Config`: `max_tentative`.
+//! `ray_aligned` (0 or 1), `gap_misses`, `chain_gap` / `chain_paint` / `chain_p_on` (the paint /
+//! gap chain's mean gap and paint in metres, its detection on paint); of the spatial `Config`: `max_tentative`.
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::demo::{self, DemoOptions, Variant};
 
@@ -27,6 +28,18 @@ fn main() -> anyhow::Result<()> {
             "newcomer_wait" => config.persist.newcomer_wait = x as u8,
             "max_tentative" => config.spatial.max_tentative = x as u8,
             "gap_misses" => config.persist.gap_misses = x as u16,
+            "chain_gap" | "chain_paint" | "chain_p_on" => {
+                let c = config
+                    .persist
+                    .paint_gap
+                    .as_mut()
+                    .ok_or_else(|| anyhow::anyhow!("no paint / gap chain"))?;
+                match k {
+                    "chain_gap" => c.gap = x,
+                    "chain_paint" => c.paint = x,
+                    _ => c.p_on = x,
+                }
+            }
             _ => anyhow::bail!("unknown field {k}"),
         }
     }
