@@ -502,6 +502,16 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         self.span = [[f32::INFINITY, f32::NEG_INFINITY]; POINTS];
     }
 
+    /// Whether slot `s` teaches the stage's shared estimates (the process-noise scale, the
+    /// frame offset, the chain's gap): published (`P ≥ p_publish`) and through at least two
+    /// known-lane passes (a new lane's velocity is unknown; a lane on a distractor is not
+    /// published).
+    pub fn counts(&self, s: usize, p_publish: f32) -> bool {
+        self.lanes
+            .get(s)
+            .is_some_and(|l| l.passes >= 2 && l.existence >= p_publish)
+    }
+
     /// The temporal process-noise scale `e^{log_q_scale}` (≥ 1).
     pub fn q_scale(&self) -> f32 {
         math::exp(self.log_q_scale.max(0.0))
@@ -513,10 +523,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
     /// information (its own estimate of the scale at most 3× the current one): one lane gone
     /// astray must not inflate every lane's process noise.
     pub fn count_q_score(&mut self, s: usize, score: [f32; 2], dof: f32, p_publish: f32) {
-        let ok = self
-            .lanes
-            .get(s)
-            .is_some_and(|l| l.passes >= 2 && l.existence >= p_publish);
+        let ok = self.counts(s, p_publish);
         let [g, i] = score;
         if ok && g.is_finite() && i.is_finite() && i > 0.0 {
             self.q_sums[0] += g.min(2.0 * i);

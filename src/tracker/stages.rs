@@ -166,9 +166,7 @@ impl_tracker! {
             let w = e.offset[0];
             // Published lanes through two passes only, as the process-noise score (§11.7): a
             // lane on a distractor or a new lane's unknown velocity is not the frame's offset.
-            let counted = self.persist.lanes.get(s).is_some_and(|l| {
-                l.passes >= 2 && l.existence >= self.cfg.persist.p_publish
-            });
+            let counted = self.persist.counts(s, self.cfg.persist.p_publish);
             if !(counted && live & (1 << s) != 0 && e.weight > 0.0 && w > 0.0) {
                 continue;
             }
@@ -181,10 +179,7 @@ impl_tracker! {
         if chain {
             let mut stats = [[0.0f32; 2]; LANES];
             for ((s, e), st) in ev.iter().enumerate().zip(stats.iter_mut()) {
-                let counted = self.persist.lanes.get(s).is_some_and(|l| {
-                    l.passes >= 2 && l.existence >= self.cfg.persist.p_publish
-                });
-                if counted && live & (1 << s) != 0 {
+                if self.persist.counts(s, self.cfg.persist.p_publish) && live & (1 << s) != 0 {
                     *st = e.chain_expectations();
                 }
             }
