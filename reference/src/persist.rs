@@ -204,6 +204,18 @@ pub struct PaintGap {
     pub du: f64,
 }
 
+impl PaintGap {
+    /// `(P(paint → gap), P(gap → paint), stationary paint share)` from one row in view to the
+    /// next (each transition at most 0.95).
+    pub fn rates(&self) -> (f64, f64, f64) {
+        (
+            (self.du / self.paint).min(0.95),
+            (self.du / self.gap).min(0.95),
+            self.paint / (self.paint + self.gap),
+        )
+    }
+}
+
 /// Everything [`known_lane_pass`] reads.
 #[derive(Debug, Clone, Copy)]
 pub struct PassInput<'a> {
@@ -432,9 +444,7 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
     // The chain (§11.5) in the log domain: per lane `[ln α_paint, ln α_gap]`, from the stationary
     // shares; one transition and one emission per row in view.
     let chain = input.paint_gap.map(|c| {
-        let to_off = (c.du / c.paint).min(0.95);
-        let to_on = (c.du / c.gap).min(0.95);
-        let pi_on = c.paint / (c.paint + c.gap);
+        let (to_off, to_on, pi_on) = c.rates();
         (c.p_on, to_off, to_on, pi_on)
     });
     let lse = |a: f64, b: f64| {
@@ -847,9 +857,7 @@ pub fn ray_stat(
 /// (`ln Λ_r = ln_lr[r]`: paint at `p_on`; a gap emits nothing); `E[T] = Σ_r P(x_r = gap | all)`,
 /// `E[N] = Σ_r P(x_{r−1} = gap, x_r = paint | all)`, `x_{−1}` the start.
 pub fn chain_expectations(ln_lr: &[f64], c: &PaintGap) -> (f64, f64) {
-    let to_off = (c.du / c.paint).min(0.95);
-    let to_on = (c.du / c.gap).min(0.95);
-    let pi_on = c.paint / (c.paint + c.gap);
+    let (to_off, to_on, pi_on) = c.rates();
     // A[i][j]: from i to j, 0 = paint, 1 = gap.
     let a = [[1.0 - to_off, to_off], [to_on, 1.0 - to_on]];
     let n = ln_lr.len();
