@@ -6,7 +6,8 @@
 //! (`seed`: the replay's and the robustness curve's synth seed, default 1)
 //! with fields of `PersistConfig`: `ray_z`, `ray_resolution` (`inf` allowed),
 //! `ray_aligned` (0 or 1), `gap_misses`, `chain_gap` / `chain_paint` / `chain_p_on` (the paint /
-//! gap chain's mean gap and paint in metres, its detection on paint); of the spatial `Config`: `max_tentative`.
+//! gap chain's mean gap and paint in metres, its detection on paint), `chain_memory` (frames;
+//! 0 keeps the configured gap); of the spatial `Config`: `max_tentative`.
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::demo::{self, DemoOptions, Variant};
 
@@ -28,6 +29,7 @@ fn main() -> anyhow::Result<()> {
             "newcomer_wait" => config.persist.newcomer_wait = x as u8,
             "max_tentative" => config.spatial.max_tentative = x as u8,
             "gap_misses" => config.persist.gap_misses = x as u16,
+            "chain_memory" => config.persist.chain_memory = x,
             "chain_gap" | "chain_paint" | "chain_p_on" => {
                 let c = config
                     .persist

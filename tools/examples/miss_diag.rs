@@ -8,6 +8,8 @@
 //! some of TuSimple's are, puts every row of its best prediction there; `V=1` lists them).
 //!
 //! `cargo run --release -p stjpdacf-tools --example miss_diag [-- low|mid|high]`
+//! (`MISS_DIAG_DISTRACTORS=3`: the robustness curve's distractor segments per frame; `LOW=1`
+//! prints each labelled lane whose best prediction scores below 0.6, with the predictions).
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::metric;
@@ -22,7 +24,13 @@ fn main() -> anyhow::Result<()> {
     };
     let labels = stjpdacf_tools::demo::replay_labels()?;
     let cam = Camera::tusimple();
-    let params = SynthParams::preset(level);
+    let mut params = SynthParams::preset(level);
+    if let Some(k) = std::env::var("MISS_DIAG_DISTRACTORS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        params.distractors = k;
+    }
     let o = synth::synthesize(&labels, &params, &cam, 1)?;
     let gt_index = o.gt_index();
     let last: std::collections::HashSet<&str> =
@@ -69,6 +77,22 @@ fn main() -> anyhow::Result<()> {
                     ((acc * 5.0) as usize).min(4)
                 };
                 acc_hist[bin] += 1;
+                if acc < 0.6 && std::env::var("LOW").is_ok() {
+                    // Every sixth labelled row of the label and of each prediction, `row:column`.
+                    let cols = |l: &Vec<f64>| -> String {
+                        l.iter()
+                            .zip(&g.h_samples)
+                            .filter(|(x, _)| **x >= 0.0)
+                            .step_by(6)
+                            .map(|(x, y)| format!("{y}:{x:.0}"))
+                            .collect::<Vec<_>>()
+                            .join(" ")
+                    };
+                    println!("LOW {} acc {acc:.2} label {}", p.raw_file, cols(gl));
+                    for pl in &p.lanes {
+                        println!("    prediction {}", cols(pl));
+                    }
+                }
                 let Some((_, pl)) = best else {
                     absent += 1;
                     absent_rows += gl.iter().filter(|x| **x >= 0.0).count();

@@ -1,0 +1,89 @@
+//! One replay clip frame by frame: the demo's replay (bundled labels, seed 1, mid preset,
+//! default tracker), and for each frame of the clip whose label file name contains the first
+//! argument, the true lanes' and the published lanes' columns at image rows 300 / 450 / 600 /
+//! 700 (720p; `-` where a lane has no point), the published ids and their existence. How a
+//! lane was lost or replaced, frame by frame (which rule removed it: compare with the step
+//! reports of `id_diag`).
+//!
+//! `cargo run --release -p stjpdacf-tools --example clip_trace -- 0313-1/1560/`
+//! (`D=3`: the robustness curve's 3 distractor segments per frame).
+use stjpdacf::tracker::TrackerConfig;
+use stjpdacf_tools::camera::Camera;
+use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
+use stjpdacf_tools::track::{self, Space};
+
+/// The image rows (720p) at which the lanes' columns are printed.
+const ROWS: [f64; 4] = [300.0, 450.0, 600.0, 700.0];
+
+fn main() -> anyhow::Result<()> {
+    let want = std::env::args()
+        .nth(1)
+        .ok_or_else(|| anyhow::anyhow!("usage: clip_trace <part of a label's raw_file>"))?;
+    let labels = stjpdacf_tools::demo::replay_labels()?;
+    let cam = Camera::tusimple();
+    let mut params = SynthParams::preset(NoiseLevel::Mid);
+    if let Some(k) = std::env::var("D").ok().and_then(|v| v.parse().ok()) {
+        params.distractors = k;
+    }
+    let o = synth::synthesize(&labels, &params, &cam, 1)?;
+    let gt_index = o.gt_index();
+    track::track_with(
+        &o.frames,
+        &stjpdacf::tables::DEFAULT,
+        &cam,
+        Space::Image,
+        TrackerConfig::DEFAULT,
+        |v| {
+            // Clips are named `synthNNNN` after the label's index, the last frame's record.
+            let clip = v.frame.clip.trim_start_matches("synth").parse::<usize>();
+            if !clip.is_ok_and(|c| o.gt_last.get(c).is_some_and(|g| g.raw_file.contains(&want))) {
+                return;
+            }
+            let Some(p) = v.prediction else { return };
+            let Some(g) = gt_index
+                .get(p.raw_file.as_str())
+                .and_then(|&j| o.gt_all.get(j))
+            else {
+                return;
+            };
+            let at = |lane: &Vec<f64>| -> String {
+                ROWS.iter()
+                    .map(|r| {
+                        g.h_samples
+                            .iter()
+                            .position(|h| (h - r).abs() < 1.0)
+                            .and_then(|i| lane.get(i))
+                            .filter(|x| **x >= 0.0)
+                            .map_or("-".to_string(), |x| format!("{x:.0}"))
+                    })
+                    .collect::<Vec<_>>()
+                    .join("/")
+            };
+            let gts: Vec<String> = g.lanes.iter().map(at).collect();
+            let preds: Vec<String> = p
+                .lanes
+                .iter()
+                .zip(v.prediction_ids)
+                .map(|(l, id)| format!("#{id} {}", at(l)))
+                .collect();
+            let existence: Vec<String> = v
+                .output
+                .map(|out| {
+                    out.filtered
+                        .iter()
+                        .map(|l| format!("{:?} {:.2}", l.id, l.existence))
+                        .collect()
+                })
+                .unwrap_or_default();
+            println!(
+                "{}: true [{}] published [{}] points {} existence [{}]",
+                p.raw_file,
+                gts.join(", "),
+                preds.join(", "),
+                v.points.len(),
+                existence.join(", ")
+            );
+        },
+    )?;
+    Ok(())
+}
