@@ -1,9 +1,9 @@
 //! One replay clip frame by frame: the demo's replay (bundled labels, seed 1, mid preset,
 //! default tracker), and for each frame of the clip whose label file name contains the first
 //! argument, the true lanes' and the published lanes' columns at image rows 300 / 450 / 600 /
-//! 700 (720p; `-` where a lane has no point), the published ids and their existence. How a
-//! lane was lost or replaced, frame by frame (which rule removed it: compare with the step
-//! reports of `id_diag`).
+//! 700 (720p; `-` where a lane has no point), the published ids and their existence, and the
+//! step report's removals (deleted, of which by the ray test and as connectors; merged as
+//! duplicates; observations refused as rays). How a lane was lost or replaced, frame by frame.
 //!
 //! `cargo run --release -p stjpdacf-tools --example clip_trace -- 0313-1/1560/`
 //! (`D=3`: the robustness curve's 3 distractor segments per frame).
@@ -75,8 +75,15 @@ fn main() -> anyhow::Result<()> {
                         .collect()
                 })
                 .unwrap_or_default();
+            let removed = v.output.map_or(String::new(), |out| {
+                let k = &out.report.known;
+                format!(
+                    "deleted {} (rays {}, connectors {}), merged {}, rays refused {}",
+                    k.deleted, k.ray_deleted, k.connectors_deleted, k.merged, k.ray_refused
+                )
+            });
             println!(
-                "{}: true [{}] published [{}] points {} existence [{}]",
+                "{}: true [{}] published [{}] points {} existence [{}] {removed}",
                 p.raw_file,
                 gts.join(", "),
                 preds.join(", "),
