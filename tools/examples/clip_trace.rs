@@ -6,7 +6,7 @@
 //! duplicates; observations refused as rays). How a lane was lost or replaced, frame by frame.
 //!
 //! `cargo run --release -p stjpdacf-tools --example clip_trace -- 0313-1/1560/`
-//! (`D=3`: the robustness curve's 3 distractor segments per frame).
+//! (`CLIP_TRACE_DISTRACTORS=3`: the robustness curve's 3 distractor segments per frame).
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::synth::{self, NoiseLevel, SynthParams};
@@ -22,7 +22,10 @@ fn main() -> anyhow::Result<()> {
     let labels = stjpdacf_tools::demo::replay_labels()?;
     let cam = Camera::tusimple();
     let mut params = SynthParams::preset(NoiseLevel::Mid);
-    if let Some(k) = std::env::var("D").ok().and_then(|v| v.parse().ok()) {
+    if let Some(k) = std::env::var("CLIP_TRACE_DISTRACTORS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
         params.distractors = k;
     }
     let o = synth::synthesize(&labels, &params, &cam, 1)?;
