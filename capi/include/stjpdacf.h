@@ -27,7 +27,7 @@
 
 // Bytes of the tracker buffer (at least `sizeof` of the tracker on every supported target:
 // checked at compile time).
-#define STJPDACF_TRACKER_SIZE 155592
+#define STJPDACF_TRACKER_SIZE 155600
 
 // Alignment of the tracker buffer, bytes.
 #define STJPDACF_TRACKER_ALIGN 8
@@ -35,12 +35,12 @@
 // Bytes of the small model's tracker buffer (`stjpdacf_small_init`; at least `sizeof` of its
 // tracker on every supported target: checked at compile time). Aligned as
 // `STJPDACF_TRACKER_ALIGN`.
-#define STJPDACF_SMALL_TRACKER_SIZE 93336
+#define STJPDACF_SMALL_TRACKER_SIZE 93344
 
 // Bytes of the rank-5 model's tracker buffer (`stjpdacf_rank5_init`; at least `sizeof` of its
 // tracker on every supported target: checked at compile time). Aligned as
 // `STJPDACF_TRACKER_ALIGN`.
-#define STJPDACF_RANK5_TRACKER_SIZE 110392
+#define STJPDACF_RANK5_TRACKER_SIZE 110400
 
 // Number of stages.
 #define Stage_COUNT 13

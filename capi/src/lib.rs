@@ -64,17 +64,17 @@ pub const STJPDACF_MAX_POINTS_IN: usize = 65_536;
 pub const STJPDACF_LAG: usize = 4;
 /// Bytes of the tracker buffer (at least `sizeof` of the tracker on every supported target:
 /// checked at compile time).
-pub const STJPDACF_TRACKER_SIZE: usize = 155_592;
+pub const STJPDACF_TRACKER_SIZE: usize = 155_600;
 /// Alignment of the tracker buffer, bytes.
 pub const STJPDACF_TRACKER_ALIGN: usize = 8;
 /// Bytes of the small model's tracker buffer (`stjpdacf_small_init`; at least `sizeof` of its
 /// tracker on every supported target: checked at compile time). Aligned as
 /// `STJPDACF_TRACKER_ALIGN`.
-pub const STJPDACF_SMALL_TRACKER_SIZE: usize = 93_336;
+pub const STJPDACF_SMALL_TRACKER_SIZE: usize = 93_344;
 /// Bytes of the rank-5 model's tracker buffer (`stjpdacf_rank5_init`; at least `sizeof` of its
 /// tracker on every supported target: checked at compile time). Aligned as
 /// `STJPDACF_TRACKER_ALIGN`.
-pub const STJPDACF_RANK5_TRACKER_SIZE: usize = 110_392;
+pub const STJPDACF_RANK5_TRACKER_SIZE: usize = 110_400;
 
 const _: () = assert!(core::mem::size_of::<stjpdacf_tracker>() <= STJPDACF_TRACKER_SIZE);
 const _: () = assert!(core::mem::align_of::<stjpdacf_tracker>() <= STJPDACF_TRACKER_ALIGN);

@@ -148,6 +148,10 @@ pub struct PersistConfig {
     /// is not resolved to 0.5 m. `true` by default; `false` acts on decisive rays only (before
     /// stop 42).
     pub ray_aligned: bool,
+    /// A live lane whose offset at the camera's foot point moves (its rate from the temporal
+    /// state, `ray_z` standard deviations from zero) is not deleted as a vertical structure
+    /// (docs/design.md §11.10): the marking under the camera in a lane change.
+    pub ray_motion: bool,
     /// Slots by existence (docs/design.md §11.13): a new lane whose track's evidence is
     /// positive and that finds every slot taken takes the slot of the unmatched lane of lowest
     /// existence below `p_birth`. `true` by default; `false` turns such a lane away (before
@@ -267,6 +271,7 @@ impl PersistConfig {
         ray_z: 3.0,
         ray_resolution: 0.5,
         ray_aligned: true,
+        ray_motion: true,
         slot_claims: true,
         connectors: true,
         connector_frames: 2,

@@ -472,7 +472,7 @@ impl_tracker! {
         let vi: [f32; RANK] = core::array::from_fn(|j| {
             tables.gram_eigvec.get((i, j)).copied().unwrap_or(0.0)
         });
-        let cov = self.coefficient_form(s, t, &vi, &vi, r);
+        let cov = self.coefficient_form(s, t, &vi, &vi, r, 0);
         let at = |v: &SVector<f32, POINTS>| v.get(i).copied().unwrap_or(f32::NAN);
         (at(zs) - at(zt), at(vs) + at(vt) - 2.0 * cov)
     }
@@ -652,6 +652,7 @@ impl_tracker! {
                     .filter(|&t| t != s && get(&verdicts, t) == RayVerdict::Paint)
                     .map(|t| self.parallel(s, t)),
             );
+            let ray = ray && !(self.cfg.persist.ray_motion && self.lane_moving(s));
             if let Some(l) = self.ids.lane(s) {
                 if p < self.cfg.persist.p_delete || ray {
                     self.remove_slot(s);
@@ -748,6 +749,11 @@ impl_tracker! {
     /// lanes' positions `z = V_r a` at the index points.
     #[inline(never)]
     fn position_cov(&self, s: usize, t: usize, p: &[f32; POINTS], q: &[f32; POINTS]) -> f32 {
+        self.gram_form(s, t, p, q, 0)
+    }
+
+    /// [`Self::position_cov`] of the temporal state's block `c` (0: positions, 1: rates).
+    fn gram_form(&self, s: usize, t: usize, p: &[f32; POINTS], q: &[f32; POINTS], c: usize) -> f32 {
         let Some(tables) = self.tables else {
             return 0.0;
         };
@@ -771,11 +777,12 @@ impl_tracker! {
         // The tests ask for variances (`p` and `q` the same array): one projection then.
         let cp = coef(p);
         let cq = if core::ptr::eq(p, q) { cp } else { coef(q) };
-        self.coefficient_form(s, t, &cp, &cq, r)
+        self.coefficient_form(s, t, &cp, &cq, r, c)
     }
 
     /// `cpᵀ Cov(a_s, a_t) cq` over the first `r` Gram coefficients of lanes `s` and `t`
-    /// (the temporal covariance's position block). `r²` multiply-adds.
+    /// (the temporal covariance's position block, `c` = 0; its rate block, `c` = 1).
+    /// `r²` multiply-adds.
     fn coefficient_form(
         &self,
         s: usize,
@@ -783,6 +790,7 @@ impl_tracker! {
         cp: &[f32; RANK],
         cq: &[f32; RANK],
         r: usize,
+        c: usize,
     ) -> f32 {
         let filter = self.temporal.filter();
         if s != t && filter.uncoupled() {
@@ -792,10 +800,10 @@ impl_tracker! {
         let cov = filter.covariance();
         let mut acc = 0.0f32;
         for j in 0..r {
-            let row = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, 0);
+            let row = TemporalFilter::<LANES, POINTS, RANK, NX>::index(s, j, c);
             let mut inner = 0.0f32;
             for k in 0..r {
-                let col = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, 0);
+                let col = TemporalFilter::<LANES, POINTS, RANK, NX>::index(t, k, c);
                 inner += cov.get((row, col)).copied().unwrap_or(0.0) * get(cq, k);
             }
             acc += get(cp, j) * inner;
@@ -835,6 +843,32 @@ impl_tracker! {
         };
         ray_stat(&tables.index_u, &z, &self.observed(s), &w, &cov)
             .map_or(RayVerdict::Undecided, |st| st.verdict(c.ray_z, c.ray_resolution))
+    }
+
+    /// Live lane `s` moves across the camera's foot point: the rate of its offset there,
+    /// `dâ/dt = f_aᵀ ḟ_s` (the ray test's line functional applied to the temporal state's rates
+    /// at the index points over this frame's observed extent), is more than `ray_z` standard
+    /// deviations from zero (docs/design.md §11.10). A vertical structure's offset at the foot
+    /// point is 0 in every frame; the marking under the camera in a lane change crosses it.
+    #[inline(never)]
+    fn lane_moving(&self, s: usize) -> bool {
+        let Some(tables) = self.tables else {
+            return false;
+        };
+        let c = &self.cfg.persist;
+        let (Some((_, var)), Some((zr, _))) = (
+            self.view(s),
+            self.temporal.filter().lane_rate(tables, s),
+        ) else {
+            return false;
+        };
+        let rr = tables.hyper.meas_noise;
+        // The position fit's weights: the same functional f_a.
+        let w: [f32; POINTS] =
+            core::array::from_fn(|i| 1.0 / (var.get(i).copied().unwrap_or(f32::NAN) + rr));
+        let cov = |p: &[f32; POINTS], q: &[f32; POINTS]| self.gram_form(s, s, p, q, 1);
+        ray_stat(&tables.index_u, &zr, &self.observed(s), &w, &cov)
+            .is_some_and(|st| st.chi2 > c.ray_z * c.ray_z)
     }
 
     /// Lanes `s` and `t` run parallel over the index points both observed this frame: the slope

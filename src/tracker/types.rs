@@ -158,6 +158,7 @@ impl TrackerConfig {
             ray_z: 0.0,
             ray_resolution: 0.0,
             ray_aligned: false,
+            ray_motion: false,
             slot_claims: false,
             connectors: false,
             connector_frames: 0,

@@ -672,13 +672,33 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         tables: &Tables<NT, LANES, POINTS>,
         s: usize,
     ) -> Option<(SVector<f32, POINTS>, SVector<f32, POINTS>)> {
+        self.component(tables, s, 0)
+    }
+
+    /// Lane `s`'s rates of change at the index points, `ḟ = V_r ȧ_s` (the Matérn state's rate
+    /// components, per second), and their variances; `None` for an inactive slot.
+    pub fn lane_rate<const NT: usize>(
+        &self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+    ) -> Option<(SVector<f32, POINTS>, SVector<f32, POINTS>)> {
+        self.component(tables, s, 1)
+    }
+
+    /// [`Self::lane`] (`c` = 0) or [`Self::lane_rate`] (`c` = 1).
+    fn component<const NT: usize>(
+        &self,
+        tables: &Tables<NT, LANES, POINTS>,
+        s: usize,
+        c: usize,
+    ) -> Option<(SVector<f32, POINTS>, SVector<f32, POINTS>)> {
         if !self.is_active(s) {
             return None;
         }
         let r = Self::r_used(tables);
         let a: [f32; RANK] = core::array::from_fn(|j| {
             if j < r {
-                self.xg(Self::idx(s, j, 0))
+                self.xg(Self::idx(s, j, c))
             } else {
                 0.0
             }
@@ -686,7 +706,7 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
         let p: [[f32; RANK]; RANK] = core::array::from_fn(|j| {
             core::array::from_fn(|j2| {
                 if j < r && j2 < r {
-                    self.pg(Self::idx(s, j, 0), Self::idx(s, j2, 0))
+                    self.pg(Self::idx(s, j, c), Self::idx(s, j2, c))
                 } else {
                     0.0
                 }
