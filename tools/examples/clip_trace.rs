@@ -1,8 +1,10 @@
 //! One replay clip frame by frame: the demo's replay (bundled labels, seed 1, mid preset,
 //! default tracker), and for each frame of the clip whose label file name contains the first
 //! argument, the true lanes' and the published lanes' columns at image rows 300 / 450 / 600 /
-//! 700 (720p; `-` where a lane has no point), the published ids and their existence, and the
-//! step report's removals (deleted, of which by the ray test and as connectors; merged as
+//! 700 (720p; `-` where a lane has no point), the published ids, their existence, the ray test's
+//! offset at the camera's foot point on each published estimate (`a â±sd`, design §11.10; from
+//! the estimate's marginal variances over its published extent `u`, an approximation of the
+//! core's, which uses the full covariance over the frame's observed extent), and the step report's removals (deleted, of which by the ray test and as connectors; merged as
 //! duplicates; observations refused as rays). How a lane was lost or replaced, frame by frame.
 //!
 //! `cargo run --release -p stjpdacf-tools --example clip_trace -- 0313-1/1560/`
@@ -74,7 +76,28 @@ fn main() -> anyhow::Result<()> {
                 .map(|out| {
                     out.filtered
                         .iter()
-                        .map(|l| format!("{:?} {:.2}", l.id, l.existence))
+                        .map(|l| {
+                            // The ray test's offset at the foot point on the published estimate
+                            // (its marginal variances only, plus the point variance).
+                            let t = &stjpdacf::tables::DEFAULT;
+                            let r = t.hyper.meas_noise;
+                            let present: [bool; 16] = std::array::from_fn(|i| {
+                                t.index_u[i] >= l.u_first && t.index_u[i] <= l.u_last
+                            });
+                            let w: [f32; 16] = std::array::from_fn(|i| 1.0 / (l.var[i] + r));
+                            let cov = |a: &[f32; 16], b: &[f32; 16]| -> f32 {
+                                (0..16).map(|i| a[i] * b[i] * (l.var[i] + r)).sum()
+                            };
+                            let ray =
+                                stjpdacf::persist::ray_stat(&t.index_u, &l.z, &present, &w, &cov)
+                                    .map_or("-".to_string(), |st| {
+                                        format!("a {:.2}±{:.2}", st.a, st.sd_a)
+                                    });
+                            format!(
+                                "{:?} {:.2} ({ray}, u {:.0}–{:.0})",
+                                l.id, l.existence, l.u_first, l.u_last
+                            )
+                        })
                         .collect()
                 })
                 .unwrap_or_default();

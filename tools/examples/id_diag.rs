@@ -11,7 +11,8 @@
 //!
 //! `cargo run --release -p stjpdacf-tools --example id_diag [-- low|mid|high] [seed=N]` (default mid,
 //! seed 1;
-//! `newcomer_wait=0` for the publication rule of before stop 44, `newcomer_wait=1` for stop 44's).
+//! `newcomer_wait=0` for the publication rule of before stop 44, `newcomer_wait=1` for stop 44's;
+//! `ray_motion=0` for the ray test of before stop 62).
 //!
 //! `-- heldout [clutter=K] [noise=K] [segments=S]`: the same count on the second generator
 //! ([`heldout`]: held-out label geometry, no road edges and no vehicles; clutter density × K,
@@ -47,6 +48,9 @@ fn main() -> anyhow::Result<()> {
             "high" => level = NoiseLevel::High,
             "heldout" => {
                 heldout.get_or_insert_with(HeldoutParams::default);
+            }
+            w if w.starts_with("ray_motion=") => {
+                config.persist.ray_motion = &w["ray_motion=".len()..] != "0";
             }
             w if w.starts_with("newcomer_wait=") => {
                 config.persist.newcomer_wait = w["newcomer_wait=".len()..].parse()?;
