@@ -9,7 +9,7 @@ use nalgebra::{DMatrix, SMatrix, SVector};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use stjpdacf::persist::ray_stat;
+use stjpdacf::persist::{ray_stat, RayVerdict};
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::{Instant, ReferenceTracker, TrackerConfig};
 use stjpdacf_reference::persist as refp;
@@ -216,7 +216,7 @@ fn the_lone_marking_under_the_camera_in_a_lane_change_keeps_its_id() {
     let run = |cfg: TrackerConfig| {
         let mut t = Box::new(ReferenceTracker::with_config(&DEFAULT, cfg));
         let mut rng = ChaCha8Rng::seed_from_u64(9);
-        let (mut ids, mut rays) = (Vec::new(), 0);
+        let (mut ids, mut rays, mut moving_rays) = (Vec::new(), 0, 0);
         for k in 0..80i64 {
             let shift = -0.05 * k as f64;
             let mut pts = Vec::new();
@@ -233,19 +233,28 @@ fn the_lone_marking_under_the_camera_in_a_lane_change_keeps_its_id() {
                 .unwrap();
             rays += out.report.known.ray_deleted;
             ids.extend(lane_near(&out.filtered, |u| 1.8 + shift - 0.04 * u));
+            // Lanes the ray test finds to be rays that the motion rule reads as moving.
+            moving_rays += out
+                .filtered
+                .iter()
+                .filter(|l| t.ray_diagnosis(usize::from(l.slot)) == (RayVerdict::Ray, true))
+                .count();
         }
         let mut distinct = ids.clone();
         distinct.dedup();
-        (ids.len(), distinct.len(), rays)
+        (ids.len(), distinct.len(), rays, moving_rays)
     };
     let mut off = TrackerConfig::DEFAULT;
     off.persist.ray_motion = false;
-    let (frames, ids, rays) = run(TrackerConfig::DEFAULT);
-    let (frames_off, ids_off, rays_off) = run(off);
+    let (frames, ids, rays, moving_rays) = run(TrackerConfig::DEFAULT);
+    let (frames_off, ids_off, rays_off, _) = run(off);
     println!(
-        "lone crossing marking: published on {frames} frames, {ids} ids, {rays} ray deletions \
-         (without the motion rule: {frames_off}, {ids_off}, {rays_off})"
+        "lone crossing marking: published on {frames} frames, {ids} ids, {rays} ray deletions, \
+         {moving_rays} lane-frames a moving ray (without the motion rule: {frames_off}, \
+         {ids_off}, {rays_off})"
     );
+    // What kept it: a ray to the test that moves (`Tracker::ray_diagnosis`).
+    assert!(moving_rays >= 1, "{moving_rays}");
     assert!(
         rays_off >= 1,
         "the scene must make the ray test delete it: {rays_off}"

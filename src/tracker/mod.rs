@@ -260,6 +260,22 @@ impl_tracker! {
         &self.persist
     }
 
+    /// The ray test (docs/design.md §11.10) on the lane in `slot` as it stands now (its
+    /// estimate over the last frame's observed extent), and whether its offset at the camera's
+    /// foot point moves (the motion rule): for diagnostics, e.g. why a lane was or was not taken
+    /// for a vertical structure. The step applies the same test before its last stages (merges,
+    /// output), so a lane changed by those may read differently here. `(Undecided, false)` for a
+    /// free or out-of-range slot.
+    ///
+    /// # Complexity
+    /// The ray test on every live lane (see [`crate::persist::ray`]) and one motion test.
+    pub fn ray_diagnosis(&self, slot: usize) -> (RayVerdict, bool) {
+        if slot >= LANES || self.ids.lane(slot).is_none() {
+            return (RayVerdict::Undecided, false);
+        }
+        (get(&self.lane_ray_verdicts(), slot), self.lane_moving(slot))
+    }
+
     /// One frame: BEV feature points `(u, x)` in metres at time `now`.
     ///
     /// # Errors

@@ -851,7 +851,7 @@ impl_tracker! {
     /// deviations from zero (docs/design.md §11.10). A vertical structure's offset at the foot
     /// point is 0 in every frame; the marking under the camera in a lane change crosses it.
     #[inline(never)]
-    fn lane_moving(&self, s: usize) -> bool {
+    pub(super) fn lane_moving(&self, s: usize) -> bool {
         let Some(tables) = self.tables else {
             return false;
         };

@@ -4,7 +4,9 @@
 //! 700 (720p; `-` where a lane has no point), the published ids, their existence, the ray test's
 //! offset at the camera's foot point on each published estimate (`a â±sd`, design §11.10; from
 //! the estimate's marginal variances over its published extent `u`, an approximation of the
-//! core's, which uses the full covariance over the frame's observed extent), and the step report's removals (deleted, of which by the ray test and as connectors; merged as
+//! core's, which uses the full covariance over the frame's observed extent) with the core's own
+//! verdict (`Tracker::ray_diagnosis`: `Paint` / `Ray` / `Aligned` / `Undecided`, and `moving`
+//! where the motion rule reads its offset as moving), and the step report's removals (deleted, of which by the ray test and as connectors; merged as
 //! duplicates; observations refused as rays). How a lane was lost or replaced, frame by frame.
 //!
 //! `cargo run --release -p stjpdacf-tools --example clip_trace -- 0313-1/1560/`
@@ -93,8 +95,10 @@ fn main() -> anyhow::Result<()> {
                                     .map_or("-".to_string(), |st| {
                                         format!("a {:.2}±{:.2}", st.a, st.sd_a)
                                     });
+                            let (verdict, moving) = v.tracker.ray_diagnosis(usize::from(l.slot));
+                            let moving = if moving { " moving" } else { "" };
                             format!(
-                                "{:?} {:.2} ({ray}, u {:.0}–{:.0})",
+                                "{:?} {:.2} ({ray}, u {:.0}–{:.0}; core {verdict:?}{moving})",
                                 l.id, l.existence, l.u_first, l.u_last
                             )
                         })
