@@ -323,8 +323,10 @@ fn scene(
 /// foot point is often not resolved to 0.5 m (`RayVerdict::Aligned`). It is not parallel to the
 /// two markings, so with `ray_aligned` it is refused or deleted once the markings are paint.
 /// The ray rule alone (both runs without the newcomers' wait of §11.5, which also holds a lane
-/// parallel to no marking, and with the paint / gap chain's gap fixed, `chain_memory` 0: on two
-/// solid markings the estimated gap shortens and the edge's misses cost it more, §11.5):
+/// parallel to no marking, with the paint / gap chain's gap fixed, `chain_memory` 0: on two
+/// solid markings the estimated gap shortens and the edge's misses cost it more, §11.5, and
+/// without the lane-width rule of §11.14, which hides the edge's noisy early estimates where
+/// they come within 2.5 m of the right-hand marking):
 /// published on 10 of 40 frames (the first, before any lane is paint, and frames where its noisy
 /// estimate is not aligned or its parallel test does not decide) against 26 with decisive rays
 /// only; asserted: at most half. The default (all of them) shows it on no more frames than the
@@ -338,6 +340,7 @@ fn an_unresolved_vertical_structure_is_not_published_when_it_crosses_the_marking
     let mut aligned = TrackerConfig::DEFAULT;
     aligned.persist.newcomer_wait = 0;
     aligned.persist.chain_memory = 0.0;
+    aligned.persist.lane_width = 0.0;
     let mut before = aligned;
     before.persist.ray_aligned = false;
     let (on, lanes_on) = scene(aligned, 21, &edge, &near);

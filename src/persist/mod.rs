@@ -116,6 +116,14 @@ pub struct PersistConfig {
     /// Two lanes closer than this on average over their common observed extent are one
     /// marking (docs/design.md §11.9), metres: half of a 2 m minimum spacing of markings.
     pub min_spacing: f32,
+    /// The narrowest lane (docs/design.md §11.14), metres: two lane boundaries are at least a
+    /// lane apart, so a lane that would be published closer than this (over the common observed
+    /// extent) to a published lane on either side lies inside a lane, and of two such lanes
+    /// with no published lane beyond the outer one, the outer bounds no lane (a kerb, a road
+    /// edge or a vehicle's side beside the outermost marking): tracked, not published. 2.5 m by default (chosen a priori: the
+    /// narrowest lanes of road design standards, 2.5–2.75 m; not swept); 0 turns the rule off
+    /// (as before stop 63).
+    pub lane_width: f32,
     /// Lowest detection probability per row of a lane that exists and is in view
     /// (docs/design.md §11.5): a lane's own `P_D,b` is used no lower than this. Without it a
     /// track that is never detected learns `P_D → 0` and its misses stop counting, so clutter
@@ -265,6 +273,7 @@ impl PersistConfig {
         frame_offset_memory: 20.0,
         chain_memory: 20.0,
         min_spacing: 1.0,
+        lane_width: 2.5,
         pd_floor: 0.2,
         own_pd: true,
         association: Association::ExactOrLbp,

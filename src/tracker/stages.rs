@@ -696,21 +696,12 @@ impl_tracker! {
     /// and a mean distance over ≤ `POINTS` index points against each published lane.
     #[inline(never)]
     fn hold_newcomers(&mut self, young: u32, paint: u32, shown: u32) {
-        // Bit masks walked by their set bits: loops of unknown trip count, which the optimiser
-        // leaves rolled.
-        let bits = |mut m: u32| {
-            core::iter::from_fn(move || {
-                let b = m.trailing_zeros() as usize;
-                m &= m.wrapping_sub(1);
-                (b < 32).then_some(b)
-            })
-        };
-        for s in bits(young) {
+        for s in set_bits(young) {
             let others = !(1u32 << s);
-            let hold = persist::apart(bits(paint & others).map(|t| self.parallel(s, t)))
+            let hold = persist::apart(set_bits(paint & others).map(|t| self.parallel(s, t)))
                 || self.view(s).is_some_and(|(zs, _)| {
                     let extent = self.extent_this_frame(s);
-                    bits(shown & others).any(|t| self.within_spacing(&zs, extent, t))
+                    set_bits(shown & others).any(|t| self.within_spacing(&zs, extent, t))
                 });
             if hold {
                 if let Some(info) = self.info.get_mut(s) {
@@ -982,6 +973,157 @@ impl_tracker! {
         (0..LANES).any(|t| self.ids.lane(t).is_some_and(|l| l.age > 1))
     }
 
+    /// Whether live lane `s` passes the publication rules of docs/design.md §11.5: existence
+    /// at least `p_publish`, not held, and not started this frame while `tracking` (an
+    /// established picture); every lane without the known-lane stage.
+    fn publishable(&self, s: usize, tracking: bool) -> bool {
+        self.ids.lane(s).is_some_and(|lane| {
+            let info = get(&self.info, s);
+            !self.cfg.persist.enabled
+                || (info.existence >= self.cfg.persist.p_publish
+                    && !info.held
+                    && !(lane.age == 0 && tracking))
+        })
+    }
+
+    /// The lanes of `candidates` (bit s: slot s would be published) that bound no lane
+    /// (docs/design.md §11.14). A candidate is close to one seen this frame (`seen`; a
+    /// coasting lane hides none, as it merges none in §11.9) when their distance stays under
+    /// `PersistConfig::lane_width` at every index point inside both observed extents (at least
+    /// `min_common` of them). A candidate close to one on either side lies inside a lane; of
+    /// the others, in a close pair, the one farther from the camera's foot (mean `|z|` over
+    /// those points) with no other such candidate beyond it on its side of the other is outside
+    /// the outermost lane. 0 with the rule off.
+    ///
+    /// # Complexity
+    /// One pass over the index points per ordered pair of candidates; for a close pair, one
+    /// more per other candidate: at most `LANES³ · POINTS` subtractions, `LANES² · POINTS`
+    /// without a close pair.
+    #[inline(never)]
+    fn outer_kerbs(&self, candidates: u32, seen: u32) -> u32 {
+        let width = self.cfg.persist.lane_width;
+        let Some(tables) = self.tables else {
+            return 0;
+        };
+        if width.is_nan() || width <= 0.0 {
+            return 0;
+        }
+        let need = u32::from(self.cfg.identity.min_common.max(1));
+        // Each candidate's positions and published extent, once.
+        let mut zs = [SVector::<f32, POINTS>::zeros(); LANES];
+        let mut ext = [(0.0f32, -1.0f32); LANES];
+        for s in set_bits(candidates) {
+            if let (Some(z), Some(e), Some((v, _))) = (zs.get_mut(s), ext.get_mut(s), self.view(s)) {
+                *z = v;
+                *e = self.extent_of(s, 0);
+            }
+        }
+        let at = |s: usize, i: usize| {
+            zs.get(s)
+                .and_then(|z| z.get(i))
+                .copied()
+                .unwrap_or(f32::NAN)
+        };
+        // The index points inside both published extents.
+        let common = |s: usize, t: usize| {
+            let ((a0, a1), (b0, b1)) = (
+                ext.get(s).copied().unwrap_or((0.0, -1.0)),
+                ext.get(t).copied().unwrap_or((0.0, -1.0)),
+            );
+            let (lo, hi) = (a0.max(b0), a1.min(b1));
+            tables
+                .index_u
+                .iter()
+                .take(POINTS)
+                .enumerate()
+                .filter(move |(_, u)| **u >= lo && **u <= hi)
+                .map(|(i, _)| i)
+        };
+        // Per candidate, its close partners seen this frame below (−x) and above (+x) it, and
+        // those of its close partners it is farther from the camera's foot than.
+        let mut below = [0u32; LANES];
+        let mut above = [0u32; LANES];
+        let mut farther = [0u32; LANES];
+        for s in set_bits(candidates) {
+            for t in set_bits(candidates & !((2u32 << s) - 1)) {
+                if !has_bit(seen, s) && !has_bit(seen, t) {
+                    continue;
+                }
+                // Close: z_s − z_t of one sign and under the width at every common point
+                // (a non-finite one is not close); the mean |z| of each over them.
+                let (mut pos, mut neg, mut n) = (true, true, 0u32);
+                let (mut fs, mut ft) = (0.0f32, 0.0f32);
+                for i in common(s, t) {
+                    let (a, b) = (at(s, i), at(t, i));
+                    let d = a - b;
+                    pos &= d > 0.0 && d < width;
+                    neg &= d < 0.0 && d > -width;
+                    if !(pos || neg) {
+                        break;
+                    }
+                    fs += a.abs();
+                    ft += b.abs();
+                    n += 1;
+                }
+                if n < need || !(pos || neg) {
+                    continue;
+                }
+                // s lies above t (pos) or below it.
+                let (s_side, t_side) = if pos {
+                    (&mut below, &mut above)
+                } else {
+                    (&mut above, &mut below)
+                };
+                if has_bit(seen, t) {
+                    if let Some(m) = s_side.get_mut(s) {
+                        *m |= 1 << t;
+                    }
+                }
+                if has_bit(seen, s) {
+                    if let Some(m) = t_side.get_mut(t) {
+                        *m |= 1 << s;
+                    }
+                }
+                let (far, near) = if fs > ft { (s, t) } else { (t, s) };
+                if fs != ft {
+                    if let Some(m) = farther.get_mut(far) {
+                        *m |= 1 << near;
+                    }
+                }
+            }
+        }
+        let get = |m: &[u32; LANES], s: usize| m.get(s).copied().unwrap_or(0);
+        // Inside a lane: close to a lane on either side.
+        let inside = set_bits(candidates)
+            .filter(|&s| get(&below, s) != 0 && get(&above, s) != 0)
+            .fold(0u32, |m, s| m | 1 << s);
+        let rest = candidates & !inside;
+        // The mean of z_r − z_s over their common points (`None` with none).
+        let mean_diff = |r: usize, s: usize| {
+            let (mut sum, mut n) = (0.0f32, 0u32);
+            for i in common(r, s) {
+                sum += at(r, i) - at(s, i);
+                n += 1;
+            }
+            (n > 0).then(|| sum / n as f32)
+        };
+        let mut out = inside;
+        for s in set_bits(rest) {
+            let b = get(&below, s);
+            // Outside the outermost lane: farther than a close partner in `rest`, with no lane
+            // of `rest` beyond s on its side of that partner.
+            let outer = set_bits((b | get(&above, s)) & get(&farther, s) & rest).any(|t| {
+                let side = if has_bit(b, t) { 1.0 } else { -1.0 };
+                !set_bits(rest & !(1u32 << s) & !(1u32 << t))
+                    .any(|r| mean_diff(r, s).is_some_and(|d| d * side > 0.0))
+            });
+            if outer {
+                out |= 1 << s;
+            }
+        }
+        out
+    }
+
     #[inline(never)]
     pub(super) fn estimates(
         &mut self,
@@ -995,17 +1137,25 @@ impl_tracker! {
         // points alone started then waits for its first confirming frame (docs/design.md
         // §11.5). In the first two frames after nothing was tracked every lane is published.
         let tracking = self.tracking();
+        // The lanes this frame would publish, then those among them that bound no lane.
+        let kerbs = if self.cfg.persist.enabled {
+            let candidates = (0..LANES.min(32))
+                .filter(|&s| self.view(s).is_some() && self.publishable(s, tracking))
+                .fold(0u32, |m, s| m | 1 << s);
+            let seen = set_bits(candidates)
+                .filter(|&s| self.ids.lane(s).is_some_and(|l| l.misses == 0))
+                .fold(0u32, |m, s| m | 1 << s);
+            self.outer_kerbs(candidates, seen)
+        } else {
+            0
+        };
         for s in 0..LANES {
             if let (Some(lane), Some((z, var))) = (self.ids.lane(s), self.view(s)) {
                 let (u_first, u_last) = self.extent_of(s, 0);
-                let info = get(&self.info, s);
-                if self.cfg.persist.enabled
-                    && (info.existence < self.cfg.persist.p_publish
-                        || info.held
-                        || (lane.age == 0 && tracking))
-                {
+                if !self.publishable(s, tracking) || has_bit(kerbs, s) {
                     continue;
                 }
+                let info = get(&self.info, s);
                 if let Some(info) = self.info.get_mut(s) {
                     info.shown = true;
                 }
@@ -1037,7 +1187,8 @@ impl_tracker! {
             // With the known-lane stage, a smoothed lane is published while its lane is still
             // live and published now (a lane removed since was not one, or is gone).
             let publish_smoothed = !self.cfg.persist.enabled
-                || get(&self.info, s).existence >= self.cfg.persist.p_publish;
+                || (get(&self.info, s).existence >= self.cfg.persist.p_publish
+                    && !has_bit(kerbs, s));
             if let (true, Some(id), Some((z, var))) = (
                 publish_smoothed,
                 id_then,
@@ -1186,6 +1337,21 @@ impl_tracker! {
         let residual = (h.spatial_variance - explained).max(0.0) * bss;
         Some((mean, var_a + residual))
     }
+}
+
+/// The set bits of a slot mask, lowest first: a loop of unknown trip count, which the
+/// optimiser leaves rolled.
+fn set_bits(mut m: u32) -> impl Iterator<Item = usize> {
+    core::iter::from_fn(move || {
+        let b = m.trailing_zeros() as usize;
+        m &= m.wrapping_sub(1);
+        (b < 32).then_some(b)
+    })
+}
+
+/// Whether bit `s` of `mask` is set (`false` beyond 32 slots).
+fn has_bit(mask: u32, s: usize) -> bool {
+    s < 32 && mask & (1 << s) != 0
 }
 
 /// `pᵀ q`.

@@ -152,6 +152,7 @@ impl TrackerConfig {
             frame_offset_memory: 0.0,
             chain_memory: 0.0,
             min_spacing: 0.0,
+            lane_width: 0.0,
             pd_floor: 0.0,
             own_pd: false,
             association: Association::Exact,

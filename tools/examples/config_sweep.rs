@@ -5,7 +5,7 @@
 //! `cargo run --release -p stjpdacf-tools --example config_sweep -- [seed=N] [field=value ...]`
 //! (`seed`: the replay's and the robustness curve's synth seed, default 1)
 //! with fields of `PersistConfig`: `ray_z`, `ray_resolution` (`inf` allowed),
-//! `ray_aligned` / `ray_motion` (0 or 1), `gap_misses`, `chain_gap` / `chain_paint` / `chain_p_on` (the paint /
+//! `ray_aligned` / `ray_motion` (0 or 1), `lane_width` (metres, 0: off), `gap_misses`, `chain_gap` / `chain_paint` / `chain_p_on` (the paint /
 //! gap chain's mean gap and paint in metres, its detection on paint), `chain_memory` (frames;
 //! 0 keeps the configured gap); of the spatial `Config`: `max_tentative`.
 use stjpdacf::tracker::TrackerConfig;
@@ -25,6 +25,7 @@ fn main() -> anyhow::Result<()> {
             "ray_resolution" => config.persist.ray_resolution = x,
             "ray_aligned" => config.persist.ray_aligned = x != 0.0,
             "ray_motion" => config.persist.ray_motion = x != 0.0,
+            "lane_width" => config.persist.lane_width = x,
             "slot_claims" => config.persist.slot_claims = x != 0.0,
             "own_pd" => config.persist.own_pd = x != 0.0,
             "newcomer_wait" => config.persist.newcomer_wait = x as u8,

@@ -12,7 +12,8 @@
 //! `cargo run --release -p stjpdacf-tools --example id_diag [-- low|mid|high] [seed=N]` (default mid,
 //! seed 1;
 //! `newcomer_wait=0` for the publication rule of before stop 44, `newcomer_wait=1` for stop 44's;
-//! `ray_motion=0` for the ray test of before stop 62).
+//! `ray_motion=0` for the ray test of before stop 62; `lane_width=0` for the publication of
+//! before stop 63).
 //!
 //! `-- heldout [clutter=K] [noise=K] [segments=S]`: the same count on the second generator
 //! ([`heldout`]: held-out label geometry, no road edges and no vehicles; clutter density × K,
@@ -51,6 +52,9 @@ fn main() -> anyhow::Result<()> {
             }
             w if w.starts_with("ray_motion=") => {
                 config.persist.ray_motion = &w["ray_motion=".len()..] != "0";
+            }
+            w if w.starts_with("lane_width=") => {
+                config.persist.lane_width = w["lane_width=".len()..].parse()?;
             }
             w if w.starts_with("newcomer_wait=") => {
                 config.persist.newcomer_wait = w["newcomer_wait=".len()..].parse()?;
