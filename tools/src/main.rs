@@ -121,6 +121,11 @@ enum Command {
         /// below the birth prior (an ablation).
         #[arg(long)]
         no_slot_claims: bool,
+        /// The narrowest lane, metres (`PersistConfig::lane_width`, docs/design.md §11.14): a
+        /// lane closer than this to a lane on either side, or beside the outermost marking, is
+        /// tracked but not published. 0 publishes every line structure (kerbs, road edges).
+        #[arg(long, default_value_t = stjpdacf::persist::PersistConfig::DEFAULT.lane_width)]
+        lane_width: f32,
         /// Weigh every known lane's detections in the joint events at the spatial stage's
         /// `P_D` instead of the lane's learned `P_D,b` (`PersistConfig::own_pd = false`,
         /// docs/design.md §11.3; the behaviour until stop 55, an ablation).
@@ -420,6 +425,7 @@ fn main() -> Result<()> {
             interval_evidence,
             decisive_rays_only,
             no_slot_claims,
+            lane_width,
             no_own_pd,
             no_newcomer_wait,
             newcomer_wait,
@@ -516,6 +522,7 @@ fn main() -> Result<()> {
                             },
                             ray_aligned: d.persist.ray_aligned && !decisive_rays_only,
                             slot_claims: d.persist.slot_claims && !no_slot_claims,
+                            lane_width,
                             own_pd: d.persist.own_pd && !no_own_pd,
                             newcomer_wait: if no_newcomer_wait {
                                 0
