@@ -1045,7 +1045,7 @@ impl_tracker! {
         let mut above = [0u32; LANES];
         let mut farther = [0u32; LANES];
         for s in set_bits(candidates) {
-            for t in set_bits(candidates & !((2u32 << s) - 1)) {
+            for t in set_bits(candidates & !(2u32 << s).wrapping_sub(1)) {
                 if !has_bit(seen, s) && !has_bit(seen, t) {
                     continue;
                 }
