@@ -120,9 +120,9 @@ pub struct PersistConfig {
     /// lane apart, so a lane that would be published closer than this (over the common observed
     /// extent) to a published lane on either side lies inside a lane, and of two such lanes
     /// with no published lane beyond the outer one, the outer bounds no lane (a kerb, a road
-    /// edge or a vehicle's side beside the outermost marking): tracked, not published. 2.5 m by default (chosen a priori: the
-    /// narrowest lanes of road design standards, 2.5–2.75 m; not swept); 0 turns the rule off
-    /// (as before stop 63).
+    /// edge or a vehicle's side beside the outermost marking): tracked, not published. 2.5 m
+    /// by default (chosen a priori: the narrowest lanes of road design standards, 2.5–2.75 m;
+    /// not swept); 0 turns the rule off (as before stop 63).
     pub lane_width: f32,
     /// Lowest detection probability per row of a lane that exists and is in view
     /// (docs/design.md §11.5): a lane's own `P_D,b` is used no lower than this. Without it a

@@ -268,12 +268,12 @@ impl_tracker! {
     /// free or out-of-range slot.
     ///
     /// # Complexity
-    /// The ray test on every live lane (see [`crate::persist::ray`]) and one motion test.
+    /// One ray test (see [`crate::persist::ray`]) and one motion test.
     pub fn ray_diagnosis(&self, slot: usize) -> (RayVerdict, bool) {
         if slot >= LANES || self.ids.lane(slot).is_none() {
             return (RayVerdict::Undecided, false);
         }
-        (get(&self.lane_ray_verdicts(), slot), self.lane_moving(slot))
+        (self.lane_ray_verdict(slot), self.lane_moving(slot))
     }
 
     /// One frame: BEV feature points `(u, x)` in metres at time `now`.

@@ -720,16 +720,11 @@ impl_tracker! {
         let (Some(tables), Some((zt, _))) = (self.tables, self.view(t)) else {
             return false;
         };
-        let (b0, b1) = self.extent_this_frame(t);
-        let (lo, hi) = (a0.max(b0), a1.min(b1));
         let (mut dist, mut n) = (0.0f32, 0u32);
-        for i in 0..POINTS {
-            let u = tables.index_u.get(i).copied().unwrap_or(f32::NAN);
-            if u >= lo && u <= hi {
-                let at = |z: &SVector<f32, POINTS>| z.get(i).copied().unwrap_or(f32::NAN);
-                dist += (at(zs) - at(&zt)).abs();
-                n += 1;
-            }
+        for i in common_points(&tables.index_u, (a0, a1), self.extent_this_frame(t)) {
+            let at = |z: &SVector<f32, POINTS>| z.get(i).copied().unwrap_or(f32::NAN);
+            dist += (at(zs) - at(&zt)).abs();
+            n += 1;
         }
         // A non-finite distance compares false: no hold.
         n >= u32::from(self.cfg.identity.min_common.max(1))
@@ -818,7 +813,7 @@ impl_tracker! {
     /// observed extent of this frame, with the covariance of its Gram coefficients plus the
     /// point variance `r` on every index point.
     #[inline(never)]
-    fn lane_ray_verdict(&self, s: usize) -> RayVerdict {
+    pub(super) fn lane_ray_verdict(&self, s: usize) -> RayVerdict {
         let Some(tables) = self.tables else {
             return RayVerdict::Undecided;
         };
@@ -996,9 +991,9 @@ impl_tracker! {
     /// the outermost lane. 0 with the rule off.
     ///
     /// # Complexity
-    /// One pass over the index points per ordered pair of candidates; for a close pair, one
-    /// more per other candidate: at most `LANES³ · POINTS` subtractions, `LANES² · POINTS`
-    /// without a close pair.
+    /// One pass over the index points per unordered pair of candidates (it fills both lanes'
+    /// masks); for a close pair, one more per other candidate: at most `LANES³ · POINTS`
+    /// subtractions, `LANES² · POINTS / 2` without a close pair.
     #[inline(never)]
     fn outer_kerbs(&self, candidates: u32, seen: u32) -> u32 {
         let width = self.cfg.persist.lane_width;
@@ -1026,18 +1021,8 @@ impl_tracker! {
         };
         // The index points inside both published extents.
         let common = |s: usize, t: usize| {
-            let ((a0, a1), (b0, b1)) = (
-                ext.get(s).copied().unwrap_or((0.0, -1.0)),
-                ext.get(t).copied().unwrap_or((0.0, -1.0)),
-            );
-            let (lo, hi) = (a0.max(b0), a1.min(b1));
-            tables
-                .index_u
-                .iter()
-                .take(POINTS)
-                .enumerate()
-                .filter(move |(_, u)| **u >= lo && **u <= hi)
-                .map(|(i, _)| i)
+            let e = |s: usize| ext.get(s).copied().unwrap_or((0.0, -1.0));
+            common_points(&tables.index_u, e(s), e(t))
         };
         // Per candidate, its close partners seen this frame below (−x) and above (+x) it, and
         // those of its close partners it is farther from the camera's foot than.
@@ -1347,6 +1332,21 @@ fn set_bits(mut m: u32) -> impl Iterator<Item = usize> {
         m &= m.wrapping_sub(1);
         (b < 32).then_some(b)
     })
+}
+
+/// The index points inside both extents `(a0, a1)` and `(b0, b1)` (metres along `u`), lowest
+/// first; none when they do not overlap.
+fn common_points<const POINTS: usize>(
+    index_u: &SVector<f32, POINTS>,
+    (a0, a1): (f32, f32),
+    (b0, b1): (f32, f32),
+) -> impl Iterator<Item = usize> + '_ {
+    let (lo, hi) = (a0.max(b0), a1.min(b1));
+    index_u
+        .iter()
+        .enumerate()
+        .filter(move |(_, u)| **u >= lo && **u <= hi)
+        .map(|(i, _)| i)
 }
 
 /// Whether bit `s` of `mask` is set (`false` beyond 32 slots).
