@@ -7,7 +7,8 @@
 //! with fields of `PersistConfig`: `ray_z`, `ray_resolution` (`inf` allowed),
 //! `ray_aligned` / `ray_motion` (0 or 1), `lane_width` (metres, 0: off), `gap_misses`, `chain_gap` / `chain_paint` / `chain_p_on` (the paint /
 //! gap chain's mean gap and paint in metres, its detection on paint), `chain_memory` (frames;
-//! 0 keeps the configured gap); of the spatial `Config`: `max_tentative`.
+//! 0 keeps the configured gap); of the spatial `Config`: `max_tentative`; of the identity
+//! `Config`: `min_common` (the index points a lane needs to start and to be matched).
 use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::demo::{self, DemoOptions, Variant};
 
@@ -30,6 +31,7 @@ fn main() -> anyhow::Result<()> {
             "own_pd" => config.persist.own_pd = x != 0.0,
             "newcomer_wait" => config.persist.newcomer_wait = x as u8,
             "max_tentative" => config.spatial.max_tentative = x as u8,
+            "min_common" => config.identity.min_common = x as u8,
             "gap_misses" => config.persist.gap_misses = x as u16,
             "chain_memory" => config.persist.chain_memory = x,
             "chain_gap" | "chain_paint" | "chain_p_on" => {
