@@ -1,0 +1,92 @@
+//! Where the real frames' lanes are lost between the front end and the published lanes: each of
+//! the 10 bundled 512×288 TuSimple frames through the front end (TuSimple calibration, default
+//! `FrontendParams`) and the default tracker, one frame per clip as the demo runs them. Per frame:
+//! the points handed to the tracker (after `track::preprocess`), the spatial filter's lanes
+//! (`SpatialReport::lanes_out`), the lanes the identity stage started and those it dropped as
+//! unusable (fewer than `identity::Config::min_common` index points present: a marking observed
+//! over less than about two index intervals, ~10 m, starts no lane), the lanes published, and
+//! each live slot's existence, observed extent and position at 10 and 30 m.
+//!
+//! `cargo run --release -p stjpdacf-tools --example real_drops [-- PART]` (only the frames whose
+//! file name contains `PART`, e.g. `37400`).
+use stjpdacf::tables::DEFAULT;
+use stjpdacf::tracker::TrackerConfig;
+use stjpdacf_tools::demo::REAL_FRAMES;
+use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams};
+use stjpdacf_tools::track::{self, Space};
+use stjpdacf_tools::tusimple::{self, read_labels};
+
+fn main() -> anyhow::Result<()> {
+    let part = std::env::args().nth(1).unwrap_or_default();
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../data")
+        .join(REAL_FRAMES);
+    let labels = read_labels(&dir.join("label_data.json"))?;
+    let frames = frontend::run_dir_cameras(
+        &dir,
+        &CameraMode::TuSimple,
+        &labels,
+        &FrontendParams::default(),
+        |_, _| {},
+    )?;
+    println!("| frame | points (tracker) | spatial lanes | started | dropped (< min_common) | published |");
+    println!("|---|---|---|---|---|---|");
+    let mut slots = Vec::new();
+    for (frame, _, cam) in &frames {
+        let name = frame.raw_file.clone().unwrap_or_default();
+        if !name.contains(&part) {
+            continue;
+        }
+        let one = std::slice::from_ref(frame);
+        for clip in tusimple::clips(one) {
+            track::track_with(
+                clip,
+                &DEFAULT,
+                cam,
+                Space::Image,
+                TrackerConfig::DEFAULT,
+                |v| {
+                    let Some(o) = v.output else {
+                        println!("| {name} | refused | | | | |");
+                        return;
+                    };
+                    let r = &o.report;
+                    println!(
+                        "| {name} | {} | {} | {} | {} | {} |",
+                        v.points.len(),
+                        r.spatial.lanes_out,
+                        r.identity.started,
+                        r.identity.dropped_unusable,
+                        o.filtered.len()
+                    );
+                    for (s, l) in v.tracker.persist().lanes.iter().enumerate() {
+                        if l.existence <= 0.0 {
+                            continue;
+                        }
+                        let at = |u: f32| {
+                            v.tracker
+                                .lane_at(s, u)
+                                .map_or("—".to_string(), |(z, _)| format!("{z:+.2}"))
+                        };
+                        let published = o.filtered.iter().find(|e| usize::from(e.slot) == s);
+                        slots.push(format!(
+                            "{name} slot {s}: existence {:.3}, x at 10 / 30 m {} / {}, {}",
+                            l.existence,
+                            at(10.0),
+                            at(30.0),
+                            published.map_or("not published".to_string(), |e| format!(
+                                "published over {:.1}–{:.1} m",
+                                e.u_first, e.u_last
+                            )),
+                        ));
+                    }
+                },
+            )?;
+        }
+    }
+    println!();
+    for s in slots {
+        println!("{s}");
+    }
+    Ok(())
+}
