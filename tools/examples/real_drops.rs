@@ -18,9 +18,7 @@ use stjpdacf_tools::tusimple::{self, read_labels};
 
 fn main() -> anyhow::Result<()> {
     let part = std::env::args().nth(1).unwrap_or_default();
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../data")
-        .join(REAL_FRAMES);
+    let dir = stjpdacf_tools::repo_root().join("data").join(REAL_FRAMES);
     let labels = read_labels(&dir.join("label_data.json"))?;
     let frames = frontend::run_dir_cameras(
         &dir,
