@@ -5,7 +5,7 @@
 //! (`SpatialReport::lanes_out`), the lanes the identity stage started and those it dropped as
 //! unusable (fewer than `identity::Config::min_common` index points present: a marking observed
 //! over less than about two index intervals, ~10 m, starts no lane), the lanes published, and
-//! each live slot's existence, observed extent and position at 10 and 30 m.
+//! each live slot's existence, position at 10 and 30 m and published extent.
 //!
 //! `cargo run --release -p stjpdacf-tools --example real_drops [-- PART]` (only the frames whose
 //! file name contains `PART`, e.g. `37400`).
@@ -14,7 +14,7 @@ use stjpdacf::tracker::TrackerConfig;
 use stjpdacf_tools::demo::REAL_FRAMES;
 use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams};
 use stjpdacf_tools::track::{self, Space};
-use stjpdacf_tools::tusimple::{self, read_labels};
+use stjpdacf_tools::tusimple::read_labels;
 
 fn main() -> anyhow::Result<()> {
     let part = std::env::args().nth(1).unwrap_or_default();
@@ -35,52 +35,50 @@ fn main() -> anyhow::Result<()> {
         if !name.contains(&part) {
             continue;
         }
-        let one = std::slice::from_ref(frame);
-        for clip in tusimple::clips(one) {
-            track::track_with(
-                clip,
-                &DEFAULT,
-                cam,
-                Space::Image,
-                TrackerConfig::DEFAULT,
-                |v| {
-                    let Some(o) = v.output else {
-                        println!("| {name} | refused | | | | |");
-                        return;
-                    };
-                    let r = &o.report;
-                    println!(
-                        "| {name} | {} | {} | {} | {} | {} |",
-                        v.points.len(),
-                        r.spatial.lanes_out,
-                        r.identity.started,
-                        r.identity.dropped_unusable,
-                        o.filtered.len()
-                    );
-                    for (s, l) in v.tracker.persist().lanes.iter().enumerate() {
-                        if l.existence <= 0.0 {
-                            continue;
-                        }
-                        let at = |u: f32| {
-                            v.tracker
-                                .lane_at(s, u)
-                                .map_or("—".to_string(), |(z, _)| format!("{z:+.2}"))
-                        };
-                        let published = o.filtered.iter().find(|e| usize::from(e.slot) == s);
-                        slots.push(format!(
-                            "{name} slot {s}: existence {:.3}, x at 10 / 30 m {} / {}, {}",
-                            l.existence,
-                            at(10.0),
-                            at(30.0),
-                            published.map_or("not published".to_string(), |e| format!(
-                                "published over {:.1}–{:.1} m",
-                                e.u_first, e.u_last
-                            )),
-                        ));
+        // One frame is one clip: a fresh tracker for each frame, as the demo runs them.
+        track::track_with(
+            std::slice::from_ref(frame),
+            &DEFAULT,
+            cam,
+            Space::Image,
+            TrackerConfig::DEFAULT,
+            |v| {
+                let Some(o) = v.output else {
+                    println!("| {name} | refused | | | | |");
+                    return;
+                };
+                let r = &o.report;
+                println!(
+                    "| {name} | {} | {} | {} | {} | {} |",
+                    v.points.len(),
+                    r.spatial.lanes_out,
+                    r.identity.started,
+                    r.identity.dropped_unusable,
+                    o.filtered.len()
+                );
+                for (s, l) in v.tracker.persist().lanes.iter().enumerate() {
+                    if l.existence <= 0.0 {
+                        continue;
                     }
-                },
-            )?;
-        }
+                    let at = |u: f32| {
+                        v.tracker
+                            .lane_at(s, u)
+                            .map_or("—".to_string(), |(z, _)| format!("{z:+.2}"))
+                    };
+                    let published = o.filtered.iter().find(|e| usize::from(e.slot) == s);
+                    slots.push(format!(
+                        "{name} slot {s}: existence {:.3}, x at 10 / 30 m {} / {}, {}",
+                        l.existence,
+                        at(10.0),
+                        at(30.0),
+                        published.map_or("not published".to_string(), |e| format!(
+                            "published over {:.1}–{:.1} m",
+                            e.u_first, e.u_last
+                        )),
+                    ));
+                }
+            },
+        )?;
     }
     println!();
     for s in slots {
