@@ -5,16 +5,23 @@
 //! (`SpatialReport::lanes_out`), the lanes the identity stage started and those it dropped as
 //! unusable (fewer than `identity::Config::min_common` index points present: a marking observed
 //! over less than about two index intervals, ~10 m, starts no lane), the lanes published, and
-//! each live slot's existence, position at 10 and 30 m and published extent.
+//! each live slot's existence, position at 10 and 30 m and published extent. Then, per labelled
+//! lane, how the official metric sees it (at 1280×720, as the demo scores): the prediction with
+//! its best point accuracy and that prediction's rows — within the threshold (`right`; rows
+//! where neither has a point count as right too, `both absent`), beyond it (`off`), labelled
+//! but not predicted (`missing`), predicted but not labelled (`extra`) — and `FN` when the
+//! accuracy is under 0.85: whether a lost lane was never found (`missing` rows) or found and
+//! drawn in the wrong place (`off` / `extra`).
 //!
 //! `cargo run --release -p stjpdacf-tools --example real_drops [-- PART]` (only the frames whose
 //! file name contains `PART`, e.g. `37400`).
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::TrackerConfig;
-use stjpdacf_tools::demo::REAL_FRAMES;
+use stjpdacf_tools::demo::{scale_record, REAL_FRAMES, REAL_TO_TUSIMPLE};
 use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams};
+use stjpdacf_tools::metric;
 use stjpdacf_tools::track::{self, Space};
-use stjpdacf_tools::tusimple::read_labels;
+use stjpdacf_tools::tusimple::{read_labels, TuSimpleRecord};
 
 fn main() -> anyhow::Result<()> {
     let part = std::env::args().nth(1).unwrap_or_default();
@@ -30,6 +37,7 @@ fn main() -> anyhow::Result<()> {
     println!("| frame | points (tracker) | spatial lanes | started | dropped (< min_common) | published |");
     println!("|---|---|---|---|---|---|");
     let mut slots = Vec::new();
+    let mut breakdown = Vec::new();
     for (frame, _, cam) in &frames {
         let name = frame.raw_file.clone().unwrap_or_default();
         if !name.contains(&part) {
@@ -47,6 +55,15 @@ fn main() -> anyhow::Result<()> {
                     println!("| {name} | refused | | | | |");
                     return;
                 };
+                if let (Some(pred), Some(gt)) =
+                    (v.prediction, labels.iter().find(|l| l.raw_file == name))
+                {
+                    breakdown.extend(label_rows(
+                        &name,
+                        &scale_record(pred, REAL_TO_TUSIMPLE),
+                        &scale_record(gt, REAL_TO_TUSIMPLE),
+                    ));
+                }
                 let r = &o.report;
                 println!(
                     "| {name} | {} | {} | {} | {} | {} |",
@@ -84,5 +101,58 @@ fn main() -> anyhow::Result<()> {
     for s in slots {
         println!("{s}");
     }
+    println!();
+    println!("| frame | label | best prediction | accuracy | right (both absent) | off | missing | extra | |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for b in breakdown {
+        println!("{b}");
+    }
     Ok(())
+}
+
+/// One table row per labelled lane of `gt` (both records at the metric's 1280×720): its best
+/// prediction in `pred` by the official point accuracy, and that prediction's rows by kind.
+fn label_rows(name: &str, pred: &TuSimpleRecord, gt: &TuSimpleRecord) -> Vec<String> {
+    let mut rows = Vec::new();
+    for (g, xs) in gt.lanes.iter().enumerate() {
+        if xs.iter().all(|x| *x < 0.0) {
+            continue;
+        }
+        let thresh = metric::lane_threshold(metric::lane_angle(xs, &gt.h_samples));
+        let best = pred
+            .lanes
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i, metric::line_accuracy(p, xs, thresh)))
+            .fold(None, |b: Option<(usize, f64)>, c| match b {
+                Some(b) if b.1 >= c.1 => Some(b),
+                _ => Some(c),
+            });
+        let Some((i, acc)) = best else {
+            rows.push(format!("| {name} | {g} | none | 0.000 | | | all | | FN |"));
+            continue;
+        };
+        // (right, both absent, off, missing, extra)
+        let mut n = [0usize; 5];
+        for (p, x) in pred.lanes[i].iter().zip(xs) {
+            let k = match (*p >= 0.0, *x >= 0.0) {
+                (true, true) if (p - x).abs() < thresh => 0,
+                (true, true) => 2,
+                (false, false) => 1,
+                (false, true) => 3,
+                (true, false) => 4,
+            };
+            n[k] += 1;
+        }
+        rows.push(format!(
+            "| {name} | {g} | {i} | {acc:.3} | {} ({}) | {} | {} | {} | {} |",
+            n[0] + n[1],
+            n[1],
+            n[2],
+            n[3],
+            n[4],
+            if acc < metric::PT_THRESH { "FN" } else { "" }
+        ));
+    }
+    rows
 }
