@@ -11,7 +11,9 @@
 //! where neither has a point count as right too, `both absent`), beyond it (`off`), labelled
 //! but not predicted (`missing`), predicted but not labelled (`extra`) — and `FN` when the
 //! accuracy is under 0.85: whether a lost lane was never found (`missing` rows) or found and
-//! drawn in the wrong place (`off` / `extra`).
+//! drawn in the wrong place (`off` / `extra`; unless its best prediction is another labelled
+//! lane's match, `another lane's`). The same per lane for any prediction file:
+//! `stjpdacf eval --per-lane`.
 //!
 //! `cargo run --release -p stjpdacf-tools --example real_drops [-- PART]` (only the frames whose
 //! file name contains `PART`, e.g. `37400`).
@@ -110,49 +112,30 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One table row per labelled lane of `gt` (both records at the metric's 1280×720): its best
-/// prediction in `pred` by the official point accuracy, and that prediction's rows by kind.
+/// One table row per labelled lane of `gt` (both records at the metric's 1280×720):
+/// [`metric::lane_rows`].
 fn label_rows(name: &str, pred: &TuSimpleRecord, gt: &TuSimpleRecord) -> Vec<String> {
-    let mut rows = Vec::new();
-    for (g, xs) in gt.lanes.iter().enumerate() {
-        if xs.iter().all(|x| *x < 0.0) {
-            continue;
-        }
-        let thresh = metric::lane_threshold(metric::lane_angle(xs, &gt.h_samples));
-        let best = pred
-            .lanes
-            .iter()
-            .enumerate()
-            .map(|(i, p)| (i, metric::line_accuracy(p, xs, thresh)))
-            .fold(None, |b: Option<(usize, f64)>, c| match b {
-                Some(b) if b.1 >= c.1 => Some(b),
-                _ => Some(c),
-            });
-        let Some((i, acc)) = best else {
-            rows.push(format!("| {name} | {g} | none | 0.000 | | | all | | FN |"));
-            continue;
-        };
-        // (right, both absent, off, missing, extra)
-        let mut n = [0usize; 5];
-        for (p, x) in pred.lanes[i].iter().zip(xs) {
-            let k = match (*p >= 0.0, *x >= 0.0) {
-                (true, true) if (p - x).abs() < thresh => 0,
-                (true, true) => 2,
-                (false, false) => 1,
-                (false, true) => 3,
-                (true, false) => 4,
-            };
-            n[k] += 1;
-        }
-        rows.push(format!(
-            "| {name} | {g} | {i} | {acc:.3} | {} ({}) | {} | {} | {} | {} |",
-            n[0] + n[1],
-            n[1],
-            n[2],
-            n[3],
-            n[4],
-            if acc < metric::PT_THRESH { "FN" } else { "" }
-        ));
-    }
-    rows
+    metric::lane_rows(&pred.lanes, &gt.lanes, &gt.h_samples)
+        .into_iter()
+        .filter(|l| l.right + l.off + l.missing > 0)
+        .map(|l| {
+            format!(
+                "| {name} | {} | {}{} | {:.3} | {} ({}) | {} | {} | {} | {} |",
+                l.label,
+                l.pred.map_or("none".to_string(), |p| p.to_string()),
+                if l.pred_taken {
+                    " (another lane's)"
+                } else {
+                    ""
+                },
+                l.accuracy,
+                l.right + l.both_absent,
+                l.both_absent,
+                l.off,
+                l.missing,
+                l.extra,
+                if l.matched { "" } else { "FN" }
+            )
+        })
+        .collect()
 }

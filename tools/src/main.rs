@@ -188,6 +188,13 @@ enum Command {
         /// list the worst frames on stderr.
         #[arg(long, value_name = "OUT.jsonl")]
         per_frame: Option<PathBuf>,
+        /// Also write every labelled lane's rows as the metric sees them (JSON lines
+        /// `{"raw_file", "label", "pred", "accuracy", "matched", "pred_taken", "right",
+        /// "both_absent", "off", "missing", "extra"}`: its best prediction and that prediction's rows within the
+        /// threshold, beyond it, labelled but not predicted, predicted but not labelled), and
+        /// sum up on stderr how the unmatched lanes were lost.
+        #[arg(long, value_name = "OUT.jsonl")]
+        per_lane: Option<PathBuf>,
     },
     /// The demo on bundled data: replay clips (three noise levels, coupled B and diag(B)) and the
     /// 10 real frames through the front end → tracker → official TuSimple metric; prints the
@@ -621,6 +628,7 @@ fn main() -> Result<()> {
             json,
             pixel_scale,
             per_frame,
+            per_lane,
         } => {
             anyhow::ensure!(
                 pixel_scale > 0.0 && pixel_scale.is_finite(),
@@ -634,16 +642,7 @@ fn main() -> Result<()> {
                         .total_cmp(&b.accuracy)
                         .then((b.fp + b.fn_).total_cmp(&(a.fp + a.fn_)))
                 });
-                let mut w = std::io::BufWriter::new(
-                    std::fs::File::create(p)
-                        .with_context(|| format!("creating {}", p.display()))?,
-                );
-                for f in &frames {
-                    serde_json::to_writer(&mut w, f).context("serialising a frame score")?;
-                    std::io::Write::write_all(&mut w, b"\n")?;
-                }
-                std::io::Write::flush(&mut w)
-                    .with_context(|| format!("writing {}", p.display()))?;
+                write_jsonl(p, &frames)?;
                 eprintln!(
                     "{} frame scores to {}; the worst:",
                     frames.len(),
@@ -661,6 +660,29 @@ fn main() -> Result<()> {
                         if f.penalty { ", penalty" } else { "" }
                     );
                 }
+            }
+            if let Some(p) = &per_lane {
+                let lanes = metric::evaluate_files_lanes(&pred, &gt, pixel_scale)?;
+                write_jsonl(p, &lanes)?;
+                let lost: Vec<&metric::LaneRows> = lanes
+                    .iter()
+                    .map(|l| &l.lane)
+                    .filter(|l| !l.matched && l.right + l.off + l.missing > 0)
+                    .collect();
+                let misplaced = lost
+                    .iter()
+                    .filter(|l| !l.pred_taken && l.off + l.extra > l.missing)
+                    .count();
+                eprintln!(
+                    "{} labelled lanes to {}; {} with points unmatched: {} not found (mostly \
+                     missing rows, or the nearest prediction is another lane's), {} found and \
+                     drawn in the wrong place (mostly off or extra rows)",
+                    lanes.len(),
+                    p.display(),
+                    lost.len(),
+                    lost.len() - misplaced,
+                    misplaced
+                );
             }
             if json {
                 println!(
@@ -1062,4 +1084,16 @@ fn print_estimated_cameras(frames: &[tusimple::Frame], shared: bool) {
          {misses}",
         cams[0].focal_px,
     );
+}
+
+/// Write `items` to `path` as JSON lines.
+fn write_jsonl<T: serde::Serialize>(path: &std::path::Path, items: &[T]) -> Result<()> {
+    let mut w = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+    );
+    for item in items {
+        serde_json::to_writer(&mut w, item).context("serialising a JSON line")?;
+        std::io::Write::write_all(&mut w, b"\n")?;
+    }
+    std::io::Write::flush(&mut w).with_context(|| format!("writing {}", path.display()))
 }

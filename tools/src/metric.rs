@@ -43,7 +43,7 @@ use std::path::Path;
 use anyhow::{bail, ensure, Context, Result};
 use serde::Serialize;
 
-use crate::tusimple::{read_labels, read_predictions, TuSimpleRecord};
+use crate::tusimple::{read_labels, read_predictions, TuSimpleRecord, NO_POINT};
 
 /// `LaneEval.pixel_thresh`: the point threshold in pixels before the angle correction.
 pub const PIXEL_THRESH: f64 = 20.0;
@@ -138,6 +138,89 @@ pub fn match_lanes(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> Lan
         gt_match,
         pred_matched,
     }
+}
+
+/// How the metric sees one ground-truth lane of a frame (not part of the original: a diagnosis
+/// of [`match_lanes`]): the prediction with its best point accuracy (the one it is matched to
+/// when that reaches [`PT_THRESH`]; the first among equals) and that prediction's rows by kind.
+/// `right + both_absent` are the rows [`line_accuracy`] counts as correct, so `accuracy` =
+/// `(right + both_absent) / rows` (without a prediction in the frame the rows are counted against
+/// an empty one and the accuracy is 0); the wrong rows are `off + missing + extra`. A lost lane with
+/// mostly `missing` rows was not found; with mostly `off` / `extra` rows it was found and drawn
+/// in the wrong place (and is also the frame's false lane).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LaneRows {
+    /// Index of the ground-truth lane in its record.
+    pub label: usize,
+    /// Index of its best prediction (`None`: the frame has no prediction).
+    pub pred: Option<usize>,
+    /// Point accuracy against that prediction ([`line_accuracy`]; 0 without a prediction).
+    pub accuracy: f64,
+    /// The accuracy reaches [`PT_THRESH`]: the lane is matched.
+    pub matched: bool,
+    /// Its best prediction is matched to another ground-truth lane of the frame (so an unmatched
+    /// lane's `off` rows are another lane's, not a misplaced drawing of this one).
+    pub pred_taken: bool,
+    /// Correct rows where the ground truth has a point.
+    pub right: usize,
+    /// Correct rows where neither has a point.
+    pub both_absent: usize,
+    /// Wrong rows where both have a point (farther apart than the threshold).
+    pub off: usize,
+    /// Wrong rows with a ground-truth point and no predicted one.
+    pub missing: usize,
+    /// Wrong rows with a predicted point and no ground-truth one.
+    pub extra: usize,
+}
+
+/// [`LaneRows`] of every ground-truth lane of one frame (same thresholds and pairing as
+/// [`match_lanes`]; rows pair up row by row).
+pub fn lane_rows(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> Vec<LaneRows> {
+    let fix = |v: f64| if v >= 0.0 { v } else { MISSING };
+    let matches = match_lanes(pred, gt, y_samples).gt_match;
+    gt.iter()
+        .enumerate()
+        .map(|(label, x_gts)| {
+            let thresh = lane_threshold(lane_angle(x_gts, y_samples));
+            let mut best: Option<(usize, f64)> = None;
+            for (i, x_preds) in pred.iter().enumerate() {
+                let a = line_accuracy(x_preds, x_gts, thresh);
+                if best.is_none_or(|(_, b)| a > b) {
+                    best = Some((i, a));
+                }
+            }
+            let mut out = LaneRows {
+                label,
+                pred: best.map(|b| b.0),
+                accuracy: best.map_or(0.0, |b| b.1),
+                matched: best.is_some_and(|b| b.1 >= PT_THRESH),
+                pred_taken: best.is_some_and(|b| {
+                    matches
+                        .iter()
+                        .enumerate()
+                        .any(|(g, m)| g != label && *m == Some(b.0))
+                }),
+                right: 0,
+                both_absent: 0,
+                off: 0,
+                missing: 0,
+                extra: 0,
+            };
+            let none = vec![NO_POINT; x_gts.len()];
+            let x_preds = best.and_then(|b| pred.get(b.0)).unwrap_or(&none);
+            for (p, g) in x_preds.iter().zip(x_gts) {
+                let counter = match ((fix(*p) - fix(*g)).abs() < thresh, *p >= 0.0, *g >= 0.0) {
+                    (true, _, true) => &mut out.right,
+                    (true, _, false) => &mut out.both_absent,
+                    (false, true, true) => &mut out.off,
+                    (false, false, true) => &mut out.missing,
+                    (false, _, false) => &mut out.extra,
+                };
+                *counter += 1;
+            }
+            out
+        })
+        .collect()
 }
 
 /// Scores of one frame, as returned by `LaneEval.bench`.
@@ -382,6 +465,62 @@ pub fn evaluate_files_frames(
     gt_path: &Path,
     scale: f64,
 ) -> Result<(Score, Vec<FrameResult>)> {
+    let (preds, gts) = read_scaled(pred_path, gt_path, scale)?;
+    bench_frames(&preds, &gts).with_context(|| scoring(pred_path, gt_path))
+}
+
+/// Every ground-truth lane's [`LaneRows`] (ground-truth order), from files as
+/// [`evaluate_files_scaled`] reads and checks them.
+pub fn evaluate_files_lanes(
+    pred_path: &Path,
+    gt_path: &Path,
+    scale: f64,
+) -> Result<Vec<FrameLaneRows>> {
+    let (preds, gts) = read_scaled(pred_path, gt_path, scale)?;
+    let by_file: HashMap<&str, &TuSimpleRecord> =
+        preds.iter().map(|p| (p.raw_file.as_str(), p)).collect();
+    let mut out = Vec::new();
+    for g in &gts {
+        let pred = by_file
+            .get(g.raw_file.as_str())
+            .map_or(&[][..], |p| &p.lanes);
+        out.extend(
+            lane_rows(pred, &g.lanes, &g.h_samples)
+                .into_iter()
+                .map(|lane| FrameLaneRows {
+                    raw_file: g.raw_file.clone(),
+                    lane,
+                }),
+        );
+    }
+    Ok(out)
+}
+
+/// One ground-truth lane's [`LaneRows`] with its frame's `raw_file` (a line of `eval
+/// --per-lane`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FrameLaneRows {
+    /// The frame's `raw_file`.
+    pub raw_file: String,
+    /// The lane.
+    #[serde(flatten)]
+    pub lane: LaneRows,
+}
+
+fn scoring(pred_path: &Path, gt_path: &Path) -> String {
+    format!(
+        "scoring {} against {}",
+        pred_path.display(),
+        gt_path.display()
+    )
+}
+
+/// Both files read, scaled by `scale` and checked one to one ([`check_one_to_one`]).
+fn read_scaled(
+    pred_path: &Path,
+    gt_path: &Path,
+    scale: f64,
+) -> Result<(Vec<TuSimpleRecord>, Vec<TuSimpleRecord>)> {
     let mut gts = read_labels(gt_path)?;
     let mut preds = read_predictions(pred_path)?;
     if scale != 1.0 {
@@ -389,15 +528,8 @@ pub fn evaluate_files_frames(
             r.scale_pixels(scale);
         }
     }
-    let ctx = || {
-        format!(
-            "scoring {} against {}",
-            pred_path.display(),
-            gt_path.display()
-        )
-    };
-    check_one_to_one(&preds, &gts).with_context(ctx)?;
-    bench_frames(&preds, &gts).with_context(ctx)
+    check_one_to_one(&preds, &gts).with_context(|| scoring(pred_path, gt_path))?;
+    Ok((preds, gts))
 }
 
 #[cfg(test)]
@@ -432,6 +564,88 @@ mod tests {
 
     fn score(accuracy: f64, fp: f64, fn_: f64) -> FrameScore {
         FrameScore { accuracy, fp, fn_ }
+    }
+
+    // ---- lane_rows (a diagnosis, not in the original) ----
+
+    #[test]
+    fn lane_rows_sorts_each_row_by_kind() {
+        let ys = rows20();
+        let mut gt0 = vertical(100.0);
+        gt0[..5].fill(NO_POINT);
+        let mut p0 = vertical(100.0);
+        p0[..2].fill(NO_POINT);
+        p0[10..13].fill(150.0);
+        p0[18..].fill(NO_POINT);
+        let gt = vec![gt0.clone(), vertical(300.0)];
+        let pred = vec![p0.clone(), vertical(305.0)];
+        let rows = lane_rows(&pred, &gt, &ys);
+        let r = &rows[0];
+        assert_eq!((r.label, r.pred), (0, Some(0)));
+        assert_eq!(
+            (r.right, r.both_absent, r.off, r.missing, r.extra),
+            (10, 2, 3, 2, 3)
+        );
+        assert_relative_eq!(r.accuracy, 0.6);
+        assert_relative_eq!(r.accuracy, line_accuracy(&p0, &gt0, 20.0));
+        assert!(!r.matched && !r.pred_taken);
+        let r = &rows[1];
+        assert_eq!(
+            (r.label, r.pred, r.right, r.matched),
+            (1, Some(1), 20, true)
+        );
+        assert_eq!(r.off + r.missing + r.extra + r.both_absent, 0);
+    }
+
+    #[test]
+    fn lane_rows_pair_as_match_lanes_does() {
+        let ys = rows20();
+        let gt = spaced_verticals(4);
+        // Lane 0 well placed, lane 1 half off, lane 2 a little off on 2 rows (matched), lane 3
+        // not predicted; a false lane between 2 and 3.
+        let pred = vec![
+            vertical(102.0),
+            off(vertical(300.0), 10, 40.0),
+            off(vertical(500.0), 2, 25.0),
+            vertical(600.0),
+        ];
+        let m = match_lanes(&pred, &gt, &ys);
+        let rows = lane_rows(&pred, &gt, &ys);
+        assert_eq!(rows.len(), 4);
+        for (r, g) in rows.iter().zip(&m.gt_match) {
+            assert_eq!(r.matched, g.is_some());
+            if let Some(i) = g {
+                assert_eq!(r.pred, Some(*i));
+            }
+            assert_eq!(r.right + r.both_absent + r.off + r.missing + r.extra, 20);
+            let correct = (r.right + r.both_absent) as f64 / 20.0;
+            assert_relative_eq!(r.accuracy, correct);
+        }
+        assert_eq!(
+            rows.iter().map(|r| r.matched).collect::<Vec<_>>(),
+            vec![true, false, true, false]
+        );
+        assert_eq!((rows[1].off, rows[1].right), (10, 10));
+        // Label 3 (at 700) is 0 against every prediction: its best is the first, lane 0's.
+        assert_eq!((rows[3].pred, rows[3].pred_taken), (Some(0), true));
+        assert_eq!(rows[3].off, 20);
+        // A label between two matched lanes: its best prediction is a neighbour's.
+        let gt2 = vec![vertical(100.0), vertical(130.0)];
+        let rows = lane_rows(&[vertical(100.0)], &gt2, &ys);
+        assert!(rows[0].matched && !rows[0].pred_taken);
+        assert!(!rows[1].matched && rows[1].pred_taken);
+    }
+
+    #[test]
+    fn lane_rows_without_predictions_count_every_point_missing() {
+        let ys = rows20();
+        let mut gt0 = vertical(100.0);
+        gt0[..4].fill(NO_POINT);
+        let rows = lane_rows(&[], &[gt0], &ys);
+        let r = &rows[0];
+        assert_eq!((r.pred, r.matched), (None, false));
+        assert_eq!((r.missing, r.both_absent, r.right), (16, 4, 0));
+        assert_relative_eq!(r.accuracy, 0.0);
     }
 
     // ---- get_angle ----
