@@ -117,7 +117,7 @@ fn main() -> anyhow::Result<()> {
 fn label_rows(name: &str, pred: &TuSimpleRecord, gt: &TuSimpleRecord) -> Vec<String> {
     metric::lane_rows(&pred.lanes, &gt.lanes, &gt.h_samples)
         .into_iter()
-        .filter(|l| l.right + l.off + l.missing > 0)
+        .filter(|l| l.labelled() > 0)
         .map(|l| {
             format!(
                 "| {name} | {} | {}{} | {:.3} | {} ({}) | {} | {} | {} | {} |",

@@ -667,12 +667,9 @@ fn main() -> Result<()> {
                 let lost: Vec<&metric::LaneRows> = lanes
                     .iter()
                     .map(|l| &l.lane)
-                    .filter(|l| !l.matched && l.right + l.off + l.missing > 0)
+                    .filter(|l| !l.matched && l.labelled() > 0)
                     .collect();
-                let misplaced = lost
-                    .iter()
-                    .filter(|l| !l.pred_taken && l.off + l.extra > l.missing)
-                    .count();
+                let misplaced = lost.iter().filter(|l| l.misplaced()).count();
                 eprintln!(
                     "{} labelled lanes to {}; {} with points unmatched: {} not found (mostly \
                      missing rows, or the nearest prediction is another lane's), {} found and \

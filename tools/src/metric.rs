@@ -177,10 +177,10 @@ pub struct LaneRows {
 /// [`match_lanes`]; rows pair up row by row).
 pub fn lane_rows(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> Vec<LaneRows> {
     let fix = |v: f64| if v >= 0.0 { v } else { MISSING };
-    let matches = match_lanes(pred, gt, y_samples).gt_match;
-    gt.iter()
-        .enumerate()
-        .map(|(label, x_gts)| {
+    // Each ground-truth lane's threshold and best prediction, as `match_lanes` finds them.
+    let bests: Vec<(f64, Option<(usize, f64)>)> = gt
+        .iter()
+        .map(|x_gts| {
             let thresh = lane_threshold(lane_angle(x_gts, y_samples));
             let mut best: Option<(usize, f64)> = None;
             for (i, x_preds) in pred.iter().enumerate() {
@@ -189,16 +189,24 @@ pub fn lane_rows(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> Vec<L
                     best = Some((i, a));
                 }
             }
+            (thresh, best)
+        })
+        .collect();
+    let matched_to = |g: usize| match bests.get(g) {
+        Some((_, Some((i, a)))) if *a >= PT_THRESH => Some(*i),
+        _ => None,
+    };
+    gt.iter()
+        .zip(&bests)
+        .enumerate()
+        .map(|(label, (x_gts, &(thresh, best)))| {
             let mut out = LaneRows {
                 label,
                 pred: best.map(|b| b.0),
                 accuracy: best.map_or(0.0, |b| b.1),
-                matched: best.is_some_and(|b| b.1 >= PT_THRESH),
+                matched: matched_to(label).is_some(),
                 pred_taken: best.is_some_and(|b| {
-                    matches
-                        .iter()
-                        .enumerate()
-                        .any(|(g, m)| g != label && *m == Some(b.0))
+                    (0..gt.len()).any(|g| g != label && matched_to(g) == Some(b.0))
                 }),
                 right: 0,
                 both_absent: 0,
@@ -221,6 +229,20 @@ pub fn lane_rows(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> Vec<L
             out
         })
         .collect()
+}
+
+impl LaneRows {
+    /// Rows where the ground truth has a point (0: an empty ground-truth lane, which the scorer
+    /// counts as a lane to find).
+    pub fn labelled(&self) -> usize {
+        self.right + self.off + self.missing
+    }
+
+    /// Unmatched, and drawn in the wrong place rather than not found: its best prediction is no
+    /// other lane's match and has more `off` and `extra` rows than `missing` ones.
+    pub fn misplaced(&self) -> bool {
+        !self.matched && !self.pred_taken && self.off + self.extra > self.missing
+    }
 }
 
 /// Scores of one frame, as returned by `LaneEval.bench`.
@@ -589,6 +611,8 @@ mod tests {
         assert_relative_eq!(r.accuracy, 0.6);
         assert_relative_eq!(r.accuracy, line_accuracy(&p0, &gt0, 20.0));
         assert!(!r.matched && !r.pred_taken);
+        assert_eq!(r.labelled(), 15);
+        assert!(r.misplaced());
         let r = &rows[1];
         assert_eq!(
             (r.label, r.pred, r.right, r.matched),
@@ -633,7 +657,7 @@ mod tests {
         let gt2 = vec![vertical(100.0), vertical(130.0)];
         let rows = lane_rows(&[vertical(100.0)], &gt2, &ys);
         assert!(rows[0].matched && !rows[0].pred_taken);
-        assert!(!rows[1].matched && rows[1].pred_taken);
+        assert!(!rows[1].matched && rows[1].pred_taken && !rows[1].misplaced());
     }
 
     #[test]
@@ -645,6 +669,8 @@ mod tests {
         let r = &rows[0];
         assert_eq!((r.pred, r.matched), (None, false));
         assert_eq!((r.missing, r.both_absent, r.right), (16, 4, 0));
+        assert_eq!(r.labelled(), 16);
+        assert!(!r.misplaced());
         assert_relative_eq!(r.accuracy, 0.0);
     }
 
