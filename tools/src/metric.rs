@@ -121,16 +121,13 @@ pub fn match_lanes(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> Lan
         .iter()
         .map(|x_gts| {
             let thresh = lane_threshold(lane_angle(x_gts, y_samples));
-            let mut best: Option<(usize, f64)> = None;
-            for (i, x_preds) in pred.iter().enumerate() {
+            let best = first_best(pred.iter().enumerate().map(|(i, x_preds)| {
                 let a = line_accuracy(x_preds, x_gts, thresh);
                 if a >= PT_THRESH {
                     pred_matched[i] = true;
                 }
-                if best.is_none_or(|(_, b)| a > b) {
-                    best = Some((i, a));
-                }
-            }
+                a
+            }));
             best.filter(|&(_, a)| a >= PT_THRESH).map(|(i, _)| i)
         })
         .collect();
@@ -138,6 +135,17 @@ pub fn match_lanes(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> Lan
         gt_match,
         pred_matched,
     }
+}
+
+/// The index and value of the first largest of `accuracies` (`None` when empty).
+fn first_best(accuracies: impl Iterator<Item = f64>) -> Option<(usize, f64)> {
+    accuracies
+        .enumerate()
+        .fold(None, |best, (i, a)| match best {
+            Some((_, b)) if a > b => Some((i, a)),
+            None => Some((i, a)),
+            _ => best,
+        })
 }
 
 /// How the metric sees one ground-truth lane of a frame (not part of the original: a diagnosis
@@ -182,13 +190,7 @@ pub fn lane_rows(pred: &[Vec<f64>], gt: &[Vec<f64>], y_samples: &[f64]) -> Vec<L
         .iter()
         .map(|x_gts| {
             let thresh = lane_threshold(lane_angle(x_gts, y_samples));
-            let mut best: Option<(usize, f64)> = None;
-            for (i, x_preds) in pred.iter().enumerate() {
-                let a = line_accuracy(x_preds, x_gts, thresh);
-                if best.is_none_or(|(_, b)| a > b) {
-                    best = Some((i, a));
-                }
-            }
+            let best = first_best(pred.iter().map(|p| line_accuracy(p, x_gts, thresh)));
             (thresh, best)
         })
         .collect();
