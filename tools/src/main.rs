@@ -190,9 +190,9 @@ enum Command {
         per_frame: Option<PathBuf>,
         /// Also write every labelled lane's rows as the metric sees them (JSON lines
         /// `{"raw_file", "label", "pred", "accuracy", "matched", "pred_taken", "right",
-        /// "both_absent", "off", "missing", "extra"}`: its best prediction and that prediction's rows within the
-        /// threshold, beyond it, labelled but not predicted, predicted but not labelled), and
-        /// sum up on stderr how the unmatched lanes were lost.
+        /// "both_absent", "off", "missing", "extra"}`: its best prediction and that
+        /// prediction's rows within the threshold, beyond it, labelled but not predicted,
+        /// predicted but not labelled), and sum up on stderr how the unmatched lanes were lost.
         #[arg(long, value_name = "OUT.jsonl")]
         per_lane: Option<PathBuf>,
     },
@@ -634,7 +634,9 @@ fn main() -> Result<()> {
                 pixel_scale > 0.0 && pixel_scale.is_finite(),
                 "--pixel-scale must be > 0"
             );
-            let (s, mut frames) = metric::evaluate_files_frames(&pred, &gt, pixel_scale)?;
+            // Read and checked once for the score and both lists.
+            let (preds, gts) = metric::read_scaled(&pred, &gt, pixel_scale)?;
+            let (s, mut frames) = metric::score_frames(&preds, &gts, (&pred, &gt))?;
             if let Some(p) = &per_frame {
                 // Worst first: accuracy up, then FP + FN down; ties in file order.
                 frames.sort_by(|a, b| {
@@ -662,7 +664,7 @@ fn main() -> Result<()> {
                 }
             }
             if let Some(p) = &per_lane {
-                let lanes = metric::evaluate_files_lanes(&pred, &gt, pixel_scale)?;
+                let lanes = metric::frame_lane_rows(&preds, &gts);
                 write_jsonl(p, &lanes)?;
                 let lost: Vec<&metric::LaneRows> = lanes
                     .iter()

@@ -480,31 +480,26 @@ pub fn evaluate_files(pred_path: &Path, gt_path: &Path) -> Result<Score> {
 /// (negative "no point" values stay as they are), e.g. 2.5 to score files of 512×288 frames at
 /// TuSimple's 1280×720, where the metric's 20 px threshold is defined.
 pub fn evaluate_files_scaled(pred_path: &Path, gt_path: &Path, scale: f64) -> Result<Score> {
-    Ok(evaluate_files_frames(pred_path, gt_path, scale)?.0)
+    let (preds, gts) = read_scaled(pred_path, gt_path, scale)?;
+    Ok(score_frames(&preds, &gts, (pred_path, gt_path))?.0)
 }
 
-/// [`evaluate_files_scaled`] and each prediction's frame score ([`bench_frames`]).
-pub fn evaluate_files_frames(
-    pred_path: &Path,
-    gt_path: &Path,
-    scale: f64,
+/// [`bench_frames`] with the two files named in its error.
+pub fn score_frames(
+    preds: &[TuSimpleRecord],
+    gts: &[TuSimpleRecord],
+    (pred_path, gt_path): (&Path, &Path),
 ) -> Result<(Score, Vec<FrameResult>)> {
-    let (preds, gts) = read_scaled(pred_path, gt_path, scale)?;
-    bench_frames(&preds, &gts).with_context(|| scoring(pred_path, gt_path))
+    bench_frames(preds, gts).with_context(|| scoring(pred_path, gt_path))
 }
 
-/// Every ground-truth lane's [`LaneRows`] (ground-truth order), from files as
-/// [`evaluate_files_scaled`] reads and checks them.
-pub fn evaluate_files_lanes(
-    pred_path: &Path,
-    gt_path: &Path,
-    scale: f64,
-) -> Result<Vec<FrameLaneRows>> {
-    let (preds, gts) = read_scaled(pred_path, gt_path, scale)?;
+/// Every ground-truth lane's [`LaneRows`] (ground-truth order) against the prediction of its
+/// frame (none when the predictions lack the frame).
+pub fn frame_lane_rows(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Vec<FrameLaneRows> {
     let by_file: HashMap<&str, &TuSimpleRecord> =
         preds.iter().map(|p| (p.raw_file.as_str(), p)).collect();
     let mut out = Vec::new();
-    for g in &gts {
+    for g in gts {
         let pred = by_file
             .get(g.raw_file.as_str())
             .map_or(&[][..], |p| &p.lanes);
@@ -517,7 +512,7 @@ pub fn evaluate_files_lanes(
                 }),
         );
     }
-    Ok(out)
+    out
 }
 
 /// One ground-truth lane's [`LaneRows`] with its frame's `raw_file` (a line of `eval
@@ -540,7 +535,9 @@ fn scoring(pred_path: &Path, gt_path: &Path) -> String {
 }
 
 /// Both files read, scaled by `scale` and checked one to one ([`check_one_to_one`]).
-fn read_scaled(
+/// The predictions and labels of two files, every column and row multiplied by `scale`
+/// (negative "no point" values stay), checked one to one (each labelled frame predicted once).
+pub fn read_scaled(
     pred_path: &Path,
     gt_path: &Path,
     scale: f64,
