@@ -1012,6 +1012,12 @@ pub enum CameraMode {
     TuSimple,
     /// This camera for every image (its size must match).
     Given(Camera),
+    /// This calibrated camera (scaled to each image's width, as the guess of `Estimate`) with
+    /// its vanishing point moved to where the image's marking lines cross
+    /// ([`refine_and_detect`]) when that lies within [`REFINE_PITCH_DEG`] of the camera's pitch;
+    /// its height and focal length stay. For a fixed camera on a road whose pitch relative to
+    /// the camera changes (grades, braking, load) and a calibration fitted on other frames.
+    Refine(Camera),
     /// The horizon and the vanishing column estimated from each image
     /// ([`estimate_vanishing_point_from_lines`], else [`estimate_vanishing_point`]), the camera
     /// height from the spacing of the marking lines (lane boundaries [`LANE_WIDTH`] apart); the
@@ -1456,17 +1462,41 @@ pub fn camera_with(img: &RgbImage, mode: &CameraMode) -> Result<Camera> {
         CameraMode::TuSimple => camera_for(img, None),
         CameraMode::Given(c) => camera_for(img, Some(c)),
         CameraMode::Estimate(guess) | CameraMode::EstimateShared { guess, .. } => {
-            estimate_camera(img, guess, &FrontendParams::default())
+            fit_camera(img, guess, &FrontendParams::default(), Fit::Camera)
         }
+        CameraMode::Refine(c) => fit_camera(img, c, &FrontendParams::default(), Fit::Horizon),
     }
 }
 
 /// The camera of `img` estimated from its markings ([`CameraMode::Estimate`]), starting from
 /// `guess` (scaled to the image's width); [`estimate_and_detect`] also finds the points.
 pub fn estimate_camera(img: &RgbImage, guess: &Camera, p: &FrontendParams) -> Result<Camera> {
-    let g = scaled_guess(img, guess);
+    fit_camera(img, guess, p, Fit::Camera)
+}
+
+/// How far from a calibrated camera's pitch [`CameraMode::Refine`] moves its horizon: 1°, the
+/// order of a car's pitch under braking or load and of a change of road grade (at the 512×288
+/// TuSimple scale, 7 rows). Set from those magnitudes, not fitted to the bundled frames (on
+/// them 3 / 5 / 8 / 100 rows gave 0.873 / 0.880 / 0.880 / 0.824 accuracy: one frame's lines
+/// cross 10 rows above the calibration's horizon; docs/measurements.md).
+pub const REFINE_PITCH_DEG: f64 = 1.0;
+
+/// What an image's markings may change of the camera the front end starts from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Fit {
+    /// [`CameraMode::Estimate`]: the vanishing point (the marking lines', else the edge vote)
+    /// and the camera height (the lines' spacing).
+    Camera,
+    /// [`CameraMode::Refine`]: the marking lines' vanishing point only, within
+    /// [`REFINE_PITCH_DEG`] of the camera's pitch.
+    Horizon,
+}
+
+/// [`estimate_camera`], or its refinement of a calibrated camera (`Fit::Horizon`).
+fn fit_camera(img: &RgbImage, start: &Camera, p: &FrontendParams, fit: Fit) -> Result<Camera> {
+    let g = scaled_guess(img, start);
     let peaks = ridge_peaks(img, &g, p, lines_row_min(img), i64::MAX)?;
-    Ok(camera_from_peaks(img, &g, &peaks))
+    Ok(camera_from_peaks(img, &g, &peaks, fit))
 }
 
 /// `guess` scaled to `img`'s width, with `img`'s height.
@@ -1476,12 +1506,22 @@ fn scaled_guess(img: &RgbImage, guess: &Camera) -> Camera {
     cam
 }
 
-/// The estimated camera ([`CameraMode::Estimate`]) from the ridge peaks found with the scaled
-/// guess `g` on the rows below [`lines_row_min`].
-fn camera_from_peaks(img: &RgbImage, g: &Camera, peaks: &[Peak]) -> Camera {
+/// The estimated camera ([`CameraMode::Estimate`]) or the refined one
+/// ([`CameraMode::Refine`], `fit`) from the ridge peaks found with the scaled guess `g` on the
+/// rows below [`lines_row_min`].
+fn camera_from_peaks(img: &RgbImage, g: &Camera, peaks: &[Peak], fit: Fit) -> Camera {
     let mut cam = *g;
     // The markings' own lines first; the edge vote if fewer than two lines cross.
     let found = vanishing_point_of_peaks(img, g, peaks);
+    if fit == Fit::Horizon {
+        // A row shift of f·tan δ is a pitch change of δ.
+        let window = g.focal_px * REFINE_PITCH_DEG.to_radians().tan();
+        if let Some(((c, r), _)) = found.filter(|f| (f.0 .1 - g.vp_row).abs() <= window) {
+            cam.vp_col = c;
+            cam.vp_row = r;
+        }
+        return cam;
+    }
     let vp = found
         .as_ref()
         .map(|f| f.0)
@@ -1517,10 +1557,30 @@ pub fn estimate_and_detect(
     guess: &Camera,
     p: &FrontendParams,
 ) -> Result<(Camera, Vec<[f64; 2]>)> {
-    let g = scaled_guess(img, guess);
+    fit_and_detect(img, guess, p, Fit::Camera)
+}
+
+/// The calibrated `camera` refined from `img` ([`CameraMode::Refine`]) and the feature points
+/// of `img` with it, sharing the ridge pass as [`estimate_and_detect`] does.
+pub fn refine_and_detect(
+    img: &RgbImage,
+    camera: &Camera,
+    p: &FrontendParams,
+) -> Result<(Camera, Vec<[f64; 2]>)> {
+    fit_and_detect(img, camera, p, Fit::Horizon)
+}
+
+/// [`estimate_and_detect`] or [`refine_and_detect`] (`fit`).
+fn fit_and_detect(
+    img: &RgbImage,
+    start: &Camera,
+    p: &FrontendParams,
+    fit: Fit,
+) -> Result<(Camera, Vec<[f64; 2]>)> {
+    let g = scaled_guess(img, start);
     let r0 = lines_row_min(img);
     let near = ridge_peaks(img, &g, p, r0, i64::MAX)?;
-    let cam = camera_from_peaks(img, &g, &near);
+    let cam = camera_from_peaks(img, &g, &near, fit);
     let row_near = cam.row_at(p.u_min).context("u_min must be > 0")?.floor() as i64;
     let row_near = row_near.min(img.height() as i64 - 1);
     // Rows where the two cameras' scales (pixels per metre across the row) differ by more
@@ -1678,6 +1738,7 @@ pub fn run_dir_cameras(
             (CameraMode::Estimate(guess) | CameraMode::EstimateShared { guess, .. }, _) => {
                 estimate_and_detect(&img, guess, p)
             }
+            (CameraMode::Refine(cal), _) => refine_and_detect(&img, cal, p),
             _ => camera_with(&img, mode).and_then(|cam| Ok((cam, detect(&img, &cam, p)?))),
         }
         .with_context(|| format!("{}", path.display()))?;
@@ -1707,7 +1768,7 @@ pub fn run_dir_cameras(
             h_samples,
             camera: matches!(
                 mode,
-                CameraMode::Estimate(_) | CameraMode::EstimateShared { .. }
+                CameraMode::Estimate(_) | CameraMode::EstimateShared { .. } | CameraMode::Refine(_)
             )
             .then_some(cam),
         });

@@ -322,6 +322,45 @@ fn culane_sized_camera_and_horizon_estimate() {
     assert!(on as f64 >= 0.95 * pts.len() as f64);
 }
 
+/// `CameraMode::Refine` (`frontend --refine-horizon`): a calibrated camera's vanishing point
+/// moves to where the marking lines cross when that is within 1° of its pitch (here
+/// 1100 px · tan 1° = 19.2 rows); its height and focal length stay; further off, the
+/// calibration is kept.
+#[test]
+fn refined_horizon_within_a_degree_of_the_calibration() {
+    let truth = road_camera(30.0, 850.0);
+    let img = synthetic_road(&truth);
+    // A calibration 12 rows (0.6°) and 10 columns off.
+    let cal = Camera {
+        vp_row: truth.vp_row + 12.0,
+        vp_col: truth.vp_col - 10.0,
+        ..truth
+    };
+    let r = frontend::camera_with(&img, &CameraMode::Refine(cal)).unwrap();
+    eprintln!(
+        "refined ({}, {}), true ({}, {})",
+        r.vp_col, r.vp_row, truth.vp_col, truth.vp_row
+    );
+    assert!((r.vp_row - truth.vp_row).abs() <= 3.0, "row {}", r.vp_row);
+    assert!(
+        (r.vp_col - truth.vp_col).abs() <= 5.0,
+        "column {}",
+        r.vp_col
+    );
+    assert_eq!((r.height_m, r.focal_px), (cal.height_m, cal.focal_px));
+    // Refining and detecting in one go: the same camera, points on the markings.
+    let (r2, pts) = frontend::refine_and_detect(&img, &cal, &FrontendParams::default()).unwrap();
+    assert_eq!(r2, r);
+    assert!(pts.len() > 100, "{} points", pts.len());
+    // 25 rows (1.3°) off: beyond the window, the calibration stays.
+    let far = Camera {
+        vp_row: truth.vp_row + 25.0,
+        ..truth
+    };
+    let kept = frontend::camera_with(&img, &CameraMode::Refine(far)).unwrap();
+    assert_eq!(kept, far);
+}
+
 /// `frontend::detect_tagged` is `frontend::detect` with provenance: the same points, in the
 /// same order, on every bundled frame, each on one of the kept lines, each kept line with a peak.
 #[test]
