@@ -4,7 +4,9 @@
 //! focal length, one at a time — both as the camera itself (`CameraMode::Given`: what a fixed
 //! calibration gives when the vehicle pitches or the calibration is slightly off) and as the
 //! guess of the per-image estimate (`CameraMode::Estimate`: the horizon, the vanishing column
-//! and the height found in each image, the focal length from the guess). The last column is
+//! and the height found in each image, the focal length from the guess) and as the calibration
+//! the image refines (`CameraMode::Refine`, `frontend --refine-horizon`: the vanishing point of
+//! the marking lines where it is within 1° of the camera's pitch). The last column is
 //! the tracker alone: the labelled points as feature points, mapped with the perturbed camera.
 //! The last lines average the perturbed-calibration runs over all the cameras, per half of the
 //! frames (the front end's tuning half and its held-out half), with the feature points'
@@ -76,10 +78,10 @@ fn main() -> anyhow::Result<()> {
         .map(|g| demo::scale_record(g, REAL_TO_TUSIMPLE))
         .collect();
     println!(
-        "| camera (512×288 px) | calibration perturbed: accuracy / FP / FN | per-image estimate from the perturbed guess | label points, perturbed camera |"
+        "| camera (512×288 px) | calibration perturbed: accuracy / FP / FN | per-image estimate from the perturbed guess | perturbed calibration, horizon refined | label points, perturbed camera |"
     );
-    println!("|---|---|---|---|");
-    let (mut given, mut est) = (Vec::new(), Vec::new());
+    println!("|---|---|---|---|---|");
+    let (mut given, mut est, mut refined) = (Vec::new(), Vec::new(), Vec::new());
     // Over every camera of the table (calibration included), per half of the frames (tuning,
     // held-out: `frontend::TUNING_SET`): sums of accuracy, FP, FN, point precision and recall.
     let mut halves = [[0.0f64; 5]; 2];
@@ -100,6 +102,7 @@ fn main() -> anyhow::Result<()> {
         // The guess is a 1280×720 camera (the estimate scales it to the image's width).
         let guess = cam.scaled(1.0 / 0.4);
         let e = demo::run_real(&dir, &labels, &CameraMode::Estimate(guess), &p, false)?.score;
+        let r = demo::run_real(&dir, &labels, &CameraMode::Refine(guess), &p, false)?.score;
         let (lp, _) = track::track_with(
             &label_frames,
             &stjpdacf::tables::DEFAULT,
@@ -118,12 +121,13 @@ fn main() -> anyhow::Result<()> {
             .collect();
         let l = metric::bench_one_submit(&lp, &scaled_gt)?;
         println!(
-            "| {what} | {:.3} / {:.3} / {:.3} | {:.3} / {:.3} / {:.3} | {:.3} / {:.3} / {:.3} |",
-            g.accuracy, g.fp, g.fn_, e.accuracy, e.fp, e.fn_, l.accuracy, l.fp, l.fn_
+            "| {what} | {:.3} / {:.3} / {:.3} | {:.3} / {:.3} / {:.3} | {:.3} / {:.3} / {:.3} | {:.3} / {:.3} / {:.3} |",
+            g.accuracy, g.fp, g.fn_, e.accuracy, e.fp, e.fn_, r.accuracy, r.fp, r.fn_, l.accuracy, l.fp, l.fn_
         );
         if what != "calibration" {
             given.push(g.accuracy);
             est.push(e.accuracy);
+            refined.push(r.accuracy);
         }
     }
     let stats = |v: &mut Vec<f64>| {
@@ -133,9 +137,10 @@ fn main() -> anyhow::Result<()> {
     };
     let (g0, g1, g2) = stats(&mut given);
     let (e0, e1, e2) = stats(&mut est);
+    let (r0, r1, r2) = stats(&mut refined);
     println!();
     println!(
-        "over the {} perturbations, accuracy min / median / max: calibration perturbed {g0:.3} / {g1:.3} / {g2:.3}; per-image estimate {e0:.3} / {e1:.3} / {e2:.3}",
+        "over the {} perturbations, accuracy min / median / max: calibration perturbed {g0:.3} / {g1:.3} / {g2:.3}; per-image estimate {e0:.3} / {e1:.3} / {e2:.3}; horizon refined {r0:.3} / {r1:.3} / {r2:.3}",
         given.len()
     );
     for (h, name) in ["tuning", "held-out"].iter().enumerate() {

@@ -1,6 +1,7 @@
 //! Precision and recall of the image front end on the tuning and held-out halves of the bundled
 //! 512×288 TuSimple frames (`frontend::TUNING_SET`, `frontend::HELD_OUT_SET`), with the default
-//! parameters, or with `name=value` overrides given as arguments (for tuning on the tuning set).
+//! parameters, or with `name=value` overrides given as arguments (for tuning on the tuning set);
+//! with the calibrated camera and with its horizon refined from each image.
 //!
 //! `cargo run --release -p stjpdacf-tools --example frontend_eval [--png=DIR] [name=value …]`
 //! (`--png=DIR`: also write each frame's overlay, feature points red and labels green, to DIR;
@@ -80,22 +81,32 @@ fn main() -> anyhow::Result<()> {
             }
             println!("{}", t.add(raw, frontend::score(&pts, l, 1.0, 6.0)));
         }
-        println!(
-            "{name}: precision {:.3} ({}/{}), mean lane recall {:.3}, {} of {} lanes ≥ 0.25, {:.1} ms per image",
-            t.precision(),
-            t.tp,
-            t.n,
-            t.mean_recall(),
-            t.covered(),
-            t.recalls.len(),
-            ms / set.len() as f64
+        summary(name, &t, ms / set.len() as f64);
+    }
+    // The same with the calibration's horizon refined from each image (`CameraMode::Refine`,
+    // `frontend --refine-horizon`).
+    for (name, set) in [("tuning", TUNING_SET), ("held-out", HELD_OUT_SET)] {
+        let (mut t, mut ms) = (frontend::PointTally::default(), 0.0);
+        for raw in set {
+            let img = frontend::load_rgb(&dir.join(raw))?;
+            let t0 = Instant::now();
+            let (_, pts) = frontend::refine_and_detect(&img, &Camera::tusimple(), &p)?;
+            ms += t0.elapsed().as_secs_f64() * 1e3;
+            let l = labels.iter().find(|l| l.raw_file == raw).expect("label");
+            t.add(raw, frontend::score(&pts, l, 1.0, 6.0));
+        }
+        summary(
+            &format!("{name}, horizon refined"),
+            &t,
+            ms / set.len() as f64,
         );
     }
     if !tracker {
         return Ok(());
     }
     // End to end: front end → tracker → official metric, all 10 frames, with the calibrated
-    // camera and with the horizon estimated from each image (no calibration: Camera::guess).
+    // camera, with its horizon refined from each image, and with the horizon estimated from
+    // each image (no calibration: Camera::guess).
     let guess = Camera::guess(1280.0, 720.0);
     let calibrated = Camera::tusimple().scaled(0.4);
     let shared = |every| CameraMode::EstimateShared {
@@ -105,6 +116,10 @@ fn main() -> anyhow::Result<()> {
     };
     for (name, mode) in [
         ("calibrated", CameraMode::TuSimple),
+        (
+            "calibrated, horizon refined",
+            CameraMode::Refine(Camera::tusimple()),
+        ),
         ("horizon estimated", CameraMode::Estimate(guess)),
         ("one camera estimated for the 10 frames", shared(1)),
         ("one camera estimated on every 5th frame", shared(5)),
@@ -143,4 +158,17 @@ fn main() -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// One half's feature points: precision, mean lane recall, lanes found, time per image.
+fn summary(name: &str, t: &frontend::PointTally, ms: f64) {
+    println!(
+        "{name}: precision {:.3} ({}/{}), mean lane recall {:.3}, {} of {} lanes ≥ 0.25, {ms:.1} ms per image",
+        t.precision(),
+        t.tp,
+        t.n,
+        t.mean_recall(),
+        t.covered(),
+        t.recalls.len(),
+    );
 }

@@ -1,6 +1,8 @@
 //! Where the real frames' lanes are lost between the front end and the published lanes: each of
-//! the 10 bundled 512×288 TuSimple frames through the front end (TuSimple calibration, default
-//! `FrontendParams`) and the default tracker, one frame per clip as the demo runs them. Per frame:
+//! the 10 bundled 512×288 TuSimple frames through the front end (TuSimple calibration with each
+//! image's horizon refined, `CameraMode::Refine`, as the demo's real row; `fixed`: the
+//! calibration fixed; default `FrontendParams`) and the default tracker, one frame per clip as
+//! the demo runs them. Per frame:
 //! the points handed to the tracker (after `track::preprocess`), the spatial filter's lanes
 //! (`SpatialReport::lanes_out`), the lanes the identity stage started and those it dropped as
 //! unusable (fewer than `identity::Config::min_common` index points present: a marking observed
@@ -15,10 +17,11 @@
 //! lane's match, `another lane's`). The same per lane for any prediction file:
 //! `stjpdacf eval --per-lane`.
 //!
-//! `cargo run --release -p stjpdacf-tools --example real_drops [-- PART]` (only the frames whose
-//! file name contains `PART`, e.g. `37400`).
+//! `cargo run --release -p stjpdacf-tools --example real_drops [-- [fixed] [PART]]` (only the
+//! frames whose file name contains `PART`, e.g. `37400`).
 use stjpdacf::tables::DEFAULT;
 use stjpdacf::tracker::TrackerConfig;
+use stjpdacf_tools::camera::Camera;
 use stjpdacf_tools::demo::{scale_record, REAL_FRAMES, REAL_TO_TUSIMPLE};
 use stjpdacf_tools::frontend::{self, CameraMode, FrontendParams};
 use stjpdacf_tools::metric;
@@ -26,16 +29,22 @@ use stjpdacf_tools::track::{self, Space};
 use stjpdacf_tools::tusimple::{read_labels, TuSimpleRecord};
 
 fn main() -> anyhow::Result<()> {
-    let part = std::env::args().nth(1).unwrap_or_default();
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let fixed = args.iter().any(|a| a == "fixed");
+    let part = args
+        .iter()
+        .find(|a| *a != "fixed")
+        .cloned()
+        .unwrap_or_default();
+    let mode = if fixed {
+        CameraMode::TuSimple
+    } else {
+        CameraMode::Refine(Camera::tusimple())
+    };
     let dir = stjpdacf_tools::repo_root().join("data").join(REAL_FRAMES);
     let labels = read_labels(&dir.join("label_data.json"))?;
-    let frames = frontend::run_dir_cameras(
-        &dir,
-        &CameraMode::TuSimple,
-        &labels,
-        &FrontendParams::default(),
-        |_, _| {},
-    )?;
+    let frames =
+        frontend::run_dir_cameras(&dir, &mode, &labels, &FrontendParams::default(), |_, _| {})?;
     println!("| frame | points (tracker) | spatial lanes | started | dropped (< min_common) | published |");
     println!("|---|---|---|---|---|---|");
     let mut slots = Vec::new();
