@@ -81,6 +81,7 @@ fn main() -> anyhow::Result<()> {
             guess: *guess,
             share: Share::All,
             every: 1,
+            fit: frontend::Fit::Camera,
         };
         let run = demo::run_real(&dir, &labels, &shared, &p, false)?;
         let sc = run.camera;

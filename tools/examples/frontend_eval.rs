@@ -113,6 +113,7 @@ fn main() -> anyhow::Result<()> {
         guess,
         share: Share::All,
         every,
+        fit: frontend::Fit::Camera,
     };
     for (name, mode) in [
         ("calibrated", CameraMode::TuSimple),

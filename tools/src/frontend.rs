@@ -1024,19 +1024,22 @@ pub enum CameraMode {
     /// focal length, and whatever is not found, from this guess (scaled to the image's width).
     Estimate(Camera),
     /// One camera for a group of images ([`Share`]): the estimate of [`CameraMode::Estimate`]
+    /// (`fit` [`Fit::Camera`]) or the refinement of [`CameraMode::Refine`] ([`Fit::Horizon`])
     /// from `guess` on the group's first image and every `every`-th after it (`every` 0 is
     /// taken as 1), the median of those estimates ([`Camera::median`]), and every image's
     /// points found with it ([`run_dir_cameras`]). An image whose own estimate missed moves
     /// neither its points nor its clip's BEV, and the estimate costs time only on the images it
     /// runs on. A group of one image (and [`camera_with`]'s single image) is estimated as under
-    /// `Estimate`.
+    /// `Estimate` (or `Refine`).
     EstimateShared {
-        /// The camera the estimates start from.
+        /// The camera the estimates start from (the calibration, for [`Fit::Horizon`]).
         guess: Camera,
         /// Which images share a camera.
         share: Share,
         /// Estimate on every `every`-th image of a group.
         every: usize,
+        /// What the images' markings may change of `guess`.
+        fit: Fit,
     },
 }
 
@@ -1461,8 +1464,11 @@ pub fn camera_with(img: &RgbImage, mode: &CameraMode) -> Result<Camera> {
     match mode {
         CameraMode::TuSimple => camera_for(img, None),
         CameraMode::Given(c) => camera_for(img, Some(c)),
-        CameraMode::Estimate(guess) | CameraMode::EstimateShared { guess, .. } => {
+        CameraMode::Estimate(guess) => {
             fit_camera(img, guess, &FrontendParams::default(), Fit::Camera)
+        }
+        CameraMode::EstimateShared { guess, fit, .. } => {
+            fit_camera(img, guess, &FrontendParams::default(), *fit)
         }
         CameraMode::Refine(c) => fit_camera(img, c, &FrontendParams::default(), Fit::Horizon),
     }
@@ -1482,8 +1488,8 @@ pub fn estimate_camera(img: &RgbImage, guess: &Camera, p: &FrontendParams) -> Re
 pub const REFINE_PITCH_DEG: f64 = 1.0;
 
 /// What an image's markings may change of the camera the front end starts from.
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Fit {
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fit {
     /// [`CameraMode::Estimate`]: the vanishing point (the marking lines', else the edge vote)
     /// and the camera height (the lines' spacing).
     Camera,
@@ -1685,6 +1691,7 @@ pub fn run_dir_cameras(
         guess,
         share,
         every,
+        fit,
     } = mode
     {
         let mut groups: HashMap<(String, (u32, u32)), Vec<usize>> = HashMap::new();
@@ -1712,7 +1719,7 @@ pub fn run_dir_cameras(
                 let img = load_rgb(&files[n])?;
                 let start = std::time::Instant::now();
                 cams.push(
-                    estimate_camera(&img, guess, p)
+                    fit_camera(&img, guess, p, *fit)
                         .with_context(|| format!("{}", files[n].display()))?,
                 );
                 estimate_ms[n] = start.elapsed().as_secs_f64() * 1e3;
@@ -1735,8 +1742,9 @@ pub fn run_dir_cameras(
             (CameraMode::EstimateShared { .. }, Some(cam)) => {
                 detect(&img, &cam, p).map(|points| (cam, points))
             }
-            (CameraMode::Estimate(guess) | CameraMode::EstimateShared { guess, .. }, _) => {
-                estimate_and_detect(&img, guess, p)
+            (CameraMode::Estimate(guess), _) => estimate_and_detect(&img, guess, p),
+            (CameraMode::EstimateShared { guess, fit, .. }, None) => {
+                fit_and_detect(&img, guess, p, *fit)
             }
             (CameraMode::Refine(cal), _) => refine_and_detect(&img, cal, p),
             _ => camera_with(&img, mode).and_then(|cam| Ok((cam, detect(&img, &cam, p)?))),

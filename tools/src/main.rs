@@ -319,21 +319,23 @@ enum Command {
         /// length 0.8 x width, horizon at 0.4 x height, 1.5 m high).
         #[arg(long)]
         guess: Option<String>,
-        /// With `--camera estimate`: which images share one camera. `clip` (default): the
-        /// median of the estimates of a clip's images finds every point of the clip (what
-        /// `track` maps the clip with), so an image whose own estimate missed still gets its
-        /// clip's BEV; `all`: one camera for every image (one camera, many drives); `image`:
-        /// each image's own estimate.
+        /// With `--camera estimate` or `--refine-horizon`: which images share one camera.
+        /// `clip` (default): the median of the estimates of a clip's images finds every point
+        /// of the clip (what `track` maps the clip with), so an image whose own estimate missed
+        /// still gets its clip's BEV; `all`: one camera for every image (one camera, many
+        /// drives); `image`: each image's own estimate.
         #[arg(long, value_enum, default_value = "clip")]
         share: ShareArg,
-        /// With `--camera estimate --share clip|all`: estimate on the first and every K-th
-        /// image of a group only (the estimate costs 2–3 ms a 512x288 image).
+        /// With `--camera estimate` or `--refine-horizon`, and `--share clip|all`: estimate on
+        /// the first and every K-th image of a group only (the estimate costs 2–3 ms a 512x288
+        /// image).
         #[arg(long, value_name = "K", default_value_t = 1)]
         estimate_every: usize,
         /// With a calibrated camera (`tusimple`, `culane` or a file): move its vanishing point
         /// to where each image's marking lines cross when that is within 1° of the camera's
         /// pitch (the road's grade and the car's pitch change; height and focal length stay),
-        /// written into its frame for `stjpdacf track`; costs 2–3 ms a 512x288 image.
+        /// written into its frame for `stjpdacf track`; costs 2–3 ms a 512x288 image. Shared
+        /// as the estimate is (`--share`, `--estimate-every`).
         #[arg(long)]
         refine_horizon: bool,
         /// Frame rate of the image sequences, for the frames' time stamps: a file named `n` is
@@ -905,53 +907,62 @@ fn main() -> Result<()> {
                 "--estimate-every must be at least 1, and 1 with --share image"
             );
             anyhow::ensure!(
-                camera == "estimate" || (share == ShareArg::Clip && estimate_every == 1),
-                "--share and --estimate-every go with --camera estimate"
+                camera == "estimate"
+                    || refine_horizon
+                    || (share == ShareArg::Clip && estimate_every == 1),
+                "--share and --estimate-every go with --camera estimate or --refine-horizon"
             );
             anyhow::ensure!(
                 !(refine_horizon && camera == "estimate"),
                 "--refine-horizon refines a calibrated camera; --camera estimate finds the whole \
                  vanishing point already"
             );
-            let given = |c: Camera| {
-                if refine_horizon {
-                    frontend::CameraMode::Refine(c)
-                } else {
-                    frontend::CameraMode::Given(c)
-                }
-            };
-            let estimate_mode = |guess: Camera| {
+            // The estimate (`--camera estimate`) or the refinement (`--refine-horizon`) from
+            // `start`, on each image or shared (`--share`, `--estimate-every`).
+            let fitted_mode = |start: Camera, fit: frontend::Fit| {
                 let shared = |share| frontend::CameraMode::EstimateShared {
-                    guess,
+                    guess: start,
                     share,
                     every: estimate_every,
+                    fit,
                 };
-                match share {
-                    ShareArg::Image => frontend::CameraMode::Estimate(guess),
-                    ShareArg::Clip => shared(frontend::Share::Clip),
-                    ShareArg::All => shared(frontend::Share::All),
+                match (share, fit) {
+                    (ShareArg::Image, frontend::Fit::Camera) => {
+                        frontend::CameraMode::Estimate(start)
+                    }
+                    (ShareArg::Image, frontend::Fit::Horizon) => {
+                        frontend::CameraMode::Refine(start)
+                    }
+                    (ShareArg::Clip, _) => shared(frontend::Share::Clip),
+                    (ShareArg::All, _) => shared(frontend::Share::All),
                 }
             };
             let mode = match (camera.as_str(), scale) {
                 ("tusimple", None) if refine_horizon => {
-                    frontend::CameraMode::Refine(Camera::tusimple())
+                    fitted_mode(Camera::tusimple(), frontend::Fit::Horizon)
                 }
                 ("tusimple", None) => frontend::CameraMode::TuSimple,
-                ("estimate", _) => estimate_mode(match &guess {
-                    Some(spec) => scaled(Camera::from_spec(spec)?)?,
-                    None => {
-                        let first = frontend::find_images(&images)?
-                            .into_iter()
-                            .next()
-                            .with_context(|| {
-                                format!("no *.jpg or *.png images under {}", images.display())
-                            })?;
-                        let (w, h) = image::image_dimensions(&first)
-                            .with_context(|| format!("{}", first.display()))?;
-                        Camera::guess(f64::from(w), f64::from(h))
-                    }
-                }),
-                (spec, _) => given(scaled(Camera::from_spec(spec)?)?),
+                ("estimate", _) => fitted_mode(
+                    match &guess {
+                        Some(spec) => scaled(Camera::from_spec(spec)?)?,
+                        None => {
+                            let first = frontend::find_images(&images)?
+                                .into_iter()
+                                .next()
+                                .with_context(|| {
+                                    format!("no *.jpg or *.png images under {}", images.display())
+                                })?;
+                            let (w, h) = image::image_dimensions(&first)
+                                .with_context(|| format!("{}", first.display()))?;
+                            Camera::guess(f64::from(w), f64::from(h))
+                        }
+                    },
+                    frontend::Fit::Camera,
+                ),
+                (spec, _) if refine_horizon => {
+                    fitted_mode(scaled(Camera::from_spec(spec)?)?, frontend::Fit::Horizon)
+                }
+                (spec, _) => frontend::CameraMode::Given(scaled(Camera::from_spec(spec)?)?),
             };
             let labels = labels.or_else(|| {
                 let p = images.join("label_data.json");

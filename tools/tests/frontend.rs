@@ -673,6 +673,68 @@ fn cli_shares_one_estimated_camera_per_clip() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// `--refine-horizon` with a calibration file: each clip's images share the median of their
+/// refined cameras (`--share clip`, the default), so the image without markings gets its clip's
+/// refined horizon; with `--share image` that image keeps the calibration; the calibration's
+/// height and focal length stay everywhere. With `--camera estimate` the flag is an error.
+#[test]
+fn cli_refines_a_calibrations_horizon() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-refine-{}", std::process::id()));
+    let images = d.join("images");
+    let truth = road_camera(30.0, 850.0);
+    let blank = image::RgbImage::from_fn(1640, 590, asphalt);
+    for clip in ["c0", "c1"] {
+        let dir = images.join(clip);
+        std::fs::create_dir_all(&dir).unwrap();
+        synthetic_road(&truth).save(dir.join("1.png")).unwrap();
+        blank.save(dir.join("2.png")).unwrap();
+        synthetic_road(&truth).save(dir.join("3.png")).unwrap();
+    }
+    // A calibration 12 rows (0.6°) off.
+    let cal = Camera {
+        vp_row: truth.vp_row + 12.0,
+        ..truth
+    };
+    let cal_file = d.join("cal.json");
+    std::fs::write(&cal_file, serde_json::to_string(&cal).unwrap()).unwrap();
+    let cal_arg = cal_file.to_str().unwrap();
+    let run = |tag: &str, extra: &[&str]| {
+        let out = d.join(format!("{tag}.jsonl"));
+        let args = [&["--camera", cal_arg, "--refine-horizon"][..], extra].concat();
+        let (frames, _) = frontend_cli(&images, &out, &args).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(frames.len(), 6);
+        frames
+    };
+    let cam = |f: &Frame| f.camera.expect("a camera in every frame");
+    let shared = run("clip", &[]);
+    for f in &shared {
+        assert!(
+            (cam(f).vp_row - truth.vp_row).abs() <= 3.0,
+            "{:?}",
+            f.camera
+        );
+        assert_eq!(
+            (cam(f).height_m, cam(f).focal_px),
+            (cal.height_m, cal.focal_px)
+        );
+    }
+    assert_eq!(shared[0].camera, shared[1].camera);
+    let own = run("image", &["--share", "image"]);
+    assert!((cam(&own[0]).vp_row - truth.vp_row).abs() <= 3.0);
+    assert_eq!(cam(&own[1]), cal, "no markings: the calibration");
+    let err = frontend_cli(
+        &images,
+        &d.join("e.jsonl"),
+        &["--camera", "estimate", "--refine-horizon"],
+    )
+    .unwrap_err();
+    assert!(
+        err.contains("--refine-horizon refines a calibrated camera"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
 /// `frontend`'s time stamps: a file named `n` is frame `n` of its clip, counted from 1
 /// (TuSimple) or from 0 when the clip has a file named 0, at `--fps` (default 20).
 #[test]
