@@ -1007,7 +1007,7 @@ fn main() -> Result<()> {
                 wall_ms / frames.len() as f64,
                 out.display()
             );
-            print_estimated_cameras(&frames, share != ShareArg::Image);
+            print_estimated_cameras(&frames, share != ShareArg::Image, refine_horizon);
         }
         Command::Demo {
             out,
@@ -1074,8 +1074,9 @@ fn main() -> Result<()> {
 /// horizon row, the vanishing column and the height), and how many frames' horizons lie more
 /// than 2 % of the image height from their clip's camera (`track::clip_camera`, what `track`
 /// maps the clip with): single-frame misses of the estimate. With `shared` estimates (`--share
-/// clip|all`) every frame carries its group's camera, and the misses are not counted.
-fn print_estimated_cameras(frames: &[tusimple::Frame], shared: bool) {
+/// clip|all`) every frame carries its group's camera, and the misses are not counted. `refined`:
+/// the cameras are a calibration's, refined (`--refine-horizon`).
+fn print_estimated_cameras(frames: &[tusimple::Frame], shared: bool, refined: bool) {
     let cams: Vec<Camera> = frames.iter().filter_map(|f| f.camera).collect();
     if cams.is_empty() {
         return;
@@ -1111,10 +1112,16 @@ fn print_estimated_cameras(frames: &[tusimple::Frame], shared: bool) {
         )
     };
     eprintln!(
-        "estimated cameras: horizon row {r:.1} (median; {r0:.1}–{r1:.1}), vanishing column {c:.1} \
-         ({c0:.1}–{c1:.1}), height {h:.2} m ({h0:.2}–{h1:.2}), focal length {:.0} px (the guess's); \
+        "{} cameras: horizon row {r:.1} (median; {r0:.1}–{r1:.1}), vanishing column {c:.1} \
+         ({c0:.1}–{c1:.1}), height {h:.2} m ({h0:.2}–{h1:.2}), focal length {:.0} px ({}); \
          {misses}",
+        if refined { "refined" } else { "estimated" },
         cams[0].focal_px,
+        if refined {
+            "the calibration's"
+        } else {
+            "the guess's"
+        },
     );
 }
 
