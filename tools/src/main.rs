@@ -938,10 +938,6 @@ fn main() -> Result<()> {
                 }
             };
             let mode = match (camera.as_str(), scale) {
-                ("tusimple", None) if refine_horizon => {
-                    fitted_mode(Camera::tusimple(), frontend::Fit::Horizon)
-                }
-                ("tusimple", None) => frontend::CameraMode::TuSimple,
                 ("estimate", _) => fitted_mode(
                     match &guess {
                         Some(spec) => scaled(Camera::from_spec(spec)?)?,
@@ -959,9 +955,11 @@ fn main() -> Result<()> {
                     },
                     frontend::Fit::Camera,
                 ),
+                // The calibration (`tusimple` scaled to each image when --scale is absent).
                 (spec, _) if refine_horizon => {
                     fitted_mode(scaled(Camera::from_spec(spec)?)?, frontend::Fit::Horizon)
                 }
+                ("tusimple", None) => frontend::CameraMode::TuSimple,
                 (spec, _) => frontend::CameraMode::Given(scaled(Camera::from_spec(spec)?)?),
             };
             let labels = labels.or_else(|| {
