@@ -619,13 +619,9 @@ fn frontend_cli(
     }
 }
 
-/// `--share clip` (the default of `--camera estimate`): a clip's images share the median of
-/// their estimates, so an image whose own estimate fails (here one with no markings at all)
-/// gets its clip's camera; `--estimate-every 2` estimates on the clip's first and third images
-/// only; `--share image` keeps each image's own estimate; `--share all` one camera for two clips.
-#[test]
-fn cli_shares_one_estimated_camera_per_clip() {
-    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-share-{}", std::process::id()));
+/// Two clips `c0`, `c1` under `d/images`, each a synthetic road of [`road_camera`]`(30, 850)`,
+/// an image without markings, and the road again (`1.png`–`3.png`); the folder and the camera.
+fn two_clips_with_a_blank(d: &std::path::Path) -> (std::path::PathBuf, Camera) {
     let images = d.join("images");
     let truth = road_camera(30.0, 850.0);
     let blank = image::RgbImage::from_fn(1640, 590, asphalt);
@@ -636,6 +632,17 @@ fn cli_shares_one_estimated_camera_per_clip() {
         blank.save(dir.join("2.png")).unwrap();
         synthetic_road(&truth).save(dir.join("3.png")).unwrap();
     }
+    (images, truth)
+}
+
+/// `--share clip` (the default of `--camera estimate`): a clip's images share the median of
+/// their estimates, so an image whose own estimate fails (here one with no markings at all)
+/// gets its clip's camera; `--estimate-every 2` estimates on the clip's first and third images
+/// only; `--share image` keeps each image's own estimate; `--share all` one camera for two clips.
+#[test]
+fn cli_shares_one_estimated_camera_per_clip() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-share-{}", std::process::id()));
+    let (images, truth) = two_clips_with_a_blank(&d);
     let run = |tag: &str, extra: &[&str]| -> (Vec<Frame>, String) {
         let out = d.join(format!("{tag}.jsonl"));
         let args = [&["--camera", "estimate"][..], extra].concat();
@@ -680,16 +687,7 @@ fn cli_shares_one_estimated_camera_per_clip() {
 #[test]
 fn cli_refines_a_calibrations_horizon() {
     let d = std::env::temp_dir().join(format!("stjpdacf-frontend-refine-{}", std::process::id()));
-    let images = d.join("images");
-    let truth = road_camera(30.0, 850.0);
-    let blank = image::RgbImage::from_fn(1640, 590, asphalt);
-    for clip in ["c0", "c1"] {
-        let dir = images.join(clip);
-        std::fs::create_dir_all(&dir).unwrap();
-        synthetic_road(&truth).save(dir.join("1.png")).unwrap();
-        blank.save(dir.join("2.png")).unwrap();
-        synthetic_road(&truth).save(dir.join("3.png")).unwrap();
-    }
+    let (images, truth) = two_clips_with_a_blank(&d);
     // A calibration 12 rows (0.6°) off.
     let cal = Camera {
         vp_row: truth.vp_row + 12.0,
