@@ -9,7 +9,8 @@
 //!    frame of each clip (what TuSimple scores) and on every frame against the replay's per-frame
 //!    ground truth.
 //! 2. **Real frames**: the 10 bundled 512×288 TuSimple frames
-//!    (`data/tusimple/sample_512x288`) through the image front end ([`crate::frontend`]) and the
+//!    (`data/tusimple/sample_512x288`) through the image front end ([`crate::frontend`]; the
+//!    calibration with each image's horizon refined, [`frontend::CameraMode::Refine`]) and the
 //!    tracker with the default tables. TuSimple labels only the 20th frame of a clip and only that
 //!    frame is bundled, so each clip is ONE frame: the tracker sees a single frame (no temporal
 //!    filtering, no smoothing). The labels are 512×288 (the 1280×720 labels × 0.4, rounded);
@@ -17,8 +18,9 @@
 //!    threshold means what it means on TuSimple's 1280×720 frames (scoring at 512×288 would
 //!    accept 50 px errors at full size). The same frames are also run with the labelled lanes
 //!    as feature points (every image row): the tracker without the front end's errors, and
-//!    once more without the calibration (horizon and vanishing column estimated from each
-//!    image, [`frontend::CameraMode::Estimate`]). Per frame: the feature points' precision and
+//!    through the front end with the calibration fixed ([`frontend::CameraMode::TuSimple`]) and
+//!    without it (horizon and vanishing column estimated from each image,
+//!    [`frontend::CameraMode::Estimate`]). Per frame: the feature points' precision and
 //!    recall against the labels ([`frontend::score`]) and the front end's time.
 //! 3. **Smoother**: on the replay frames that have a fixed-lag estimate (all but the last L of a
 //!    clip), the smoothed lanes against the filtered ones, both on the per-frame ground truth
