@@ -26,7 +26,6 @@
 //!
 //! # Feature flags
 //! * `defmt` — derive `defmt::Format` on public types.
-//! * `fast-math` — micromath approximations of `sqrt`/`exp` where ~1e-3 relative error is harmless.
 //!
 //! # MSRV
 //! Rust 1.85 (edition 2021, `core::error::Error`, inline `const` blocks).

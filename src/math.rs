@@ -1,8 +1,6 @@
 //! The one place where the core calls float intrinsics (`sqrt`, `exp`, `ln`, `expm1`), plus the
 //! small dense-matrix helpers the kernels need (matrix exponential, exact discretisation).
-//!
-//! With the `fast-math` feature `sqrt` and `exp` go to `micromath` approximations (about 1e-3
-//! relative error, used only where the caller says so); otherwise everything is `libm`.
+//! Every intrinsic is `libm`'s.
 //!
 //! No function here panics, allocates or recurses; non-finite input gives `None` or a
 //! non-finite output, never undefined state.
@@ -51,34 +49,6 @@ pub fn max(a: f32, b: f32) -> f32 {
 #[inline]
 pub fn ln(x: f32) -> f32 {
     libm::logf(x)
-}
-
-/// Fast approximate square root (micromath with `fast-math`, exact `libm` otherwise).
-///
-/// Only for places that tolerate ~1e-3 relative error (gating distances), never for factorisations.
-#[inline]
-pub fn sqrt_approx(x: f32) -> f32 {
-    #[cfg(feature = "fast-math")]
-    {
-        micromath::F32Ext::sqrt(x)
-    }
-    #[cfg(not(feature = "fast-math"))]
-    {
-        sqrt(x)
-    }
-}
-
-/// Fast approximate `e^x` (micromath with `fast-math`, exact `libm` otherwise).
-#[inline]
-pub fn exp_approx(x: f32) -> f32 {
-    #[cfg(feature = "fast-math")]
-    {
-        micromath::F32Ext::exp(x)
-    }
-    #[cfg(not(feature = "fast-math"))]
-    {
-        exp(x)
-    }
 }
 
 /// Largest number of halvings the scaling-and-squaring methods accept. `‖A t‖₁ ≤ 2^MAX_SQUARINGS`

@@ -398,6 +398,11 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             0.0
         };
         for s in slot.iter().take(n) {
+            // This frame's dominant points only: rows outside the lane's row range this frame
+            // must not keep an earlier frame's (the noise estimate reads every row).
+            if let Some(rs) = self.rows.get_mut(*s) {
+                *rs = [[0.0; 2]; ROWS];
+            }
             if let Some(l) = self.lanes.get_mut(*s) {
                 l.passes = l.passes.saturating_add(1);
                 for (hb, lb) in l.hits.iter_mut().zip(l.looks.iter_mut()) {
@@ -467,9 +472,6 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             if in_view && lr.is_finite() && lr > 0.0 {
                 e.llr += math::ln(lr);
             }
-        }
-        if let Some(rw) = self.rows.get_mut(s).and_then(|rs| rs.get_mut(r)) {
-            *rw = [0.0; 2];
         }
         // The share of `S` that the lane's prediction holds (the rest is point noise).
         let f = if st > 0.0 {
@@ -573,5 +575,63 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 };
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tables::DEFAULT;
+    use crate::temporal::smoother::Temporal;
+
+    /// A lane whose row range shrinks from one pass to the next keeps no dominant point of the
+    /// earlier pass in the rows it no longer covers: the noise estimate reads every row.
+    #[test]
+    fn rows_out_of_a_lanes_range_hold_no_earlier_point() {
+        const ROWS: usize = 16;
+        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
+        let ranks = [0u8; 6];
+        t.start_lane(&DEFAULT, 2, 0, &ranks).unwrap();
+        t.predict(&DEFAULT, 0.05).unwrap();
+        let pass = Pass {
+            rows: ROWS,
+            du: 2.0,
+            k_rows: 1,
+            params: RowParams::default(),
+            max_events: 64,
+        };
+        let mut basis = RowBasis::<7, ROWS>::NEW;
+        basis.ensure(&DEFAULT, &pass);
+        let mut mem = PassMemory::<7, 6>::NEW;
+        let mut ps = Persist::<6, 16, ROWS>::new();
+        let cfg = PersistConfig::default();
+        // One point a row on the lane's predicted mean (the prior's, 0).
+        let pts = [0.0f32];
+        let mut pass_over = |ps: &mut Persist<6, 16, ROWS>, hi: u16| {
+            let lanes = Lanes {
+                slots: 1 << 2,
+                ranks: &ranks,
+                rows: [(0, hi); 6],
+            };
+            let mut ev = [Evidence::<7>::NONE; 6];
+            let mut explained: Explained<ROWS> = [0; ROWS];
+            ps.associate(
+                &DEFAULT,
+                (&basis, &mut mem),
+                t.filter(),
+                &lanes,
+                &pass,
+                &cfg,
+                |_| &pts[..],
+                false,
+                &mut ev,
+                &mut explained,
+            )
+        };
+        assert_eq!(pass_over(&mut ps, 15).failed_rows, 0);
+        assert!(ps.rows[2].iter().all(|rw| rw[1] >= 0.5), "{:?}", ps.rows[2]);
+        assert_eq!(pass_over(&mut ps, 5).failed_rows, 0);
+        assert!(ps.rows[2][..6].iter().all(|rw| rw[1] >= 0.5));
+        assert!(ps.rows[2][6..].iter().all(|rw| *rw == [0.0; 2]));
     }
 }

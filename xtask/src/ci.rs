@@ -197,17 +197,11 @@ pub fn run() -> Result<()> {
     for t in CROSS_TARGETS {
         let build = ["build", "-p", "stjpdacf", "--target", t, "--release"];
         cargo(&build)?;
-        for feature in ["defmt", "fast-math"] {
-            cargo(&[&build[..], &["--features", feature]].concat())?;
-        }
+        cargo(&[&build[..], &["--features", "defmt"]].concat())?;
     }
     // Cortex-R5F (a common ADAS safety core): its rust-std does not download on stable here.
     if crate::capi::nightly_with_src() {
-        for features in [
-            &[][..],
-            &["--features", "defmt"],
-            &["--features", "fast-math"],
-        ] {
+        for features in [&[][..], &["--features", "defmt"]] {
             let mut c = crate::capi::build_std(
                 &[
                     &[
