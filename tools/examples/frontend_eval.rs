@@ -39,67 +39,35 @@ fn main() -> anyhow::Result<()> {
             .ok_or_else(|| anyhow::anyhow!("expected name=value: {a}"))?;
         p.set(k, v.parse()?)?;
     }
-    for (name, set) in [("tuning", TUNING_SET), ("held-out", HELD_OUT_SET)] {
-        let (mut t, mut ms) = (frontend::PointTally::default(), 0.0);
-        for raw in set {
-            let img = frontend::load_rgb(&dir.join(raw))?;
-            let cam = frontend::camera_for(&img, None)?;
-            let t0 = Instant::now();
-            let pts = frontend::detect(&img, &cam, &p)?;
-            ms += t0.elapsed().as_secs_f64() * 1e3;
-            let l = labels.iter().find(|l| l.raw_file == raw).expect("label");
-            if let Some(d) = &bev {
-                std::fs::create_dir_all(d)?;
-                let name = raw.replace('/', "_").replace(".jpg", ".png");
-                // u 3..43 m at 0.1 m (far at the top), x ±8 m at 0.04 m.
-                let out = image::RgbImage::from_fn(400, 400, |c, r| {
-                    let u = 43.0 - f64::from(r) * 0.1;
-                    let x = -8.0 + f64::from(c) * 0.04;
-                    cam.to_image(u, x)
-                        .filter(|&(c, r)| {
-                            c >= 0.0 && r >= 0.0 && c < cam.width - 1.0 && r < cam.height - 1.0
-                        })
-                        .map_or(image::Rgb([0, 0, 0]), |(c, r)| {
-                            *img.get_pixel(c as u32, r as u32)
-                        })
-                });
-                let mut out = out;
-                for &q in &pts {
-                    if let Some((u, x)) = cam.to_bev(q[0], q[1]) {
-                        let (c, r) = ((x + 8.0) / 0.04, (43.0 - u) / 0.1);
-                        if c >= 0.0 && r >= 0.0 && c < 400.0 && r < 400.0 {
-                            out.put_pixel(c as u32, r as u32, image::Rgb([255, 0, 0]));
-                        }
-                    }
+    // Each half with the calibrated camera, then with its horizon refined from each image
+    // (`CameraMode::Refine`, `frontend --refine-horizon`); the calibrated run also writes the
+    // BEV views and overlays asked for.
+    let calibrated_points = |img: &image::RgbImage| -> PointsOf {
+        let cam = frontend::camera_for(img, None)?;
+        Ok((cam, frontend::detect(img, &cam, &p)?))
+    };
+    let refined_points =
+        |img: &image::RgbImage| frontend::refine_and_detect(img, &Camera::tusimple(), &p);
+    let halves: [(&str, &Points, bool); 2] = [
+        ("", &calibrated_points, true),
+        (", horizon refined", &refined_points, false),
+    ];
+    for (mode, points, outputs) in halves {
+        for (name, set) in [("tuning", TUNING_SET), ("held-out", HELD_OUT_SET)] {
+            let (mut t, mut ms) = (frontend::PointTally::default(), 0.0);
+            for raw in set {
+                let img = frontend::load_rgb(&dir.join(raw))?;
+                let t0 = Instant::now();
+                let (cam, pts) = points(&img)?;
+                ms += t0.elapsed().as_secs_f64() * 1e3;
+                let l = labels.iter().find(|l| l.raw_file == raw).expect("label");
+                if outputs {
+                    write_outputs(raw, &img, &cam, &pts, l, (&bev, &png), &dir)?;
                 }
-                out.save(d.join(name))?;
+                println!("{}", t.add(raw, frontend::score(&pts, l, 1.0, 6.0)));
             }
-            if let Some(d) = &png {
-                std::fs::create_dir_all(d)?;
-                let name = raw.replace('/', "_").replace(".jpg", ".png");
-                frontend::overlay_png(&dir.join(raw), &pts, Some(l), &d.join(name))?;
-            }
-            println!("{}", t.add(raw, frontend::score(&pts, l, 1.0, 6.0)));
+            summary(&format!("{name}{mode}"), &t, ms / set.len() as f64);
         }
-        summary(name, &t, ms / set.len() as f64);
-    }
-    // The same with the calibration's horizon refined from each image (`CameraMode::Refine`,
-    // `frontend --refine-horizon`).
-    for (name, set) in [("tuning", TUNING_SET), ("held-out", HELD_OUT_SET)] {
-        let (mut t, mut ms) = (frontend::PointTally::default(), 0.0);
-        for raw in set {
-            let img = frontend::load_rgb(&dir.join(raw))?;
-            let t0 = Instant::now();
-            let (_, pts) = frontend::refine_and_detect(&img, &Camera::tusimple(), &p)?;
-            ms += t0.elapsed().as_secs_f64() * 1e3;
-            let l = labels.iter().find(|l| l.raw_file == raw).expect("label");
-            t.add(raw, frontend::score(&pts, l, 1.0, 6.0));
-        }
-        summary(
-            &format!("{name}, horizon refined"),
-            &t,
-            ms / set.len() as f64,
-        );
     }
     if !tracker {
         return Ok(());
@@ -157,6 +125,53 @@ fn main() -> anyhow::Result<()> {
             real.results.iter().map(|r| r.frontend_ms).sum::<f64>() / n,
             cam_ms / n
         );
+    }
+    Ok(())
+}
+
+/// A front end's camera and feature points of an image.
+type PointsOf = anyhow::Result<(Camera, Vec<[f64; 2]>)>;
+/// One way of finding them.
+type Points<'a> = dyn Fn(&image::RgbImage) -> PointsOf + 'a;
+
+/// `--bev=DIR` (the frame's bird's-eye view, u 3..43 m at 0.1 m with the far end at the top,
+/// x ±8 m at 0.04 m, its feature points red) and `--png=DIR` (the overlay of points and labels).
+fn write_outputs(
+    raw: &str,
+    img: &image::RgbImage,
+    cam: &Camera,
+    pts: &[[f64; 2]],
+    l: &stjpdacf_tools::tusimple::TuSimpleRecord,
+    (bev, png): (&Option<std::path::PathBuf>, &Option<std::path::PathBuf>),
+    dir: &std::path::Path,
+) -> anyhow::Result<()> {
+    let name = raw.replace('/', "_").replace(".jpg", ".png");
+    if let Some(d) = bev {
+        std::fs::create_dir_all(d)?;
+        let mut out = image::RgbImage::from_fn(400, 400, |c, r| {
+            let u = 43.0 - f64::from(r) * 0.1;
+            let x = -8.0 + f64::from(c) * 0.04;
+            cam.to_image(u, x)
+                .filter(|&(c, r)| {
+                    c >= 0.0 && r >= 0.0 && c < cam.width - 1.0 && r < cam.height - 1.0
+                })
+                .map_or(image::Rgb([0, 0, 0]), |(c, r)| {
+                    *img.get_pixel(c as u32, r as u32)
+                })
+        });
+        for &q in pts {
+            if let Some((u, x)) = cam.to_bev(q[0], q[1]) {
+                let (c, r) = ((x + 8.0) / 0.04, (43.0 - u) / 0.1);
+                if c >= 0.0 && r >= 0.0 && c < 400.0 && r < 400.0 {
+                    out.put_pixel(c as u32, r as u32, image::Rgb([255, 0, 0]));
+                }
+            }
+        }
+        out.save(d.join(&name))?;
+    }
+    if let Some(d) = png {
+        std::fs::create_dir_all(d)?;
+        frontend::overlay_png(&dir.join(raw), pts, Some(l), &d.join(name))?;
     }
     Ok(())
 }
