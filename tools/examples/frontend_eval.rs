@@ -42,30 +42,26 @@ fn main() -> anyhow::Result<()> {
     // Each half with the calibrated camera, then with its horizon refined from each image
     // (`CameraMode::Refine`, `frontend --refine-horizon`); the calibrated run also writes the
     // BEV views and overlays asked for.
-    let calibrated_points = |img: &image::RgbImage| -> PointsOf {
-        let cam = frontend::camera_for(img, None)?;
-        Ok((cam, frontend::detect(img, &cam, &p)?))
-    };
-    let refined_points =
-        |img: &image::RgbImage| frontend::refine_and_detect(img, &Camera::tusimple(), &p);
-    let halves: [(&str, &Points, bool); 2] = [
-        ("", &calibrated_points, true),
-        (", horizon refined", &refined_points, false),
-    ];
-    for (mode, points, outputs) in halves {
+    for refined in [false, true] {
         for (name, set) in [("tuning", TUNING_SET), ("held-out", HELD_OUT_SET)] {
             let (mut t, mut ms) = (frontend::PointTally::default(), 0.0);
             for raw in set {
                 let img = frontend::load_rgb(&dir.join(raw))?;
                 let t0 = Instant::now();
-                let (cam, pts) = points(&img)?;
+                let (cam, pts) = if refined {
+                    frontend::refine_and_detect(&img, &Camera::tusimple(), &p)?
+                } else {
+                    let cam = frontend::camera_for(&img, None)?;
+                    (cam, frontend::detect(&img, &cam, &p)?)
+                };
                 ms += t0.elapsed().as_secs_f64() * 1e3;
                 let l = labels.iter().find(|l| l.raw_file == raw).expect("label");
-                if outputs {
+                if !refined {
                     write_outputs(raw, &img, &cam, &pts, l, (&bev, &png), &dir)?;
                 }
                 println!("{}", t.add(raw, frontend::score(&pts, l, 1.0, 6.0)));
             }
+            let mode = if refined { ", horizon refined" } else { "" };
             summary(&format!("{name}{mode}"), &t, ms / set.len() as f64);
         }
     }
@@ -128,11 +124,6 @@ fn main() -> anyhow::Result<()> {
     }
     Ok(())
 }
-
-/// A front end's camera and feature points of an image.
-type PointsOf = anyhow::Result<(Camera, Vec<[f64; 2]>)>;
-/// One way of finding them.
-type Points<'a> = dyn Fn(&image::RgbImage) -> PointsOf + 'a;
 
 /// `--bev=DIR` (the frame's bird's-eye view, u 3..43 m at 0.1 m with the far end at the top,
 /// x ±8 m at 0.04 m, its feature points red) and `--png=DIR` (the overlay of points and labels).
