@@ -279,7 +279,7 @@ impl_tracker! {
     /// One frame: BEV feature points `(u, x)` in metres at time `now`.
     ///
     /// # Errors
-    /// [`StepError::NonIncreasingTime`]; the state is untouched.
+    /// [`StepError::NonIncreasingTime`], [`StepError::NotInitialised`]; the state is untouched.
     ///
     /// # Complexity
     /// The spatial filter's bound (see [`crate::spatial::filter`]) + identity (≤ 13,327 leaves at
@@ -400,7 +400,7 @@ impl_tracker! {
                 self.ids.reset_misses(s);
             }
         }
-        let outcome = self.associate(n_obs);
+        let outcome = self.associate(n_obs, known);
         report.identity = outcome.report;
         report.known.ray_refused = outcome
             .obs
@@ -450,7 +450,7 @@ impl_tracker! {
     /// Step 3: this frame's observations against the temporal predictions.
     // Not inlined: its predictions (~0.9 KiB) must not add to the temporal stage's stack.
     #[inline(never)]
-    fn associate(&mut self, n_obs: usize) -> IdentityOutcome<LANES> {
+    fn associate(&mut self, n_obs: usize, known: u32) -> IdentityOutcome<LANES> {
         self.refresh_views();
         let mut preds = [LanePrediction::<POINTS>::EMPTY; LANES];
         for (s, p) in preds.iter_mut().enumerate() {
@@ -491,6 +491,7 @@ impl_tracker! {
             &self.cfg.identity,
             &may_start,
             hold.as_ref(),
+            known,
         )
     }
 

@@ -532,14 +532,17 @@ impl<const LANES: usize> LaneTable<LANES> {
         cfg: &IdentityConfig,
         may_start: &[bool; LANES],
     ) -> IdentityOutcome<LANES> {
-        self.associate_claims(preds, obs, cfg, may_start, None)
+        self.associate_claims(preds, obs, cfg, may_start, None, 0)
     }
 
     /// [`LaneTable::associate_births`] with slots by existence: an observation `i` that may
     /// start a lane, has positive evidence (`llr ≥ 0`) and finds no free slot takes the slot of
     /// the unmatched (coasting) lane of lowest `hold` among those below `∞`; the lane it
     /// replaces is removed (`SlotFate::New { replaced }`, counted in `removed` and `evicted`).
-    /// Observations are served in input order. `hold = None` is
+    /// Observations are served in input order. The lanes of `seen` (bit = slot) were seen
+    /// this frame before identity ran (the tracker's known-lane pass, docs/design.md §11.8):
+    /// unmatched, they coast but are not removed at `max_misses` (their miss is not one; the
+    /// tracker marks them seen after). `hold = None` and `seen = 0` are
     /// [`LaneTable::associate_births`].
     ///
     /// # Complexity
@@ -552,6 +555,7 @@ impl<const LANES: usize> LaneTable<LANES> {
         cfg: &IdentityConfig,
         may_start: &[bool; LANES],
         hold: Option<&[f32; LANES]>,
+        seen: u32,
     ) -> IdentityOutcome<LANES> {
         let gate = if cfg.gate.is_finite() && cfg.gate >= 0.0 {
             cfg.gate
@@ -599,7 +603,7 @@ impl<const LANES: usize> LaneTable<LANES> {
             }
         }
 
-        self.coast_or_remove(&mut slot_fates, &lane_taken, max_misses, &mut report);
+        self.coast_or_remove(&mut slot_fates, &lane_taken, max_misses, seen, &mut report);
 
         // Unmatched observations start lanes.
         for (i, (o, &lane)) in obs.iter().zip(best.assign.iter()).enumerate() {
@@ -680,7 +684,13 @@ impl<const LANES: usize> LaneTable<LANES> {
     ) -> ([[f32; MAX_LANES]; MAX_LANES], [u32; MAX_LANES]) {
         let mut cost = [[f32::INFINITY; MAX_LANES]; MAX_LANES];
         let mut allowed = [0u32; MAX_LANES];
-        for ((o, row), mask) in obs.iter().zip(cost.iter_mut()).zip(allowed.iter_mut()) {
+        // Only the first `LANES` observations are considered (the rest are only counted).
+        for ((o, row), mask) in obs
+            .iter()
+            .take(LANES)
+            .zip(cost.iter_mut())
+            .zip(allowed.iter_mut())
+        {
             for (lane, ((slot, p), c)) in self
                 .slots
                 .iter()
@@ -706,20 +716,23 @@ impl<const LANES: usize> LaneTable<LANES> {
         (cost, allowed)
     }
 
-    /// The lanes no observation matched coast, or are removed after `max_misses` misses.
+    /// The lanes no observation matched coast, or are removed after `max_misses` misses unless
+    /// the lanes of `seen` saw them this frame.
     #[inline(always)]
     fn coast_or_remove(
         &mut self,
         slot_fates: &mut [SlotFate; LANES],
         lane_taken: &[bool; LANES],
         max_misses: u16,
+        seen: u32,
         report: &mut IdentityReport,
     ) {
-        for ((slot, sf), &taken) in self
+        for (l, ((slot, sf), &taken)) in self
             .slots
             .iter_mut()
             .zip(slot_fates.iter_mut())
             .zip(lane_taken.iter())
+            .enumerate()
         {
             if taken {
                 continue;
@@ -727,7 +740,7 @@ impl<const LANES: usize> LaneTable<LANES> {
             if let Some(info) = slot {
                 info.misses = info.misses.saturating_add(1);
                 info.age = info.age.saturating_add(1);
-                if info.misses >= max_misses {
+                if info.misses >= max_misses && (l >= 32 || seen & (1 << l) == 0) {
                     *sf = SlotFate::Removed { id: info.id };
                     *slot = None;
                     report.removed += 1;

@@ -228,7 +228,7 @@ fn full_table_yields_the_weakest_coasting_slot_to_positive_evidence() {
 
     let mut t: LaneTable<3> = LaneTable::new();
     start(&mut t);
-    let out = t.associate_claims(&preds, &[seen, strong], &cfg, &may, Some(&hold));
+    let out = t.associate_claims(&preds, &[seen, strong], &cfg, &may, Some(&hold), 0);
     assert_eq!(
         out.obs_fates(),
         &[ObsFate::Matched { slot: 0 }, ObsFate::New { slot: 2 }]
@@ -258,7 +258,7 @@ fn full_table_yields_the_weakest_coasting_slot_to_positive_evidence() {
     ] {
         let mut t: LaneTable<3> = LaneTable::new();
         start(&mut t);
-        let out = t.associate_claims(&preds, &[seen, o], &cfg, &may, hold.as_ref());
+        let out = t.associate_claims(&preds, &[seen, o], &cfg, &may, hold.as_ref(), 0);
         assert_eq!(out.obs_fates()[0], ObsFate::Matched { slot: 0 });
         assert!(matches!(out.obs_fates()[1], ObsFate::Dropped(_)));
         assert_eq!((out.report.evicted, out.report.removed), (0, 0));
@@ -272,7 +272,7 @@ fn full_table_yields_the_weakest_coasting_slot_to_positive_evidence() {
         llr: 0.0,
         ..flat(-7.2)
     };
-    let out = t.associate_claims(&preds, &[seen, strong, far], &cfg, &may, Some(&hold));
+    let out = t.associate_claims(&preds, &[seen, strong, far], &cfg, &may, Some(&hold), 0);
     assert_eq!(
         out.obs_fates(),
         &[
@@ -337,4 +337,22 @@ fn ids_skip_live_ids_after_wrapping() {
     let _ = t.associate(&preds, &[flat(0.0), flat(3.6), flat(7.2)], &cfg);
     assert_eq!(t.lane(2).unwrap().id, LaneId(1));
     assert_eq!(t.next_id(), 2);
+}
+
+/// Observations beyond the first `LANES` are ignored (counted in `excess_observations` only):
+/// their pairs must not enter the pair counters.
+#[test]
+fn excess_observations_do_not_enter_the_pair_counters() {
+    let cfg = IdentityConfig::DEFAULT;
+    let mut t: LaneTable<2> = LaneTable::new();
+    let _ = t.associate(&[LanePrediction::EMPTY; 2], &[flat(0.0)], &cfg);
+    let preds = [
+        LanePrediction::from_observation(&flat(0.0), 0.1),
+        LanePrediction::EMPTY,
+    ];
+    // Three observations, all matching lane 0's prediction; only the first two are considered.
+    let out = t.associate(&preds, &[flat(0.0), flat(0.01), flat(0.02)], &cfg);
+    assert_eq!(out.report.observations, 2);
+    assert_eq!(out.report.excess_observations, 1);
+    assert_eq!(out.report.allowed_pairs, 2, "{:?}", out.report);
 }
