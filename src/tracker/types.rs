@@ -204,7 +204,9 @@ pub struct LaneEstimate<const POINTS: usize> {
     pub u_first: f32,
     /// Far end of the observed extent.
     pub u_last: f32,
-    /// Existence figure in [0, 1] (spatial existence when seen, decaying while coasting).
+    /// Existence in [0, 1]: with the known-lane stage (the default) the lane's existence
+    /// probability (docs/design.md §11.5); in the round-1 pipeline the spatial existence when
+    /// seen, decaying while coasting (`TrackerConfig::existence_decay`).
     pub existence: f32,
     /// Frames since the lane was last seen (0 when seen this frame).
     pub misses: u16,
@@ -250,7 +252,8 @@ pub struct StepReport {
 pub struct KnownReport {
     /// Live lanes associated against their prediction.
     pub lanes: u32,
-    /// Of those, lanes seen (a row with `W ≥ 0.5`).
+    /// Of those, lanes seen (a row with `W ≥ 0.5` that gave information, docs/design.md
+    /// §11.8).
     pub seen: u32,
     /// Points the known lanes explained (removed before the spatial filter).
     pub explained_points: u32,
@@ -287,9 +290,13 @@ pub struct StepOutput<const LANES: usize, const POINTS: usize> {
     /// Filtered lanes at this frame: with the known-lane stage, the live lanes whose existence
     /// is at least `PersistConfig::p_publish`, except a lane started this frame while the
     /// tracker has an established picture (a lane of age ≥ 2) or that duplicates a tracked
-    /// lane: it is published from its second frame (docs/design.md §11.5, §11.9).
+    /// lane: it is published from its second frame (docs/design.md §11.5, §11.9); a newcomer
+    /// held back (`PersistConfig::newcomer_wait`, §11.5) and a lane outside the outermost
+    /// marking (`PersistConfig::lane_width`, §11.14) are not published either.
     pub filtered: Vec<LaneEstimate<POINTS>, LANES>,
-    /// Smoothed lanes `LAG` frames back (empty until the window is full).
+    /// Smoothed lanes `LAG` frames back (empty until the window is full): with the known-lane
+    /// stage, those of the lanes published in `filtered` now (a lane removed since is not
+    /// published, also when a new lane has taken its slot).
     pub smoothed: Vec<LaneEstimate<POINTS>, LANES>,
     /// Counters.
     pub report: StepReport,
