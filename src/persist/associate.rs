@@ -397,12 +397,13 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
         } else {
             0.0
         };
+        // This frame's dominant points only: rows outside a lane's row range this frame, and
+        // lanes not in this pass, must not keep an earlier frame's (the noise estimate reads
+        // every row of the lanes it is given).
+        for rs in self.rows.iter_mut() {
+            *rs = [[0.0; 2]; ROWS];
+        }
         for s in slot.iter().take(n) {
-            // This frame's dominant points only: rows outside the lane's row range this frame
-            // must not keep an earlier frame's (the noise estimate reads every row).
-            if let Some(rs) = self.rows.get_mut(*s) {
-                *rs = [[0.0; 2]; ROWS];
-            }
             if let Some(l) = self.lanes.get_mut(*s) {
                 l.passes = l.passes.saturating_add(1);
                 for (hb, lb) in l.hits.iter_mut().zip(l.looks.iter_mut()) {
@@ -491,7 +492,7 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
             let (jd, bd) = dominant(brow, m);
             if bd >= 0.9 * w {
                 if let Some(rw) = self.rows.get_mut(s).and_then(|rs| rs.get_mut(r)) {
-                    *rw = [pts.get(jd).copied().unwrap_or(zbar), bd];
+                    *rw = [pts.get(jd).copied().unwrap_or(zbar), w];
                 }
             }
             let mom = moments(pts, brow, zh);
@@ -532,6 +533,9 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                     }
                 }
                 e.weight += w;
+                // Seen in this row (docs/design.md §11.8): W ≥ 0.5 and a position learnt. A row
+                // whose weight is split around the prediction, so that its equivalent
+                // measurement carries no information, is not (clutter on both sides).
                 if w >= 0.5 {
                     e.extent[0] = e.extent[0].min(at.u);
                     e.extent[1] = math::max(e.extent[1], at.u);
@@ -633,5 +637,210 @@ mod tests {
         assert_eq!(pass_over(&mut ps, 5).failed_rows, 0);
         assert!(ps.rows[2][..6].iter().all(|rw| rw[1] >= 0.5));
         assert!(ps.rows[2][6..].iter().all(|rw| *rw == [0.0; 2]));
+    }
+
+    /// `Evidence::extent` holds the rows with `W_r ≥ 0.5` whose equivalent measurement carries
+    /// information (docs/design.md §11.8): a row whose weight is split between two points on
+    /// either side of the prediction (spread ≥ W·S) is not in it, a row with one point on the
+    /// prediction is. Measured: counting the split rows as seen (as §11.8 said until stop 70)
+    /// lets clutter on both sides keep a lane seen (replay high 0.904 / 0.183 / 0.150 →
+    /// 0.898 / 0.204 / 0.169).
+    #[test]
+    fn a_row_split_around_the_prediction_is_not_in_the_extent() {
+        const ROWS: usize = 16;
+        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
+        let ranks = [0u8; 6];
+        t.start_lane(&DEFAULT, 2, 0, &ranks).unwrap();
+        t.predict(&DEFAULT, 0.05).unwrap();
+        let pass = Pass {
+            rows: ROWS,
+            du: 2.0,
+            k_rows: 1,
+            params: RowParams {
+                clutter_density: 0.005,
+                ..RowParams::default()
+            },
+            max_events: 64,
+        };
+        let mut basis = RowBasis::<7, ROWS>::NEW;
+        basis.ensure(&DEFAULT, &pass);
+        let mut mem = PassMemory::<7, 6>::NEW;
+        let mut ps = Persist::<6, 16, ROWS>::new();
+        let cfg = PersistConfig::default();
+        // Rows 0–7: two points at ±1.3 √S around the lane's prediction (the prior's, 0); rows
+        // 8–15: one point on it and one far outside its gate.
+        mem.load(t.filter(), 1 << 2, 7);
+        let bss = DEFAULT.coreg[(0, 0)];
+        let pts: [[f32; 2]; ROWS] = core::array::from_fn(|r| {
+            let (c, rho) = basis.at(r);
+            let o = mem.get(2).unwrap();
+            let st = o.quad(&c, 7) + rho * bss + ps.noise(r, pass.params.r);
+            let (z, d) = (o.mean(&c, 7), 1.3 * st.sqrt());
+            if r < 8 {
+                [z - d, z + d]
+            } else {
+                [z, z + 100.0]
+            }
+        });
+        let lanes = Lanes {
+            slots: 1 << 2,
+            ranks: &ranks,
+            rows: [(0, ROWS as u16 - 1); 6],
+        };
+        ps.observe_spans(ROWS, 1, |r| &pts[r][..]);
+        let mut ev = [Evidence::<7>::NONE; 6];
+        let mut explained: Explained<ROWS> = [0; ROWS];
+        let counts = ps.associate(
+            &DEFAULT,
+            (&basis, &mut mem),
+            t.filter(),
+            &lanes,
+            &pass,
+            &cfg,
+            |r| &pts[r][..],
+            false,
+            &mut ev,
+            &mut explained,
+        );
+        assert_eq!(counts.failed_rows, 0);
+        // One pass from zero counts, one row a band: `hits[b]` is row b's W (all in view).
+        let w: [f32; ROWS] = core::array::from_fn(|r| ps.lanes[2].hits[r]);
+        assert!(w.iter().all(|v| *v >= 0.5), "{w:?}");
+        let u = |r: usize| DEFAULT.hyper.u_min + r as f32 * pass.du;
+        assert_eq!(ev[2].extent, [u(8), u(15)]);
+    }
+
+    /// `estimate_noise` uses this frame's posterior residuals of the lanes in `slots`: a lane
+    /// given to it that was not in this frame's pass has none (its rows of the last pass it
+    /// was in were counted again).
+    #[test]
+    fn the_noise_estimate_reads_no_rows_of_a_lane_left_out_of_the_pass() {
+        const ROWS: usize = 16;
+        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
+        let ranks = [0u8; 6];
+        t.start_lane(&DEFAULT, 2, 0, &ranks).unwrap();
+        t.predict(&DEFAULT, 0.05).unwrap();
+        let pass = Pass {
+            rows: ROWS,
+            du: 2.0,
+            k_rows: 1,
+            params: RowParams::default(),
+            max_events: 64,
+        };
+        let mut basis = RowBasis::<7, ROWS>::NEW;
+        basis.ensure(&DEFAULT, &pass);
+        let mut mem = PassMemory::<7, 6>::NEW;
+        let mut ps = Persist::<6, 16, ROWS>::new();
+        let cfg = PersistConfig::default();
+        let pts = [0.0f32];
+        let mut pass_over = |ps: &mut Persist<6, 16, ROWS>, slots: u32| {
+            let lanes = Lanes {
+                slots,
+                ranks: &ranks,
+                rows: [(0, ROWS as u16 - 1); 6],
+            };
+            let mut ev = [Evidence::<7>::NONE; 6];
+            let mut explained: Explained<ROWS> = [0; ROWS];
+            ps.associate(
+                &DEFAULT,
+                (&basis, &mut mem),
+                t.filter(),
+                &lanes,
+                &pass,
+                &cfg,
+                |_| &pts[..],
+                false,
+                &mut ev,
+                &mut explained,
+            );
+        };
+        // Frame 1: lane 2 in the pass, its rows recorded.
+        pass_over(&mut ps, 1 << 2);
+        // Frame 2: lane 2 left out of the pass (no rows this frame).
+        pass_over(&mut ps, 0);
+        let before: f32 = ps.noise.iter().map(|nb| nb[1]).sum();
+        assert_eq!(before, 0.0);
+        let mut mem2 = PassMemory::<7, 6>::NEW;
+        ps.estimate_noise(
+            &DEFAULT,
+            (&basis, &mut mem2),
+            t.filter(),
+            (1 << 2, &ranks),
+            &pass,
+            10.0,
+        );
+        let after: f32 = ps.noise.iter().map(|nb| nb[1]).sum();
+        assert_eq!(
+            after, 0.0,
+            "frame 1's rows counted in frame 2: {:?}",
+            ps.noise
+        );
+    }
+
+    /// The point-variance estimate counts the rows where one point holds ≥ 90 % of a lane's
+    /// weight and W ≥ 0.5 (docs/design.md §11.6): a row with W = 0.52 whose dominant point
+    /// holds 0.47 is one (the record kept the point's β, and the estimate required β ≥ 0.5).
+    #[test]
+    fn a_row_with_half_the_weight_and_a_dominant_point_counts_for_the_noise() {
+        const ROWS: usize = 16;
+        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
+        let ranks = [0u8; 6];
+        t.start_lane(&DEFAULT, 2, 0, &ranks).unwrap();
+        t.predict(&DEFAULT, 0.05).unwrap();
+        let pass = Pass {
+            rows: ROWS,
+            du: 2.0,
+            k_rows: 1,
+            params: RowParams::default(),
+            max_events: 64,
+        };
+        let mut basis = RowBasis::<7, ROWS>::NEW;
+        basis.ensure(&DEFAULT, &pass);
+        let mut mem = PassMemory::<7, 6>::NEW;
+        mem.load(t.filter(), 1 << 2, 7);
+        let mut ps = Persist::<6, 16, ROWS>::new();
+        let r = 3usize;
+        let (c, _) = basis.at(r);
+        let zh = mem.get(2).unwrap().mean(&c, 7);
+        // The lane's row: W = 0.52, the point on its prediction 0.47, a far one 0.05.
+        let pts = [zh, zh + 0.5];
+        let mut out = RowOutcome::<6>::default();
+        out.beta_miss[0] = 0.48;
+        out.beta[0][0] = 0.47;
+        out.beta[0][1] = 0.05;
+        out.valid[0] = 0b11;
+        let mut pred = Predicted::<6> {
+            idx: [0; 6],
+            zhat: [0.0; 6],
+            sdiag: [0.0; 6],
+            n: 1,
+        };
+        pred.idx[0] = 2;
+        pred.zhat[0] = zh;
+        pred.sdiag[0] = 1.0;
+        let at = RowAt::<7> {
+            r,
+            b: r,
+            u: DEFAULT.hyper.u_min + r as f32 * pass.du,
+            chain: None,
+            c,
+            r_used: 7,
+            params: pass.params,
+        };
+        let mut e = Evidence::<7>::NONE;
+        ps.lane_row(&mut e, (2, 0, 0.5), &pred, &out, &pts, &at);
+        ps.estimate_noise(
+            &DEFAULT,
+            (&basis, &mut mem),
+            t.filter(),
+            (1 << 2, &ranks),
+            &pass,
+            10.0,
+        );
+        assert_eq!(
+            ps.noise[r][1], 1.0,
+            "the row was not counted: {:?}",
+            ps.noise[r]
+        );
     }
 }

@@ -16,8 +16,11 @@
 //! frame's points enter the temporal filter once.
 //!
 //! **Existence** (IPDA, Mušicki, Evans & Stanković 1994, per row, §11.5): predicted by
-//! `P ← P·e^{−T/τ_s}`; updated with `L = (1/K) Σ_r ln Λ_r` over the rows where the lane is in
-//! view, `Λ_r = 1 − P_D,b P_G + (P_D,b / λ_b) Σ_{j gated} N(z_j; ẑ, S)(1 − Σ_{t≠s} β_{t,j})`, as
+//! `P ← P·e^{−T/τ_s}`; updated from the rows where the lane is in view, under the paint / gap
+//! chain ([`PaintGap`], the default) or with `L = (1/K) Σ_r ln Λ_r`,
+//! `Λ_r = 1 − P_D,b P_G + (P_D,b / λ_b) Σ_{j gated} N(z_j; ẑ, S) λ_b/ρ_{s,j}`,
+//! `ρ_{s,j} = λ_b + Σ_{t≠s gating j} P_D P_t N(z_j; ẑ_t, S_tt)` (a point counts against clutter
+//! and the other lanes' detections), as
 //! `logit P += ln(p_v e^L + 1 − p_v)` (a frame may not show the lane at all). `P_D,b` is the
 //! lane's own detection probability in index band `b` (Beta(1, 1) posterior mean of discounted
 //! row weights, fixed over a pass); `λ_b` the band's clutter density from the points no known
@@ -355,7 +358,8 @@ pub struct Persist<const LANES: usize, const POINTS: usize, const ROWS: usize> {
     pub clutter: [f32; POINTS],
     /// Discounted sums of the point-variance estimates per band, and their counts.
     pub noise: [[f32; 2]; POINTS],
-    /// This frame's `(z̃_r, W_r)` per slot and row (`W_r = 0`: nothing).
+    /// This frame's `(z_d, W_r)` per slot and row: the row's dominant point when it holds
+    /// ≥ 90 % of the lane's weight `W_r` (`W_r = 0`: nothing).
     rows: [[[f32; 2]; ROWS]; LANES],
     /// This frame's lateral span `[min, max]` of all points per band: where the sensor sees.
     pub span: [[f32; 2]; POINTS],
@@ -379,12 +383,13 @@ pub struct Evidence<const RANK: usize> {
     pub j: SMatrix<f32, RANK, RANK>,
     /// `i = Σ ω_r z̃_r c_r`.
     pub i: SVector<f32, RANK>,
-    /// `Σ_r W_r` (expected detected rows).
+    /// `Σ_r W_r` (expected detected rows) over the rows that gave information.
     pub weight: f32,
     /// `Σ_r ln Λ_r`, or with [`PersistConfig::paint_gap`] the log-likelihood ratio of the rows
     /// under the chain.
     pub llr: f32,
-    /// `u` of the first and last rows with `W_r ≥ 0.5` (`[+∞, −∞]` when none).
+    /// `u` of the first and last rows with `W_r ≥ 0.5` that gave information (`[+∞, −∞]`
+    /// when none): where the lane is seen (docs/design.md §11.8).
     pub extent: [f32; 2],
     /// With [`PersistConfig::paint_gap`]: the chain's forward probabilities (paint, gap) after
     /// the rows so far, normalised to sum 1 (their scale is in `llr`).

@@ -76,7 +76,10 @@ impl<const RANK: usize, const ROWS: usize> RowBasis<RANK, ROWS> {
     };
 
     /// Makes the rows those of `tables` and `pass` (`r = min(gram_rank, RANK, POINTS)`
-    /// components), computing them only if they are not already.
+    /// components), computing them only if they are not already. The rows are keyed by the
+    /// geometry only (`u_min`, `Δu`, `r`, rows): a basis serves one `Tables` (the tracker's,
+    /// fixed from `init`, which starts a new basis); for other tables take a new one
+    /// ([`RowBasis::NEW`]).
     pub fn ensure<const NT: usize, const LANES: usize, const POINTS: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
