@@ -381,7 +381,8 @@ impl Receiver {
             }
         };
         let Some(frame) = buf.get_mut(..frame_len(count)) else {
-            // Unreachable: `header` checked `count <= capacity`, which fits in `buf`.
+            // Only a `buf` shorter than an empty frame (`frame_len(0)`): otherwise `header`
+            // checked `count <= capacity`, which fits in `buf`.
             self.stats.count(WireError::Truncated);
             return Err(WireError::Truncated.into());
         };
