@@ -487,12 +487,13 @@ impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, 
                 .map(|(z, bj)| z * bj)
                 .sum::<f32>()
                 / w;
-            // For the noise estimate: the row's dominant point, when it holds ≥ 90 % of the
-            // lane's weight (a mixture with clutter would count clutter as noise).
+            // For the noise estimate: the row's dominant point and its β, when it holds ≥ 90 %
+            // of the lane's weight (a mixture with clutter would count clutter as noise); the
+            // estimate takes it when β ≥ 0.5 (docs/design.md §11.6).
             let (jd, bd) = dominant(brow, m);
             if bd >= 0.9 * w {
                 if let Some(rw) = self.rows.get_mut(s).and_then(|rs| rs.get_mut(r)) {
-                    *rw = [pts.get(jd).copied().unwrap_or(zbar), w];
+                    *rw = [pts.get(jd).copied().unwrap_or(zbar), bd];
                 }
             }
             let mom = moments(pts, brow, zh);
@@ -777,11 +778,12 @@ mod tests {
         );
     }
 
-    /// The point-variance estimate counts the rows where one point holds ≥ 90 % of a lane's
-    /// weight and W ≥ 0.5 (docs/design.md §11.6): a row with W = 0.52 whose dominant point
-    /// holds 0.47 is one (the record kept the point's β, and the estimate required β ≥ 0.5).
+    /// The point-variance estimate counts a row's dominant point when it holds ≥ 90 % of the
+    /// lane's weight W and is more likely than not the lane's detection, β ≥ 0.5
+    /// (docs/design.md §11.6, which said "W ≥ 0.5" until stop 70): a row with W = 0.52 whose
+    /// dominant point holds 0.47 is not counted, one whose point holds 0.5 is.
     #[test]
-    fn a_row_with_half_the_weight_and_a_dominant_point_counts_for_the_noise() {
+    fn a_rows_dominant_point_counts_for_the_noise_when_more_likely_than_not() {
         const ROWS: usize = 16;
         let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
         let ranks = [0u8; 6];
@@ -798,17 +800,19 @@ mod tests {
         basis.ensure(&DEFAULT, &pass);
         let mut mem = PassMemory::<7, 6>::NEW;
         mem.load(t.filter(), 1 << 2, 7);
-        let mut ps = Persist::<6, 16, ROWS>::new();
         let r = 3usize;
         let (c, _) = basis.at(r);
         let zh = mem.get(2).unwrap().mean(&c, 7);
-        // The lane's row: W = 0.52, the point on its prediction 0.47, a far one 0.05.
+        // The lane's row: W = 0.52, the point on its prediction β, a far one 0.52 − β.
         let pts = [zh, zh + 0.5];
-        let mut out = RowOutcome::<6>::default();
-        out.beta_miss[0] = 0.48;
-        out.beta[0][0] = 0.47;
-        out.beta[0][1] = 0.05;
-        out.valid[0] = 0b11;
+        let row = |beta: f32| {
+            let mut out = RowOutcome::<6>::default();
+            out.beta_miss[0] = 0.48;
+            out.beta[0][0] = beta;
+            out.beta[0][1] = 0.52 - beta;
+            out.valid[0] = 0b11;
+            out
+        };
         let mut pred = Predicted::<6> {
             idx: [0; 6],
             zhat: [0.0; 6],
@@ -827,20 +831,21 @@ mod tests {
             r_used: 7,
             params: pass.params,
         };
-        let mut e = Evidence::<7>::NONE;
-        ps.lane_row(&mut e, (2, 0, 0.5), &pred, &out, &pts, &at);
-        ps.estimate_noise(
-            &DEFAULT,
-            (&basis, &mut mem),
-            t.filter(),
-            (1 << 2, &ranks),
-            &pass,
-            10.0,
-        );
-        assert_eq!(
-            ps.noise[r][1], 1.0,
-            "the row was not counted: {:?}",
-            ps.noise[r]
-        );
+        let mut counted = [0.0f32; 2];
+        for (beta, n) in [0.47f32, 0.5].into_iter().zip(counted.iter_mut()) {
+            let mut ps = Persist::<6, 16, ROWS>::new();
+            let mut e = Evidence::<7>::NONE;
+            ps.lane_row(&mut e, (2, 0, 0.5), &pred, &row(beta), &pts, &at);
+            ps.estimate_noise(
+                &DEFAULT,
+                (&basis, &mut mem),
+                t.filter(),
+                (1 << 2, &ranks),
+                &pass,
+                10.0,
+            );
+            *n = ps.noise[r][1];
+        }
+        assert_eq!(counted, [0.0, 1.0]);
     }
 }

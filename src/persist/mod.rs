@@ -358,8 +358,8 @@ pub struct Persist<const LANES: usize, const POINTS: usize, const ROWS: usize> {
     pub clutter: [f32; POINTS],
     /// Discounted sums of the point-variance estimates per band, and their counts.
     pub noise: [[f32; 2]; POINTS],
-    /// This frame's `(z_d, W_r)` per slot and row: the row's dominant point when it holds
-    /// ≥ 90 % of the lane's weight `W_r` (`W_r = 0`: nothing).
+    /// This frame's `(z_d, β_d)` per slot and row: the row's dominant point and its weight,
+    /// when it holds ≥ 90 % of the lane's weight `W_r` (`β_d = 0`: nothing).
     rows: [[[f32; 2]; ROWS]; LANES],
     /// This frame's lateral span `[min, max]` of all points per band: where the sensor sees.
     pub span: [[f32; 2]; POINTS],

@@ -297,7 +297,7 @@ impl<const RANK: usize> OwnBlock<RANK> {
 impl<const LANES: usize, const POINTS: usize, const ROWS: usize> Persist<LANES, POINTS, ROWS> {
     /// The point-variance estimate from this frame's posterior residuals of the lanes in
     /// `slots` (after their updates, docs/design.md §11.6): for every row where one point holds
-    /// ≥ 90 % of the lane's weight `W_r ≥ 0.5`, `r̂ = (e² − ρ_r B_ss + c_rᵀ P⁺ c_r)/0.973`,
+    /// ≥ 90 % of the lane's weight and `β ≥ 0.5`, `r̂ = (e² − ρ_r B_ss + c_rᵀ P⁺ c_r)/0.973`,
     /// `e` = that point − `c_rᵀ a⁺` (`Var(e) = r + ρ_r B_ss − c_rᵀ P⁺ c_r`), counted when
     /// `e² ≤ 9 r_b` (0.973 corrects the 3σ truncation), summed per band with a memory of
     /// `memory` frames.
