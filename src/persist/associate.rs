@@ -589,88 +589,146 @@ mod tests {
     use crate::tables::DEFAULT;
     use crate::temporal::smoother::Temporal;
 
-    /// A lane whose row range shrinks from one pass to the next keeps no dominant point of the
-    /// earlier pass in the rows it no longer covers: the noise estimate reads every row.
-    #[test]
-    fn rows_out_of_a_lanes_range_hold_no_earlier_point() {
-        const ROWS: usize = 16;
-        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
-        let ranks = [0u8; 6];
-        t.start_lane(&DEFAULT, 2, 0, &ranks).unwrap();
+    const ROWS: usize = 16;
+    type Filter = Temporal<6, 16, 7, 84, 42, 4>;
+
+    /// One lane in slot 2 from the prior, predicted 50 ms; a pass of 16 rows 2 m apart, one a
+    /// band, with `params`; its row basis and the lane's own block.
+    fn one_lane(params: RowParams) -> (Filter, Pass, RowBasis<7, ROWS>, PassMemory<7, 6>) {
+        let mut t = Filter::new();
+        t.start_lane(&DEFAULT, 2, 0, &[0; 6]).unwrap();
         t.predict(&DEFAULT, 0.05).unwrap();
         let pass = Pass {
             rows: ROWS,
             du: 2.0,
             k_rows: 1,
-            params: RowParams::default(),
+            params,
             max_events: 64,
         };
-        let mut basis = RowBasis::<7, ROWS>::NEW;
+        let mut basis = RowBasis::NEW;
         basis.ensure(&DEFAULT, &pass);
-        let mut mem = PassMemory::<7, 6>::NEW;
+        let mut mem = PassMemory::NEW;
+        mem.load(t.filter(), 1 << 2, 7);
+        (t, pass, basis, mem)
+    }
+
+    /// One pass of the lanes `slots` over the rows `0..=hi` with `points(r)`.
+    fn pass_over<'p>(
+        ps: &mut Persist<6, 16, ROWS>,
+        (t, pass, basis, mem): (&Filter, &Pass, &RowBasis<7, ROWS>, &mut PassMemory<7, 6>),
+        (slots, hi): (u32, u16),
+        points: impl Fn(usize) -> &'p [f32],
+    ) -> (PassCounts, [Evidence<7>; 6]) {
+        let lanes = Lanes {
+            slots,
+            ranks: &[0; 6],
+            rows: [(0, hi); 6],
+        };
+        let mut ev = [Evidence::<7>::NONE; 6];
+        let mut explained: Explained<ROWS> = [0; ROWS];
+        let counts = ps.associate(
+            &DEFAULT,
+            (basis, mem),
+            t.filter(),
+            &lanes,
+            pass,
+            &PersistConfig::default(),
+            points,
+            false,
+            &mut ev,
+            &mut explained,
+        );
+        (counts, ev)
+    }
+
+    /// The noise estimate of slot 2 on `ps`'s row records: the rows it counted.
+    fn noise_rows(
+        ps: &mut Persist<6, 16, ROWS>,
+        (t, pass, basis): (&Filter, &Pass, &RowBasis<7, ROWS>),
+    ) -> f32 {
+        let mut mem = PassMemory::NEW;
+        ps.estimate_noise(
+            &DEFAULT,
+            (basis, &mut mem),
+            t.filter(),
+            (1 << 2, &[0; 6]),
+            pass,
+            10.0,
+        );
+        ps.noise.iter().map(|nb| nb[1]).sum()
+    }
+
+    /// A lane whose row range shrinks from one pass to the next keeps no dominant point of the
+    /// earlier pass in the rows it no longer covers: the noise estimate reads every row.
+    #[test]
+    fn rows_out_of_a_lanes_range_hold_no_earlier_point() {
+        let (t, pass, basis, mut mem) = one_lane(RowParams::default());
         let mut ps = Persist::<6, 16, ROWS>::new();
-        let cfg = PersistConfig::default();
         // One point a row on the lane's predicted mean (the prior's, 0).
         let pts = [0.0f32];
-        let mut pass_over = |ps: &mut Persist<6, 16, ROWS>, hi: u16| {
-            let lanes = Lanes {
-                slots: 1 << 2,
-                ranks: &ranks,
-                rows: [(0, hi); 6],
-            };
-            let mut ev = [Evidence::<7>::NONE; 6];
-            let mut explained: Explained<ROWS> = [0; ROWS];
-            ps.associate(
-                &DEFAULT,
-                (&basis, &mut mem),
-                t.filter(),
-                &lanes,
-                &pass,
-                &cfg,
-                |_| &pts[..],
-                false,
-                &mut ev,
-                &mut explained,
-            )
-        };
-        assert_eq!(pass_over(&mut ps, 15).failed_rows, 0);
+        let ctx = (&t, &pass, &basis, &mut mem);
+        assert_eq!(
+            pass_over(&mut ps, ctx, (1 << 2, 15), |_| &pts[..])
+                .0
+                .failed_rows,
+            0
+        );
         assert!(ps.rows[2].iter().all(|rw| rw[1] >= 0.5), "{:?}", ps.rows[2]);
-        assert_eq!(pass_over(&mut ps, 5).failed_rows, 0);
+        let ctx = (&t, &pass, &basis, &mut mem);
+        assert_eq!(
+            pass_over(&mut ps, ctx, (1 << 2, 5), |_| &pts[..])
+                .0
+                .failed_rows,
+            0
+        );
         assert!(ps.rows[2][..6].iter().all(|rw| rw[1] >= 0.5));
         assert!(ps.rows[2][6..].iter().all(|rw| *rw == [0.0; 2]));
+    }
+
+    /// `estimate_noise` uses this frame's posterior residuals of the lanes in `slots`: a lane
+    /// given to it that was not in this frame's pass has none (its rows of the last pass it
+    /// was in were counted again).
+    #[test]
+    fn the_noise_estimate_reads_no_rows_of_a_lane_left_out_of_the_pass() {
+        let (t, pass, basis, mut mem) = one_lane(RowParams::default());
+        let mut ps = Persist::<6, 16, ROWS>::new();
+        let pts = [0.0f32];
+        // Frame 1: the lane in the pass, its rows recorded and counted.
+        pass_over(&mut ps, (&t, &pass, &basis, &mut mem), (1 << 2, 15), |_| {
+            &pts[..]
+        });
+        assert!(noise_rows(&mut ps.clone(), (&t, &pass, &basis)) > 0.0);
+        // Frame 2: the lane left out of the pass.
+        pass_over(
+            &mut ps,
+            (&t, &pass, &basis, &mut mem),
+            (0, 15),
+            |_| &pts[..],
+        );
+        assert_eq!(
+            noise_rows(&mut ps, (&t, &pass, &basis)),
+            0.0,
+            "{:?}",
+            ps.noise
+        );
     }
 
     /// `Evidence::extent` holds the rows with `W_r ≥ 0.5` whose equivalent measurement carries
     /// information (docs/design.md §11.8): a row whose weight is split between two points on
     /// either side of the prediction (spread ≥ W·S) is not in it, a row with one point on the
     /// prediction is. Measured: counting the split rows as seen (as §11.8 said until stop 70)
-    /// lets clutter on both sides keep a lane seen (replay high 0.904 / 0.183 / 0.150 →
+    /// lets clutter on both sides keep a lane seen (replay high 0.904 / 0.187 / 0.150 →
     /// 0.898 / 0.204 / 0.169).
     #[test]
     fn a_row_split_around_the_prediction_is_not_in_the_extent() {
-        const ROWS: usize = 16;
-        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
-        let ranks = [0u8; 6];
-        t.start_lane(&DEFAULT, 2, 0, &ranks).unwrap();
-        t.predict(&DEFAULT, 0.05).unwrap();
-        let pass = Pass {
-            rows: ROWS,
-            du: 2.0,
-            k_rows: 1,
-            params: RowParams {
-                clutter_density: 0.005,
-                ..RowParams::default()
-            },
-            max_events: 64,
+        let params = RowParams {
+            clutter_density: 0.005,
+            ..RowParams::default()
         };
-        let mut basis = RowBasis::<7, ROWS>::NEW;
-        basis.ensure(&DEFAULT, &pass);
-        let mut mem = PassMemory::<7, 6>::NEW;
+        let (t, pass, basis, mut mem) = one_lane(params);
         let mut ps = Persist::<6, 16, ROWS>::new();
-        let cfg = PersistConfig::default();
         // Rows 0–7: two points at ±1.3 √S around the lane's prediction (the prior's, 0); rows
         // 8–15: one point on it and one far outside its gate.
-        mem.load(t.filter(), 1 << 2, 7);
         let bss = DEFAULT.coreg[(0, 0)];
         let pts: [[f32; 2]; ROWS] = core::array::from_fn(|r| {
             let (c, rho) = basis.at(r);
@@ -683,26 +741,9 @@ mod tests {
                 [z, z + 100.0]
             }
         });
-        let lanes = Lanes {
-            slots: 1 << 2,
-            ranks: &ranks,
-            rows: [(0, ROWS as u16 - 1); 6],
-        };
         ps.observe_spans(ROWS, 1, |r| &pts[r][..]);
-        let mut ev = [Evidence::<7>::NONE; 6];
-        let mut explained: Explained<ROWS> = [0; ROWS];
-        let counts = ps.associate(
-            &DEFAULT,
-            (&basis, &mut mem),
-            t.filter(),
-            &lanes,
-            &pass,
-            &cfg,
-            |r| &pts[r][..],
-            false,
-            &mut ev,
-            &mut explained,
-        );
+        let ctx = (&t, &pass, &basis, &mut mem);
+        let (counts, ev) = pass_over(&mut ps, ctx, (1 << 2, 15), |r| &pts[r][..]);
         assert_eq!(counts.failed_rows, 0);
         // One pass from zero counts, one row a band: `hits[b]` is row b's W (all in view).
         let w: [f32; ROWS] = core::array::from_fn(|r| ps.lanes[2].hits[r]);
@@ -711,95 +752,13 @@ mod tests {
         assert_eq!(ev[2].extent, [u(8), u(15)]);
     }
 
-    /// `estimate_noise` uses this frame's posterior residuals of the lanes in `slots`: a lane
-    /// given to it that was not in this frame's pass has none (its rows of the last pass it
-    /// was in were counted again).
-    #[test]
-    fn the_noise_estimate_reads_no_rows_of_a_lane_left_out_of_the_pass() {
-        const ROWS: usize = 16;
-        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
-        let ranks = [0u8; 6];
-        t.start_lane(&DEFAULT, 2, 0, &ranks).unwrap();
-        t.predict(&DEFAULT, 0.05).unwrap();
-        let pass = Pass {
-            rows: ROWS,
-            du: 2.0,
-            k_rows: 1,
-            params: RowParams::default(),
-            max_events: 64,
-        };
-        let mut basis = RowBasis::<7, ROWS>::NEW;
-        basis.ensure(&DEFAULT, &pass);
-        let mut mem = PassMemory::<7, 6>::NEW;
-        let mut ps = Persist::<6, 16, ROWS>::new();
-        let cfg = PersistConfig::default();
-        let pts = [0.0f32];
-        let mut pass_over = |ps: &mut Persist<6, 16, ROWS>, slots: u32| {
-            let lanes = Lanes {
-                slots,
-                ranks: &ranks,
-                rows: [(0, ROWS as u16 - 1); 6],
-            };
-            let mut ev = [Evidence::<7>::NONE; 6];
-            let mut explained: Explained<ROWS> = [0; ROWS];
-            ps.associate(
-                &DEFAULT,
-                (&basis, &mut mem),
-                t.filter(),
-                &lanes,
-                &pass,
-                &cfg,
-                |_| &pts[..],
-                false,
-                &mut ev,
-                &mut explained,
-            );
-        };
-        // Frame 1: lane 2 in the pass, its rows recorded.
-        pass_over(&mut ps, 1 << 2);
-        // Frame 2: lane 2 left out of the pass (no rows this frame).
-        pass_over(&mut ps, 0);
-        let before: f32 = ps.noise.iter().map(|nb| nb[1]).sum();
-        assert_eq!(before, 0.0);
-        let mut mem2 = PassMemory::<7, 6>::NEW;
-        ps.estimate_noise(
-            &DEFAULT,
-            (&basis, &mut mem2),
-            t.filter(),
-            (1 << 2, &ranks),
-            &pass,
-            10.0,
-        );
-        let after: f32 = ps.noise.iter().map(|nb| nb[1]).sum();
-        assert_eq!(
-            after, 0.0,
-            "frame 1's rows counted in frame 2: {:?}",
-            ps.noise
-        );
-    }
-
     /// The point-variance estimate counts a row's dominant point when it holds ≥ 90 % of the
     /// lane's weight W and is more likely than not the lane's detection, β ≥ 0.5
     /// (docs/design.md §11.6, which said "W ≥ 0.5" until stop 70): a row with W = 0.52 whose
     /// dominant point holds 0.47 is not counted, one whose point holds 0.5 is.
     #[test]
     fn a_rows_dominant_point_counts_for_the_noise_when_more_likely_than_not() {
-        const ROWS: usize = 16;
-        let mut t = Temporal::<6, 16, 7, 84, 42, 4>::new();
-        let ranks = [0u8; 6];
-        t.start_lane(&DEFAULT, 2, 0, &ranks).unwrap();
-        t.predict(&DEFAULT, 0.05).unwrap();
-        let pass = Pass {
-            rows: ROWS,
-            du: 2.0,
-            k_rows: 1,
-            params: RowParams::default(),
-            max_events: 64,
-        };
-        let mut basis = RowBasis::<7, ROWS>::NEW;
-        basis.ensure(&DEFAULT, &pass);
-        let mut mem = PassMemory::<7, 6>::NEW;
-        mem.load(t.filter(), 1 << 2, 7);
+        let (t, pass, basis, mem) = one_lane(RowParams::default());
         let r = 3usize;
         let (c, _) = basis.at(r);
         let zh = mem.get(2).unwrap().mean(&c, 7);
@@ -831,21 +790,12 @@ mod tests {
             r_used: 7,
             params: pass.params,
         };
-        let mut counted = [0.0f32; 2];
-        for (beta, n) in [0.47f32, 0.5].into_iter().zip(counted.iter_mut()) {
+        let counted = [0.47f32, 0.5].map(|beta| {
             let mut ps = Persist::<6, 16, ROWS>::new();
             let mut e = Evidence::<7>::NONE;
             ps.lane_row(&mut e, (2, 0, 0.5), &pred, &row(beta), &pts, &at);
-            ps.estimate_noise(
-                &DEFAULT,
-                (&basis, &mut mem),
-                t.filter(),
-                (1 << 2, &ranks),
-                &pass,
-                10.0,
-            );
-            *n = ps.noise[r][1];
-        }
+            noise_rows(&mut ps, (&t, &pass, &basis))
+        });
         assert_eq!(counted, [0.0, 1.0]);
     }
 }
