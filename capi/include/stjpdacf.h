@@ -63,13 +63,14 @@ enum stjpdacf_status
   // A pointer is not aligned for its type (the tracker: `STJPDACF_TRACKER_ALIGN`).
   STJPDACF_MISALIGNED = -2,
   // The tracker buffer is smaller than `STJPDACF_TRACKER_SIZE` (`STJPDACF_SMALL_TRACKER_SIZE`
-  // for the small model).
+  // for the small model, `STJPDACF_RANK5_TRACKER_SIZE` for the rank-5 model).
   STJPDACF_BUFFER_TOO_SMALL = -3,
   // `n_points` exceeds `STJPDACF_MAX_POINTS_IN`.
   STJPDACF_TOO_MANY_POINTS = -4,
   // A lane array is given with room for fewer than `STJPDACF_MAX_LANES` lanes.
   STJPDACF_CAPACITY_TOO_SMALL = -5,
-  // The tracker was not initialised by `stjpdacf_init`.
+  // The tracker was not initialised by `stjpdacf_init` (or the buffer has been initialised
+  // since for another model: `stjpdacf_small_init`, `stjpdacf_rank5_init`).
   STJPDACF_NOT_INITIALISED = -6,
   // The frame's time is not after the previous frame's (Rust `StepError::NonIncreasingTime`).
   STJPDACF_NON_INCREASING_TIME = -7,
@@ -127,23 +128,29 @@ typedef struct stjpdacf_tracker stjpdacf_tracker;
 typedef struct stjpdacf_lane {
   // Stable id.
   uint32_t id;
-  // Temporal slot, `0..STJPDACF_MAX_LANES` (for [`stjpdacf_lane_at`]).
+  // Temporal slot, `0..STJPDACF_MAX_LANES` (for [`stjpdacf_lane_at`], which evaluates the
+  // lane's filtered estimate at the last frame, also for a smoothed lane).
   uint32_t slot;
   // Lateral position at each index point, metres.
   float z[STJPDACF_INDEX_POINTS];
   // Its variance, m².
   float var[STJPDACF_INDEX_POINTS];
-  // Near end of the observed extent, metres ahead.
+  // Near end of the observed extent, metres ahead: the union over the `STJPDACF_LAG + 1`
+  // frames ending at the lane's frame (the last frame for a filtered lane, `STJPDACF_LAG`
+  // frames back for a smoothed lane).
   float u_first;
   // Far end of the observed extent, metres ahead.
   float u_last;
-  // Existence figure in [0, 1].
+  // Existence figure in [0, 1], at the last frame (also for a smoothed lane).
   float existence;
-  // Frames since the lane was last seen (0 when seen this frame).
+  // Frames since the lane was last seen (0 when seen this frame). Always 0 for a smoothed
+  // lane: read a lane's misses from its filtered record (same `id`).
   uint32_t misses;
-  // Frames since the lane started.
+  // Frames since the lane started (0 in its first frame); for a smoothed lane, its age at the
+  // last frame.
   uint32_t age;
-  // Frames in which the lane was observed.
+  // Frames in which the lane was observed, its first frame included (for a smoothed lane, at
+  // the last frame).
   uint32_t hits;
 } stjpdacf_lane;
 
@@ -232,7 +239,8 @@ typedef struct stjpdacf_identity_report {
 typedef struct stjpdacf_known_report {
   // Live lanes associated against their prediction.
   uint32_t lanes;
-  // Of those, lanes seen (a row with `W ≥ 0.5`).
+  // Of those, lanes seen (a row with `W ≥ 0.5` that gave information, docs/design.md
+  // §11.8).
   uint32_t seen;
   // Points the known lanes explained (removed before the spatial filter).
   uint32_t explained_points;
@@ -349,7 +357,8 @@ extern "C" {
 // aligned to `STJPDACF_TRACKER_ALIGN`), `STJPDACF_BUFFER_TOO_SMALL` (`size <
 // STJPDACF_TRACKER_SIZE`), with nothing written.
 //
-// Cost: one copy of `STJPDACF_TRACKER_SIZE` bytes from the initial image (flash on an MCU).
+// Cost: a `memset` of the tracker (about `STJPDACF_TRACKER_SIZE` bytes) and a few hundred
+// bytes of stores; no image of the tracker is kept in flash.
 //
 // # Safety
 // `memory` must be valid for writes of `size` bytes and not used otherwise while the tracker is
@@ -439,7 +448,9 @@ stjpdacf_status stjpdacf_filtered(const struct stjpdacf_tracker *tracker,
                                   size_t *count);
 
 // The smoothed lanes (`STJPDACF_LAG` frames before the last processed frame; none until the
-// window is full), as [`stjpdacf_filtered`].
+// window is full), as [`stjpdacf_filtered`]: the smoothed estimates of the lanes published in
+// the last frame's filtered lanes only (a lane removed since is not published, also when a new
+// lane has taken its slot), so a lane of that earlier frame may be missing.
 //
 // # Safety
 // As [`stjpdacf_filtered`].

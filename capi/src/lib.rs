@@ -85,10 +85,20 @@ const _: () =
     assert!(core::mem::size_of::<stjpdacf_rank5_tracker>() <= STJPDACF_RANK5_TRACKER_SIZE);
 const _: () = assert!(core::mem::align_of::<stjpdacf_rank5_tracker>() <= STJPDACF_TRACKER_ALIGN);
 const _: () = assert!(STJPDACF_MAX_LANES == 6 && STJPDACF_INDEX_POINTS == 16);
+// Every model's magic at the start of the buffer (see `Handle`).
+const _: () = assert!(core::mem::offset_of!(stjpdacf_tracker, h.magic) == 0);
+const _: () = assert!(core::mem::offset_of!(stjpdacf_small_tracker, h.magic) == 0);
+const _: () = assert!(core::mem::offset_of!(stjpdacf_rank5_tracker, h.magic) == 0);
 const _: () = assert!(STJPDACF_MAX_POINTS == 256 && STJPDACF_LAG == 4);
 
-/// Marks an initialised tracker (a guard against buffers never passed to [`stjpdacf_init`]).
+/// Marks an initialised tracker of the reference model (a guard against buffers never passed
+/// to [`stjpdacf_init`]); each model has its own, at the start of the buffer (`Handle` is
+/// `repr(C)`), so that a buffer initialised since for another model refuses the old handle.
 const MAGIC: u32 = 0x5354_4A50;
+/// [`MAGIC`] of the small model.
+const SMALL_MAGIC: u32 = 0x5354_4A34;
+/// [`MAGIC`] of the rank-5 model.
+const RANK5_MAGIC: u32 = 0x5354_4A35;
 
 /// Result of every function. Negative: refused, nothing written. Zero or positive: done.
 #[repr(i32)]
@@ -107,13 +117,14 @@ pub enum stjpdacf_status {
     /// A pointer is not aligned for its type (the tracker: `STJPDACF_TRACKER_ALIGN`).
     STJPDACF_MISALIGNED = -2,
     /// The tracker buffer is smaller than `STJPDACF_TRACKER_SIZE` (`STJPDACF_SMALL_TRACKER_SIZE`
-    /// for the small model).
+    /// for the small model, `STJPDACF_RANK5_TRACKER_SIZE` for the rank-5 model).
     STJPDACF_BUFFER_TOO_SMALL = -3,
     /// `n_points` exceeds `STJPDACF_MAX_POINTS_IN`.
     STJPDACF_TOO_MANY_POINTS = -4,
     /// A lane array is given with room for fewer than `STJPDACF_MAX_LANES` lanes.
     STJPDACF_CAPACITY_TOO_SMALL = -5,
-    /// The tracker was not initialised by `stjpdacf_init`.
+    /// The tracker was not initialised by `stjpdacf_init` (or the buffer has been initialised
+    /// since for another model: `stjpdacf_small_init`, `stjpdacf_rank5_init`).
     STJPDACF_NOT_INITIALISED = -6,
     /// The frame's time is not after the previous frame's (Rust `StepError::NonIncreasingTime`).
     STJPDACF_NON_INCREASING_TIME = -7,
@@ -173,23 +184,29 @@ impl From<WireError> for stjpdacf_status {
 pub struct stjpdacf_lane {
     /// Stable id.
     pub id: u32,
-    /// Temporal slot, `0..STJPDACF_MAX_LANES` (for [`stjpdacf_lane_at`]).
+    /// Temporal slot, `0..STJPDACF_MAX_LANES` (for [`stjpdacf_lane_at`], which evaluates the
+    /// lane's filtered estimate at the last frame, also for a smoothed lane).
     pub slot: u32,
     /// Lateral position at each index point, metres.
     pub z: [f32; STJPDACF_INDEX_POINTS],
     /// Its variance, m².
     pub var: [f32; STJPDACF_INDEX_POINTS],
-    /// Near end of the observed extent, metres ahead.
+    /// Near end of the observed extent, metres ahead: the union over the `STJPDACF_LAG + 1`
+    /// frames ending at the lane's frame (the last frame for a filtered lane, `STJPDACF_LAG`
+    /// frames back for a smoothed lane).
     pub u_first: f32,
     /// Far end of the observed extent, metres ahead.
     pub u_last: f32,
-    /// Existence figure in [0, 1].
+    /// Existence figure in [0, 1], at the last frame (also for a smoothed lane).
     pub existence: f32,
-    /// Frames since the lane was last seen (0 when seen this frame).
+    /// Frames since the lane was last seen (0 when seen this frame). Always 0 for a smoothed
+    /// lane: read a lane's misses from its filtered record (same `id`).
     pub misses: u32,
-    /// Frames since the lane started.
+    /// Frames since the lane started (0 in its first frame); for a smoothed lane, its age at the
+    /// last frame.
     pub age: u32,
-    /// Frames in which the lane was observed.
+    /// Frames in which the lane was observed, its first frame included (for a smoothed lane, at
+    /// the last frame).
     pub hits: u32,
 }
 
@@ -271,14 +288,16 @@ pub struct stjpdacf_frame_info {
     pub len: usize,
 }
 
-/// A handle's storage: the Rust tracker `T` and the lanes of the last frame.
+/// A handle's storage: the Rust tracker `T` and the lanes of the last frame. `repr(C)` with the
+/// model's magic first: every model's init writes it at the same offset (0), whatever the sizes.
+#[repr(C)]
 struct Handle<T> {
     magic: u32,
+    n_filtered: u8,
+    n_smoothed: u8,
     tracker: T,
     filtered: [stjpdacf_lane; STJPDACF_MAX_LANES],
     smoothed: [stjpdacf_lane; STJPDACF_MAX_LANES],
-    n_filtered: u8,
-    n_smoothed: u8,
 }
 
 /// The reference model's tracker (opaque to C): [`ReferenceTracker`] on the coupled tables and
@@ -322,6 +341,8 @@ trait Model: Sized + 'static {
     const ZEROED: Self;
     /// The buffer size the C caller must give.
     const SIZE: usize;
+    /// The model's magic (distinct per model).
+    const MAGIC: u32;
     fn handle(&self) -> &Handle<Self::T>;
     fn handle_mut(&mut self) -> &mut Handle<Self::T>;
     /// Initialises the tracker in place with the model's tables and configuration.
@@ -337,7 +358,7 @@ trait Model: Sized + 'static {
 /// `impl Model for $handle`: the Rust tracker `$tracker`, started on `$tables` with `$config`,
 /// in a buffer of `$size` bytes (one implementation for the three models).
 macro_rules! model {
-    ($handle:ident, $tracker:ty, $tables:expr, $config:expr, $size:expr) => {
+    ($handle:ident, $tracker:ty, $tables:expr, $config:expr, $size:expr, $magic:expr) => {
         impl Model for $handle {
             type T = $tracker;
             const ZEROED: Self = $handle {
@@ -351,6 +372,7 @@ macro_rules! model {
                 },
             };
             const SIZE: usize = $size;
+            const MAGIC: u32 = $magic;
             fn handle(&self) -> &Handle<$tracker> {
                 &self.h
             }
@@ -379,21 +401,24 @@ model!(
     ReferenceTracker,
     &DEFAULT,
     TrackerConfig::DEFAULT,
-    STJPDACF_TRACKER_SIZE
+    STJPDACF_TRACKER_SIZE,
+    MAGIC
 );
 model!(
     stjpdacf_small_tracker,
     Rank4Tracker,
     &UNCOUPLED,
     SMALL_CONFIG,
-    STJPDACF_SMALL_TRACKER_SIZE
+    STJPDACF_SMALL_TRACKER_SIZE,
+    SMALL_MAGIC
 );
 model!(
     stjpdacf_rank5_tracker,
     Rank5Tracker,
     &DEFAULT,
     TrackerConfig::DEFAULT,
-    STJPDACF_RANK5_TRACKER_SIZE
+    STJPDACF_RANK5_TRACKER_SIZE,
+    RANK5_MAGIC
 );
 
 const NO_LANE: stjpdacf_lane = stjpdacf_lane {
@@ -424,7 +449,7 @@ unsafe fn tracker_ref<'a, M: Model>(t: *const M) -> Result<&'a Handle<M::T>, stj
     // SAFETY: non-null and aligned (checked); the caller guarantees the memory is readable and
     // not written during 'a. The magic check below rejects buffers `stjpdacf_init` never wrote.
     let r = unsafe { &*t }.handle();
-    if r.magic == MAGIC {
+    if r.magic == M::MAGIC {
         Ok(r)
     } else {
         Err(STJPDACF_NOT_INITIALISED)
@@ -445,7 +470,7 @@ unsafe fn tracker_mut<'a, M: Model>(t: *mut M) -> Result<&'a mut Handle<M::T>, s
     }
     // SAFETY: non-null and aligned (checked); the caller guarantees exclusive access during 'a.
     let r = unsafe { &mut *t }.handle_mut();
-    if r.magic == MAGIC {
+    if r.magic == M::MAGIC {
         Ok(r)
     } else {
         Err(STJPDACF_NOT_INITIALISED)
@@ -570,7 +595,7 @@ unsafe fn init_model<M: Model>(
     // SAFETY: `t` now holds a valid handle (written above) that nothing else accesses.
     let h = unsafe { &mut *t }.handle_mut();
     M::start(&mut h.tracker);
-    h.magic = MAGIC;
+    h.magic = M::MAGIC;
     // SAFETY: `out` is non-null and aligned (checked), writable (the caller).
     unsafe { out.write(t) };
     STJPDACF_OK
@@ -584,7 +609,8 @@ unsafe fn init_model<M: Model>(
 /// aligned to `STJPDACF_TRACKER_ALIGN`), `STJPDACF_BUFFER_TOO_SMALL` (`size <
 /// STJPDACF_TRACKER_SIZE`), with nothing written.
 ///
-/// Cost: one copy of `STJPDACF_TRACKER_SIZE` bytes from the initial image (flash on an MCU).
+/// Cost: a `memset` of the tracker (about `STJPDACF_TRACKER_SIZE` bytes) and a few hundred
+/// bytes of stores; no image of the tracker is kept in flash.
 ///
 /// # Safety
 /// `memory` must be valid for writes of `size` bytes and not used otherwise while the tracker is
@@ -815,7 +841,9 @@ pub unsafe extern "C" fn stjpdacf_filtered(
 }
 
 /// The smoothed lanes (`STJPDACF_LAG` frames before the last processed frame; none until the
-/// window is full), as [`stjpdacf_filtered`].
+/// window is full), as [`stjpdacf_filtered`]: the smoothed estimates of the lanes published in
+/// the last frame's filtered lanes only (a lane removed since is not published, also when a new
+/// lane has taken its slot), so a lane of that earlier frame may be missing.
 ///
 /// # Safety
 /// As [`stjpdacf_filtered`].

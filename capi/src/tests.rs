@@ -591,3 +591,95 @@ fn rank5_refuses_bad_buffers_and_matches_the_rust_tracker() {
     assert!(published >= 8, "lanes were published ({published})");
     assert_eq!(rep.smoothed_lanes, 2, "the smoother window is full");
 }
+
+/// A stale handle of one model on a buffer since initialised for another model is refused
+/// (`STJPDACF_NOT_INITIALISED`), not read as the wrong tracker type. The buffer is the union of
+/// the three models (the reference model's size), as a firmware that picks its model at start-up
+/// would declare it.
+#[test]
+fn a_buffer_reinitialised_for_another_model_refuses_the_old_handle() {
+    let mut buf = buffer();
+    let mem = buf.as_mut_ptr().cast::<core::ffi::c_void>();
+    let (mut reference, mut small) = (null_mut(), null_mut());
+    let mut lanes = [NO_LANE; STJPDACF_MAX_LANES];
+    let mut n = 99usize;
+    // SAFETY: `buf` holds `STJPDACF_TRACKER_SIZE` writable, aligned bytes; the out-parameters
+    // and `lanes` are valid for their sizes.
+    unsafe {
+        assert_eq!(
+            stjpdacf_init(mem, STJPDACF_TRACKER_SIZE, &mut reference),
+            STJPDACF_OK
+        );
+        assert_eq!(
+            stjpdacf_small_init(mem, STJPDACF_TRACKER_SIZE, &mut small),
+            STJPDACF_OK
+        );
+        // The old reference handle: the buffer now holds a small tracker.
+        let st = stjpdacf_filtered(reference, lanes.as_mut_ptr(), lanes.len(), &mut n);
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+        assert_eq!(n, 99, "nothing written");
+        // And the other way round.
+        assert_eq!(
+            stjpdacf_init(mem, STJPDACF_TRACKER_SIZE, &mut reference),
+            STJPDACF_OK
+        );
+        let st = stjpdacf_small_filtered(small, lanes.as_mut_ptr(), lanes.len(), &mut n);
+        assert_eq!(st, STJPDACF_NOT_INITIALISED);
+    }
+}
+
+/// A smoothed lane's `misses` is not the lane's misses: the smoothed lanes of a lane that has
+/// gone unseen (coasting, still published) report 0, which the header documented as "seen this
+/// frame". Pins what the C docs now say.
+#[test]
+fn smoothed_lanes_report_no_misses_while_their_lane_coasts() {
+    let mut buf = buffer();
+    let t = init(&mut buf);
+    let both = two_lanes();
+    // The left lane only (x = -1.8).
+    let left: Vec<f32> = both.chunks(4).flat_map(|c| [c[0], c[1]]).collect();
+    let mut seen = false;
+    for k in 0..12i64 {
+        let pts = if k < 8 { &both } else { &left };
+        let mut rep = zero_report();
+        let mut f = [NO_LANE; STJPDACF_MAX_LANES];
+        let mut s = [NO_LANE; STJPDACF_MAX_LANES];
+        let mut ns = 0usize;
+        // SAFETY: `t` from `init`; the arrays are valid for their sizes.
+        unsafe {
+            let st = stjpdacf_step(
+                t,
+                k * 50_000,
+                pts.as_ptr(),
+                pts.len() / 2,
+                f.as_mut_ptr(),
+                6,
+                &mut rep,
+            );
+            assert!(st == STJPDACF_OK || st == STJPDACF_DEGRADED);
+            assert_eq!(
+                stjpdacf_smoothed(t, s.as_mut_ptr(), 6, &mut ns),
+                STJPDACF_OK
+            );
+        }
+        for l in &f[..rep.filtered_lanes as usize] {
+            if l.misses > 0 {
+                let sm = s[..ns].iter().find(|m| m.id == l.id);
+                std::println!(
+                    "frame {k}: filtered id {} misses {}; smoothed {:?}",
+                    l.id,
+                    l.misses,
+                    sm.map(|m| m.misses)
+                );
+                if let Some(sm) = sm {
+                    seen = true;
+                    assert_eq!(sm.misses, 0, "a smoothed lane's misses are always 0");
+                }
+            }
+        }
+    }
+    assert!(
+        seen,
+        "no coasting lane with a smoothed estimate: the test tests nothing"
+    );
+}

@@ -206,9 +206,11 @@ pub struct LaneEstimate<const POINTS: usize> {
     pub u_last: f32,
     /// Existence in [0, 1]: with the known-lane stage (the default) the lane's existence
     /// probability (docs/design.md §11.5); in the round-1 pipeline the spatial existence when
-    /// seen, decaying while coasting (`TrackerConfig::existence_decay`).
+    /// seen, decaying while coasting (`TrackerConfig::existence_decay`). For a smoothed lane,
+    /// the lane's existence at the current frame.
     pub existence: f32,
-    /// Frames since the lane was last seen (0 when seen this frame).
+    /// Frames since the lane was last seen (0 when seen this frame); always 0 for a smoothed
+    /// lane (read its filtered lane's, same `id`).
     pub misses: u16,
     /// Frames since the lane started (0 in its first frame); for a smoothed lane, its age at the
     /// current frame (0 once it is gone).
