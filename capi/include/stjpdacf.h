@@ -400,7 +400,8 @@ stjpdacf_status stjpdacf_rank5_init(void *memory,
 //
 // # Safety
 // `tracker` comes from `stjpdacf_init` and is not used concurrently; `points` holds `2 ·
-// n_points` floats; `out_lanes` has room for `capacity` lanes; `report` is writable.
+// n_points` floats; `out_lanes` has room for `capacity` lanes; `report` is writable; none of
+// these overlap each other or the tracker's buffer.
 stjpdacf_status stjpdacf_step(struct stjpdacf_tracker *tracker,
                               int64_t time_us,
                               const float *points,

@@ -719,7 +719,8 @@ unsafe fn step_model<M: Model>(
 ///
 /// # Safety
 /// `tracker` comes from `stjpdacf_init` and is not used concurrently; `points` holds `2 ·
-/// n_points` floats; `out_lanes` has room for `capacity` lanes; `report` is writable.
+/// n_points` floats; `out_lanes` has room for `capacity` lanes; `report` is writable; none of
+/// these overlap each other or the tracker's buffer.
 #[no_mangle]
 pub unsafe extern "C" fn stjpdacf_step(
     tracker: *mut stjpdacf_tracker,
