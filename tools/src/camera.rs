@@ -149,20 +149,30 @@ impl Camera {
         if spec == "culane" {
             return Ok(Self::culane());
         }
-        let text = std::fs::read_to_string(spec)
-            .with_context(|| format!("reading camera file {spec} (or use `tusimple`)"))?;
+        let text = std::fs::read_to_string(spec).with_context(|| {
+            format!("reading camera file {spec} (or use `tusimple` or `culane`)")
+        })?;
         let cam: Camera =
             serde_json::from_str(&text).with_context(|| format!("{spec}: malformed camera"))?;
-        anyhow::ensure!(
-            cam.width > 0.0
-                && cam.height > 0.0
-                && cam.height_m > 0.0
-                && cam.focal_px > 0.0
-                && cam.vp_col.is_finite()
-                && cam.vp_row.is_finite(),
-            "{spec}: camera sizes, height and focal length must be positive and finite"
-        );
+        cam.check().map_err(|e| anyhow::anyhow!("{spec}: {e}"))?;
         Ok(cam)
+    }
+
+    /// Checks the values: image size, camera height and focal length positive and finite, the
+    /// vanishing point finite (a camera file's, or a frame's [`crate::tusimple::Frame::camera`]).
+    pub fn check(&self) -> anyhow::Result<()> {
+        let positive = |v: f64| v > 0.0 && v.is_finite();
+        anyhow::ensure!(
+            positive(self.width)
+                && positive(self.height)
+                && positive(self.height_m)
+                && positive(self.focal_px)
+                && self.vp_col.is_finite()
+                && self.vp_row.is_finite(),
+            "camera sizes, height and focal length must be positive and finite, the vanishing \
+             point finite: {self:?}"
+        );
+        Ok(())
     }
 }
 

@@ -1772,6 +1772,19 @@ pub fn run_dir_cameras(
             Some(k) if k >= 1 => (k - 1) as f64 * dt,
             _ => index_in_clip as f64 * dt,
         };
+        // A folder that mixes numbered and other names (or numbers twice, `1.jpg` and
+        // `01.png`) would give two images one time: `track` refuses such a clip.
+        if let Some(prev) = frames.last().filter(|prev| prev.clip == clip) {
+            ensure!(
+                t > prev.t,
+                "{}: time {t} s is not after {}'s {} s: a file named by a number n is frame n \
+                 of its clip, other names are numbered in order, so a folder must not mix them \
+                 (nor repeat a number); rename or move the files",
+                path.display(),
+                prev.raw_file.as_deref().unwrap_or_default(),
+                prev.t
+            );
+        }
         let h_samples = labels
             .iter()
             .find(|l| l.raw_file == raw_file)

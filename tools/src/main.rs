@@ -89,8 +89,8 @@ enum Command {
         /// not with --hyper).
         #[arg(long, value_enum, default_value_t = ModelArg::Reference)]
         model: ModelArg,
-        /// Camera: `tusimple` (1280x720) or a camera JSON file (fields width, height, vp_col,
-        /// vp_row, height_m, focal_px). A clip whose frames carry their own cameras (`stjpdacf
+        /// Camera: `tusimple` (1280x720), `culane` (a 1640x590 guess) or a camera JSON file
+        /// (fields width, height, vp_col, vp_row, height_m, focal_px). A clip whose frames carry their own cameras (`stjpdacf
         /// frontend --camera estimate`) is mapped with the median of those instead.
         #[arg(long, default_value = "tusimple")]
         camera: String,
@@ -294,7 +294,7 @@ enum Command {
         /// crosswalk bars; default 0).
         #[arg(long)]
         distractors: Option<f64>,
-        /// Camera: `tusimple` (1280x720) or a camera JSON file.
+        /// Camera: `tusimple` (1280x720), `culane` (a 1640x590 guess) or a camera JSON file.
         #[arg(long, default_value = "tusimple")]
         camera: String,
     },
@@ -472,9 +472,28 @@ fn main() -> Result<()> {
                 }
                 None => cam,
             };
-            let mut frames = tusimple::read_frames(&frames)?;
+            let frames_path = frames;
+            let mut frames = tusimple::read_frames(&frames_path)?;
             if every_frame {
                 stjpdacf_tools::track::predict_every_frame(&mut frames, &cam);
+                // Every frame is predicted now: a raw_file that names two frames would name
+                // two predictions (the scorer joins on it).
+                let mut named = std::collections::HashMap::new();
+                for (k, f) in frames.iter().enumerate() {
+                    let Some(raw) = f.raw_file.as_deref() else {
+                        continue;
+                    };
+                    if let Some(first) = named.insert(raw, k) {
+                        anyhow::bail!(
+                            "{}: raw_file {raw} names frames {} and {} (counted from 1); \
+                             --every-frame writes a prediction for every frame, so each needs its \
+                             own raw_file (or none: it is then named clip/k)",
+                            frames_path.display(),
+                            first + 1,
+                            k + 1
+                        );
+                    }
+                }
             }
             let unlabelled = frames
                 .iter()
@@ -492,8 +511,12 @@ fn main() -> Result<()> {
             };
             let mut export = match &export_points {
                 Some(p) => {
-                    let mut w = std::io::BufWriter::new(std::fs::File::create(p)?);
-                    stjpdacf_tools::track::write_points_header(&mut w, &cam)?;
+                    let mut w = std::io::BufWriter::new(
+                        std::fs::File::create(p)
+                            .with_context(|| format!("creating {}", p.display()))?,
+                    );
+                    stjpdacf_tools::track::write_points_header(&mut w, &cam)
+                        .with_context(|| format!("writing {}", p.display()))?;
                     Some(w)
                 }
                 None => None,
@@ -575,8 +598,8 @@ fn main() -> Result<()> {
                 },
             )?;
             bar.finish_and_clear();
-            if let Some(e) = export_err {
-                return Err(e).context("writing the points file");
+            if let (Some(e), Some(p)) = (export_err, &export_points) {
+                return Err(e).with_context(|| format!("writing the points file {}", p.display()));
             }
             if let Some(e) = overlay_err {
                 return Err(e).context("drawing the overlays");
@@ -592,8 +615,9 @@ fn main() -> Result<()> {
                     o.skipped
                 );
             }
-            if let Some(mut w) = export {
-                std::io::Write::flush(&mut w)?;
+            if let (Some(mut w), Some(p)) = (export, &export_points) {
+                std::io::Write::flush(&mut w)
+                    .with_context(|| format!("writing {}", p.display()))?;
             }
             tusimple::write_records(&out, &preds)?;
             eprintln!(

@@ -441,7 +441,9 @@ pub fn bench_frames(
 
 /// Stricter than the original (which would silently count a repeated prediction twice): every
 /// `raw_file` appears once in the ground truth and once in the predictions, every prediction's
-/// `raw_file` is in the ground truth, and every ground-truth frame has a prediction. Inputs that pass are scored by [`bench_one_submit`] exactly as the
+/// `raw_file` is in the ground truth, every ground-truth frame has a prediction, and a
+/// prediction's `h_samples`, when it has them, are its ground truth's
+/// ([`check_prediction_rows`]). Inputs that pass are scored by [`bench_one_submit`] exactly as the
 /// original scores them.
 pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Result<()> {
     // The files of `records`, each once.
@@ -466,6 +468,42 @@ pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
     }
     if let Some(missing) = gts.iter().find(|g| !pred_files.contains(&g.raw_file)) {
         bail!("no prediction for ground-truth frame {}", missing.raw_file);
+    }
+    check_prediction_rows(preds, gts)
+}
+
+/// Rows further apart than this (pixels) are different rows ([`check_prediction_rows`]).
+const ROW_TOLERANCE: f64 = 0.5;
+
+/// A prediction that states its rows (`h_samples`, which the scorer does not read: it pairs
+/// the lanes' values with the ground truth's rows) states the ground truth's: otherwise its
+/// columns would be scored at rows they were not found at (e.g. predictions of 512×288 frames
+/// against 1280×720 labels, which `--pixel-scale` does not fix as it scales both files).
+pub fn check_prediction_rows(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Result<()> {
+    let by_file: HashMap<&str, &TuSimpleRecord> =
+        gts.iter().map(|g| (g.raw_file.as_str(), g)).collect();
+    for p in preds.iter().filter(|p| !p.h_samples.is_empty()) {
+        let Some(g) = by_file.get(p.raw_file.as_str()) else {
+            continue;
+        };
+        let same = p.h_samples.len() == g.h_samples.len()
+            && p.h_samples
+                .iter()
+                .zip(&g.h_samples)
+                .all(|(a, b)| (a - b).abs() <= ROW_TOLERANCE);
+        if !same {
+            let span = |h: &[f64]| match (h.first(), h.last()) {
+                (Some(a), Some(b)) => format!("{} rows {a}–{b}", h.len()),
+                _ => "no rows".to_string(),
+            };
+            bail!(
+                "prediction for {}: its h_samples ({}) are not the ground truth's ({}); the \
+                 files are of different image sizes or rows (--pixel-scale scales both files)",
+                p.raw_file,
+                span(&p.h_samples),
+                span(&g.h_samples)
+            );
+        }
     }
     Ok(())
 }
@@ -996,6 +1034,27 @@ mod tests {
         );
         // Nothing at all.
         assert!(bench_one_submit(&[], &[]).is_err());
+    }
+
+    /// A prediction whose stated rows are not its ground truth's (here: a 512×288 frame's
+    /// rows against 1280×720 labels) is an error, not a score of columns at the wrong rows;
+    /// rows within half a pixel and predictions without `h_samples` pass.
+    #[test]
+    fn predictions_at_other_rows_are_rejected_by_the_check() {
+        let gts = vec![rec("a", vec![vertical(100.0)], None)];
+        let mut pred = rec("a", vec![vertical(100.0)], Some(1.0));
+        check_one_to_one(std::slice::from_ref(&pred), &gts).unwrap();
+        pred.h_samples.iter_mut().for_each(|h| *h += 0.25);
+        check_one_to_one(std::slice::from_ref(&pred), &gts).unwrap();
+        pred.h_samples.clear();
+        check_one_to_one(std::slice::from_ref(&pred), &gts).unwrap();
+        pred.h_samples = rows20().iter().map(|h| h * 0.4).collect();
+        let e = check_one_to_one(std::slice::from_ref(&pred), &gts).unwrap_err();
+        assert!(
+            format!("{e}").contains("prediction for a: its h_samples (20 rows 40–116)"),
+            "{e}"
+        );
+        assert!(format!("{e}").contains("(20 rows 100–290)"), "{e}");
     }
 
     #[test]

@@ -127,6 +127,16 @@ fn vector(v: &DVector<f64>) -> Result<String> {
 /// `origin` names the hyperparameter file in the header (use a repository-relative path so the
 /// output does not depend on where it was generated).
 pub fn render(t: &ModelTables, name: &str, origin: &str) -> Result<String> {
+    // The name goes into the source as is: it must be a Rust identifier.
+    ensure!(
+        name.chars()
+            .next()
+            .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+            && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+            && name != "_",
+        "--name {name:?} is not a Rust identifier (letters, digits and `_`, not starting with a \
+         digit)"
+    );
     let h = &t.hyper;
     let (nt, d, n) = (h.spatial.order, h.lanes(), h.index_points);
     let mut s = String::new();
@@ -226,6 +236,24 @@ mod tests {
         let h = HyperFile::load(&repo_root().join(DEFAULT_HYPER)).expect("default hyper file");
         let t = static_tables::<2, 6, 16>(&h).expect("tables");
         assert_eq!(*t, stjpdacf::tables::DEFAULT);
+    }
+
+    /// The static's name goes into the source: one that is no identifier is an error, not a
+    /// file that does not compile.
+    #[test]
+    fn render_refuses_a_name_that_is_no_identifier() {
+        let h = HyperFile::load(&repo_root().join(DEFAULT_HYPER)).expect("default hyper file");
+        let t = ModelTables::from_hyper(&h).expect("tables");
+        for bad in ["bad name", "", "1ST", "A-B", "_"] {
+            let e = render(&t, bad, DEFAULT_HYPER).unwrap_err();
+            assert!(
+                format!("{e}").contains("is not a Rust identifier"),
+                "{bad}: {e}"
+            );
+        }
+        assert!(render(&t, "MY_TABLES_2", DEFAULT_HYPER)
+            .unwrap()
+            .contains("pub static MY_TABLES_2: Tables<2, 6, 16>"));
     }
 
     #[test]

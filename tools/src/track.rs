@@ -669,7 +669,7 @@ impl LanesRecorder {
 
 /// A frame's time stamp as the tracker gets it, integer microseconds.
 pub fn frame_micros(f: &Frame) -> i64 {
-    (f.t * 1e6).round() as i64
+    f.micros()
 }
 
 /// Writes the header of a points file (`stjpdacf track --export-points`): the input of the C

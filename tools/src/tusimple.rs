@@ -9,7 +9,8 @@
 //! * [`Frame`] — one frame of feature points for the tracker:
 //!   `{"clip": str, "t": seconds, "points": [[x, y], ...], "raw_file": str?, "h_samples": [row, ...]?,
 //!   "camera": {...}?}`.
-//!   Frames of one clip are consecutive and their times increase strictly; `raw_file`/`h_samples`
+//!   Frames of one clip are consecutive and their times increase strictly (by at least the
+//!   tracker's microsecond); `raw_file`/`h_samples`
 //!   are present on frames for which a TuSimple prediction is to be written (`h_samples` needs
 //!   `raw_file`, and a `raw_file` with `h_samples` appears once per file: the scorer joins on it).
 //!   `camera` (the fields of [`crate::camera::Camera`]) is the camera the image points were
@@ -135,14 +136,26 @@ pub fn clips(frames: &[Frame]) -> impl Iterator<Item = &[Frame]> {
 }
 
 impl Frame {
-    /// Check one frame's values: a finite time, finite points, and `h_samples` (if any) non-empty,
-    /// finite and with a `raw_file`.
+    /// The largest time (s, either sign) the tracker's clock holds: integer microseconds in an
+    /// `i64` (about 292 000 years).
+    pub const MAX_TIME_S: f64 = 9.2e12;
+
+    /// The frame's time as the tracker gets it: integer microseconds.
+    pub fn micros(&self) -> i64 {
+        (self.t * 1e6).round() as i64
+    }
+
+    /// Check one frame's values: a finite time the tracker's microsecond clock holds
+    /// ([`Self::MAX_TIME_S`]), finite points, `h_samples` (if any) non-empty, finite and with a
+    /// `raw_file`, and the `camera` (if any) valid ([`crate::camera::Camera::check`]).
     pub fn check(&self) -> Result<()> {
         ensure!(
-            self.t.is_finite(),
-            "clip {}: time {} is not finite",
+            self.t.is_finite() && self.t.abs() <= Self::MAX_TIME_S,
+            "clip {}: time {} s is not finite or beyond the tracker's microsecond clock (±{:e} s); \
+             times are seconds",
             self.clip,
-            self.t
+            self.t,
+            Self::MAX_TIME_S
         );
         if let Some(rows) = &self.h_samples {
             ensure!(
@@ -163,6 +176,10 @@ impl Frame {
             .find(|(_, p)| !(p[0].is_finite() && p[1].is_finite()))
         {
             bail!("clip {}: point {i} {:?} is not finite", self.clip, p);
+        }
+        if let Some(cam) = &self.camera {
+            cam.check()
+                .with_context(|| format!("clip {}: bad camera", self.clip))?;
         }
         Ok(())
     }
@@ -288,7 +305,8 @@ pub fn parse_frames<R: BufRead>(reader: R, source: &str) -> Result<Vec<Frame>> {
 
 /// The order of a frames file: the frames of a clip are consecutive (a clip that reappears after
 /// another clip is an error: the tracker would have been reset), times increase strictly within
-/// a clip, and a `raw_file` that asks for a prediction (`h_samples` present) appears once.
+/// a clip at the tracker's microsecond resolution ([`Frame::micros`]), and a `raw_file` that
+/// asks for a prediction (`h_samples` present) appears once.
 /// `frames` pairs each frame with its line number; errors are `SOURCE:LINE: ...`.
 pub fn check_sequence(frames: &[(usize, Frame)], source: &str) -> Result<()> {
     use std::collections::HashMap;
@@ -298,10 +316,11 @@ pub fn check_sequence(frames: &[(usize, Frame)], source: &str) -> Result<()> {
     for item in frames {
         let (n, f) = item;
         match prev {
+            // The tracker's clock counts microseconds: times closer than that are one time.
             Some((pn, p)) if p.clip == f.clip => ensure!(
-                f.t > p.t,
+                f.micros() > p.micros(),
                 "{source}:{n}: time {} s of clip {} is not after {} s (line {pn}); times must \
-                 increase within a clip",
+                 increase within a clip, by at least a microsecond",
                 f.t,
                 f.clip,
                 p.t
@@ -481,6 +500,46 @@ mod tests {
         let msg = frames_err(&again);
         assert!(msg.starts_with("f.jsonl:4: clip a appears again"), "{msg}");
         assert!(msg.contains("ended at line 1"), "{msg}");
+    }
+
+    /// Times that differ in `f64` but not at the tracker's microsecond clock, or lie beyond it
+    /// (microseconds written as seconds), are errors: the tracker would refuse those frames
+    /// and their predictions would be missing.
+    #[test]
+    fn frame_times_are_checked_at_the_trackers_clock() {
+        let line =
+            |clip: &str, t: &str| format!("{{\"clip\": \"{clip}\", \"t\": {t}, \"points\": []}}\n");
+        let close = line("a", "0.0000001") + &line("a", "0.0000002");
+        let msg = frames_err(&close);
+        assert!(
+            msg.starts_with("f.jsonl:2: time 0.0000002 s of clip a"),
+            "{msg}"
+        );
+        assert!(msg.contains("at least a microsecond"), "{msg}");
+        let us = line("a", "1700000000000000") + &line("a", "1700000000050000");
+        let msg = frames_err(&us);
+        assert!(msg.starts_with("f.jsonl:1: bad frame"), "{msg}");
+        assert!(msg.contains("microsecond clock"), "{msg}");
+        let ok = line("a", "1700000000.0") + &line("a", "1700000000.000001");
+        assert_eq!(parse_frames(ok.as_bytes(), "f").unwrap().len(), 2);
+    }
+
+    /// A frame's camera (written by `frontend --camera estimate`) is checked as a camera file
+    /// is: a zero focal length or a negative height is an error, not an empty prediction.
+    #[test]
+    fn frame_camera_is_checked() {
+        let cam = |field: &str, v: f64| {
+            let mut c = serde_json::to_value(crate::camera::Camera::culane()).unwrap();
+            c[field] = serde_json::json!(v);
+            format!(r#"{{"clip": "c", "t": 0, "points": [], "camera": {c}}}"#)
+        };
+        let good = cam("focal_px", 1000.0);
+        assert_eq!(parse_frames(good.as_bytes(), "f").unwrap().len(), 1);
+        for (field, v) in [("focal_px", 0.0), ("height_m", -1.67), ("width", 0.0)] {
+            let msg = frames_err(&cam(field, v));
+            assert!(msg.starts_with("f.jsonl:1: bad frame"), "{field}: {msg}");
+            assert!(msg.contains("bad camera"), "{field}: {msg}");
+        }
     }
 
     #[test]

@@ -789,3 +789,27 @@ fn cli_time_stamps_follow_frame_numbers_and_fps() {
     assert!(err.contains("fps must be a positive number"), "{err}");
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// A clip folder that mixes numbered and other file names (`cover.png` beside `1.png`), or
+/// repeats a number (`2.png`, `02.png`), would give two images one time stamp: an error naming
+/// the files, not a frames file `track` refuses.
+#[test]
+fn cli_mixed_file_names_in_a_clip_are_an_error() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-mixed-{}", std::process::id()));
+    let blank = image::RgbImage::from_fn(1640, 590, asphalt);
+    for (case, names, culprit) in [
+        ("cover", ["cover", "1", "2"], "1.png"),
+        ("twice", ["1", "2", "02"], "2.png"),
+    ] {
+        let dir = d.join(case).join("clip");
+        std::fs::create_dir_all(&dir).unwrap();
+        for n in names {
+            blank.save(dir.join(format!("{n}.png"))).unwrap();
+        }
+        let err =
+            frontend_cli(&d.join(case), &d.join("f.jsonl"), &["--camera", "culane"]).unwrap_err();
+        assert!(err.contains(culprit), "{case}: {err}");
+        assert!(err.contains("must not mix them"), "{case}: {err}");
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+}

@@ -615,6 +615,30 @@ fn track_cli_every_frame_predicts_unlabelled_frames() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// With `--every-frame` every frame gets a prediction, so a `raw_file` that names two frames
+/// (allowed without the flag: it asks for no prediction) is an error, not two predictions of
+/// one name.
+#[test]
+fn track_cli_every_frame_refuses_a_repeated_raw_file() {
+    let rows: Vec<f64> = (0..48).map(|i| 96.0 + 4.0 * f64::from(i)).collect();
+    let (d, fpath, mut clip) = two_lane_clip_file("every-dup", 4, &rows);
+    clip[0].raw_file = Some("video.mp4".into());
+    clip[1].raw_file = Some("video.mp4".into());
+    write_frames(&fpath, &clip).unwrap();
+    let bev: [&std::ffi::OsStr; 4] = [
+        "--space".as_ref(),
+        "bev".as_ref(),
+        "--scale".as_ref(),
+        "0.4".as_ref(),
+    ];
+    assert_success(&run_track(&fpath, &d.join("p1.jsonl"), &bev));
+    let mut args = bev.to_vec();
+    args.push("--every-frame".as_ref());
+    let o = run_track(&fpath, &d.join("p2.jsonl"), &args);
+    assert_failure_mentions(&o, "raw_file video.mp4 names frames 1 and 2");
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
 /// `--lanes` writes every frame's published lanes with their ids, in the BEV: one record per
 /// frame, the same ids from frame to frame for the same markings.
 #[test]
