@@ -247,7 +247,9 @@ pub fn check_lane_values(what: &str, s: usize, z: &[f32], var: &[f32]) -> Result
     Ok(())
 }
 
-/// Checks one published step output of the reference tracker given `n_points` input points.
+/// Checks one published step output of the reference tracker given `n_points` input points,
+/// in its default configuration (with the known-lane stage: every caller's), so also that every
+/// smoothed lane is a lane published now, in the same slot (docs/design.md §11.5).
 ///
 /// # Errors
 /// A description of the first violation.
@@ -312,6 +314,16 @@ pub fn check_output(out: &StepOutput<LANES, POINTS>, n_points: usize) -> Result<
                 ));
             }
         }
+    }
+    if let Some(l) = out.smoothed.iter().find(|l| {
+        !out.filtered
+            .iter()
+            .any(|f| f.id == l.id && f.slot == l.slot)
+    }) {
+        return Err(format!(
+            "smoothed lane {:?} (slot {}) is not published now",
+            l.id, l.slot
+        ));
     }
     Ok(())
 }
