@@ -556,7 +556,9 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             let log_lr =
                 log_likelihood_ratio(lane.pd[row.band], prm.pg, band.clutter, gated_likelihood);
             let ev = &mut lanes[s];
-            if in_view && w > 1e-6 {
+            // §11.7: every row in view with `W_r > 0` (no threshold of the design's; the core
+            // skips `W_r ≤ 1e-6`, which moves the sums by at most `γ·1e-6` a row).
+            if in_view && w > 0.0 {
                 let f = (p / st).clamp(0.0, 1.0);
                 ev.q_score.0 += f * (n2 / st - w);
                 ev.q_score.1 += w * f * f;
