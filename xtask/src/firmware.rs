@@ -529,6 +529,11 @@ fn check(report: &Report, budget: &Budget) -> Vec<String> {
     let over = |have: u64, want: u64| {
         have as f64 > want as f64 * (1.0 + budget.tolerance) + budget.slack_instructions as f64
     };
+    for (b, be) in &budget.binaries {
+        if be.runs && !report.binaries.contains_key(b) {
+            fails.push(format!("{b}: budgeted, but not in the run"));
+        }
+    }
     for (b, br) in &report.binaries {
         let Some(be) = budget.binaries.get(b) else {
             fails.push(format!("{b}: no budget (run with --update-budget)"));
@@ -562,6 +567,11 @@ fn check(report: &Report, budget: &Budget) -> Vec<String> {
                 br.frames_bytes, budget.flash_limit_bytes
             ));
         }
+        for s in br.scenarios.keys() {
+            if !be.scenarios.contains_key(s) {
+                fails.push(format!("{b}/{s}: no budget (run with --update-budget)"));
+            }
+        }
         for (s, sb) in &be.scenarios {
             let Some(f) = br.scenarios.get(s) else {
                 fails.push(format!("{b}/{s}: scenario missing from the run"));
@@ -580,6 +590,14 @@ fn check(report: &Report, budget: &Budget) -> Vec<String> {
                 pairs.push((st.clone(), have, *want));
             }
             for (what, have, want) in pairs {
+                // A count the budget has but the run does not (its key missing from the FRAME
+                // lines, or its probe never called) reads 0, which no budget can exceed.
+                if want.max > 0 && have.max == 0 {
+                    fails.push(format!(
+                        "{b}/{s}: {what} not measured (0 on every frame; the budget has max {})",
+                        want.max
+                    ));
+                }
                 for (kind, h, w) in [
                     ("max", have.max, want.max),
                     ("median", have.median, want.median),

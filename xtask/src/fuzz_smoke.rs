@@ -150,6 +150,25 @@ fn smoke_target(
     for (k, n) in kinds {
         println!("    {n} {k}");
     }
+    // A run without a crash input must have ended as libFuzzer ends a clean run (exit 0) after
+    // executing inputs: a target that fails at start or exits at once has tested nothing.
+    if inputs.is_empty() {
+        ensure!(
+            out.status.success() && executions(&log) > 0,
+            "fuzz smoke {target}: libFuzzer ended ({}) after {} executions without a crash \
+             input:\n{}",
+            out.status,
+            executions(&log),
+            log.lines()
+                .rev()
+                .take(20)
+                .collect::<Vec<_>>()
+                .into_iter()
+                .rev()
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+    }
     Ok(unknown)
 }
 
@@ -197,5 +216,35 @@ mod tests {
         );
         assert_eq!(executions("#2 INITED\n#4096 pulse  cov: 1"), 4096);
         assert_eq!(executions("nothing"), 0);
+    }
+}
+
+#[cfg(test)]
+mod stub_targets {
+    use super::*;
+    use std::os::unix::fs::PermissionsExt;
+
+    /// `smoke_target` on a stand-in for the libFuzzer binary (a shell script).
+    fn smoke_stub(name: &str, body: &str) -> Result<usize> {
+        let d = std::env::temp_dir().join(format!("fuzz-smoke-stub-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        let bin = d.join("bin");
+        std::fs::create_dir_all(&bin)?;
+        let exe = bin.join("wire_decode");
+        std::fs::write(&exe, format!("#!/bin/sh\n{body}\n"))?;
+        std::fs::set_permissions(&exe, std::fs::Permissions::from_mode(0o755))?;
+        let r = smoke_target(&bin, &d.join("work"), "wire_decode", 4000, 60, &[]);
+        std::fs::remove_dir_all(&d)?;
+        r
+    }
+
+    #[test]
+    fn a_target_that_runs_nothing_fails() {
+        assert!(smoke_stub("silent", "exit 0").is_err());
+        assert!(smoke_stub("error", "echo 'ERROR: libFuzzer: x' >&2; exit 1").is_err());
+        assert_eq!(
+            smoke_stub("clean", "echo 'Done 4000 runs in 1 second(s)' >&2; exit 0").ok(),
+            Some(0)
+        );
     }
 }
