@@ -153,20 +153,14 @@ fn smoke_target(
     // A run without a crash input must have ended as libFuzzer ends a clean run (exit 0) after
     // executing inputs: a target that fails at start or exits at once has tested nothing.
     if inputs.is_empty() {
+        let lines: Vec<&str> = log.lines().collect();
         ensure!(
             out.status.success() && executions(&log) > 0,
             "fuzz smoke {target}: libFuzzer ended ({}) after {} executions without a crash \
              input:\n{}",
             out.status,
             executions(&log),
-            log.lines()
-                .rev()
-                .take(20)
-                .collect::<Vec<_>>()
-                .into_iter()
-                .rev()
-                .collect::<Vec<_>>()
-                .join("\n")
+            lines[lines.len().saturating_sub(20)..].join("\n")
         );
     }
     Ok(unknown)
