@@ -90,8 +90,9 @@ enum Command {
         #[arg(long, value_enum, default_value_t = ModelArg::Reference)]
         model: ModelArg,
         /// Camera: `tusimple` (1280x720), `culane` (a 1640x590 guess) or a camera JSON file
-        /// (fields width, height, vp_col, vp_row, height_m, focal_px). A clip whose frames carry their own cameras (`stjpdacf
-        /// frontend --camera estimate`) is mapped with the median of those instead.
+        /// (fields width, height, vp_col, vp_row, height_m, focal_px). A clip whose frames carry
+        /// their own cameras (`stjpdacf frontend --camera estimate`) is mapped with the median
+        /// of those instead.
         #[arg(long, default_value = "tusimple")]
         camera: String,
         /// Image scale relative to the camera (0.4 for 512x288 frames with `--camera tusimple`).
