@@ -107,6 +107,11 @@ pub fn run(frames: &str, rust_lanes: &[&str]) -> Result<()> {
         .copied()
         .filter(|l| l.starts_with("LANE F "))
         .collect();
+    // Identical and not empty: two empty lists would agree on nothing.
+    ensure!(
+        !want.is_empty(),
+        "the Rust firmware printed no filtered lane on the board's frames"
+    );
     if got != want {
         let i = got.iter().zip(&want).position(|(a, b)| a != b);
         bail!(

@@ -311,6 +311,8 @@ fn host_example() -> Result<()> {
             .args(HOST_LIBS)
             .arg("-o")
             .arg(&exe))?;
+        // Not an earlier run's file: the C example must write its own.
+        let _ = std::fs::remove_file(d.join(&c_file));
         run(Command::new(&exe).arg(p(&points)).arg(p(&c_file)))?;
         let (rust, rust_ms) = read_predictions(&d.join(&rust_file))?;
         let (c, c_ms) = read_predictions(&d.join(&c_file))?;
