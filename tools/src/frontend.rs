@@ -1661,6 +1661,29 @@ pub fn run_dir_timed(
         .collect())
 }
 
+/// What to tell a user whose labels name none of the images: `None` when `labels` is empty or
+/// at least one frame got its `h_samples` from them. A label belongs to an image when its
+/// `raw_file` is the image's path under the images' folder ([`raw_file_of`]); TuSimple labels
+/// name one image of each clip, so most frames of a clip have none and only a file that
+/// matches no image at all is reported (every frame then lacks the rows `track` writes a
+/// prediction at, and `eval` has nothing to score).
+pub fn unmatched_labels_note(frames: &[Frame], labels: &[TuSimpleRecord]) -> Option<String> {
+    let (first_label, first_image) = (labels.first()?, frames.first()?);
+    if frames.iter().any(|f| f.h_samples.is_some()) {
+        return None;
+    }
+    Some(format!(
+        "none of the {} labels names one of the {} images: a label's raw_file must be the \
+         image's path under the images' folder (the first image is {:?}, the first label names \
+         {:?}); no frame has h_samples, so `track` writes no prediction for them and `eval` \
+         has nothing to score",
+        labels.len(),
+        frames.len(),
+        first_image.raw_file.as_deref().unwrap_or_default(),
+        first_label.raw_file
+    ))
+}
+
 /// [`run_dir_timed`] with the camera of each image from `mode`, also returning that camera
 /// (the time includes estimating it, on the images an estimate ran on). Under
 /// [`CameraMode::EstimateShared`] the groups' estimates run first (their images are read twice).

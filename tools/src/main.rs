@@ -634,6 +634,15 @@ fn main() -> Result<()> {
                     stats.published_lanes as f64 / stats.frames as f64,
                 );
             }
+            if stats.outside_image_points > 0 {
+                eprintln!(
+                    "warning: {} image points lie outside the image of the camera they were \
+                     tracked with ({}x{} unless a frame carries its own): they were found with \
+                     another camera or image size, so their road positions are wrong (give \
+                     `track` the front end's --camera, and --scale for a resized image)",
+                    stats.outside_image_points, cam.width, cam.height
+                );
+            }
             if unlabelled > 0 {
                 eprintln!(
                     "({unlabelled} frames without h_samples rows or raw_file got no prediction; \
@@ -1009,6 +1018,11 @@ fn main() -> Result<()> {
             let frames = frames.into_iter().map(|(f, _, _)| f).collect::<Vec<_>>();
             bar.finish_and_clear();
             tusimple::write_frames(&out, &frames)?;
+            if let (Some(note), Some(p)) =
+                (frontend::unmatched_labels_note(&frames, &recs), &labels)
+            {
+                eprintln!("warning: {}: {note}", p.display());
+            }
             if let Some(dir) = &overlay {
                 std::fs::create_dir_all(dir)
                     .with_context(|| format!("creating {}", dir.display()))?;

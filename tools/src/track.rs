@@ -50,6 +50,10 @@ pub struct TrackStats {
     pub predictions: usize,
     /// Points that did not map to BEV (at or above the horizon, non-finite).
     pub unmapped_points: usize,
+    /// Image points ([`Space::Image`]) outside the image of the camera they were tracked with
+    /// ([`outside_image`]): points found with another camera or image scale, mapped to the road
+    /// by the wrong one (they are tracked as they are; `stjpdacf track` warns).
+    pub outside_image_points: usize,
     /// Steps the tracker rejected (non-increasing time within a clip).
     pub rejected_steps: usize,
     /// Mean `Tracker::step` time, ms.
@@ -122,6 +126,7 @@ impl TrackStats {
         self.clips += o.clips;
         self.predictions += o.predictions;
         self.unmapped_points += o.unmapped_points;
+        self.outside_image_points += o.outside_image_points;
         self.rejected_steps += o.rejected_steps;
         self.known_events += o.known_events;
         self.known_pruned_rows += o.known_pruned_rows;
@@ -483,6 +488,19 @@ pub fn bev_points(f: &Frame, cam: &Camera, space: Space, unmapped: &mut usize) -
     bev_pts
 }
 
+/// How many of `points` (image pixels `[column, row]`) lie outside `cam`'s image: a column or
+/// row below 0 or beyond its width or height (a non-finite one counts too). A point detector
+/// writes none, so any means the points come from another camera or another image scale than
+/// `cam` (e.g. a 512×288 front end's points tracked with the 1280×720 camera, `--scale`
+/// missing, or the other way round).
+pub fn outside_image(points: &[[f64; 2]], cam: &Camera) -> usize {
+    let inside = |v: f64, n: f64| (0.0..=n).contains(&v);
+    points
+        .iter()
+        .filter(|p| !(inside(p[0], cam.width) && inside(p[1], cam.height)))
+        .count()
+}
+
 /// TuSimple's label rows (160–710 px every 10 px of a 720-row image) scaled to an image
 /// `height` rows high: the rows a prediction is written at when a frame names none.
 pub fn tusimple_rows(height: f64) -> Vec<f64> {
@@ -803,6 +821,9 @@ pub fn track_with(
         let Some(tr) = tracker.as_mut() else { continue };
         let start = WallClock::now();
         let bev_pts = bev_points(f, cam, space, &mut stats.unmapped_points);
+        if space == Space::Image {
+            stats.outside_image_points += outside_image(&f.points, cam);
+        }
         let pts = preprocess(&bev_pts, tables);
         let step_start = WallClock::now();
         let res = tr.step(Instant::from_micros(frame_micros(f)), &pts);

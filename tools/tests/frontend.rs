@@ -462,6 +462,7 @@ fn cli_estimates_the_camera_of_uncalibrated_images_and_track_uses_it() {
     ok(&o);
     // The summary of the estimated cameras (one frame a clip, so each its own estimate).
     let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("labels names one of the"), "{err}");
     assert!(err.contains("estimated cameras: horizon row"), "{err}");
     assert!(
         err.contains("2 frames, each with its group's camera"),
@@ -812,4 +813,42 @@ fn cli_mixed_file_names_in_a_clip_are_an_error() {
         assert!(err.contains("must not mix them"), "{case}: {err}");
     }
     std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// A label file that names none of the images is reported (with an image's and a label's
+/// name, to compare); one that names some of them is not (TuSimple labels one frame a clip).
+#[test]
+fn labels_that_name_no_image_are_reported() {
+    use stjpdacf_tools::frontend::unmatched_labels_note;
+    let frame = |raw: &str, labelled: bool| Frame {
+        clip: "clips/a".into(),
+        t: 0.0,
+        points: Vec::new(),
+        raw_file: Some(raw.into()),
+        h_samples: labelled.then(|| vec![200.0]),
+        camera: None,
+    };
+    let label = TuSimpleRecord {
+        raw_file: "driver_23/05151640_0419.MP4/00030.jpg".into(),
+        lanes: Vec::new(),
+        h_samples: vec![200.0],
+        run_time: None,
+    };
+    let frames = [
+        frame("clips/a/1.jpg", false),
+        frame("clips/a/20.jpg", false),
+    ];
+    let note = unmatched_labels_note(&frames, std::slice::from_ref(&label)).unwrap();
+    assert!(
+        note.contains("none of the 1 labels names one of the 2 images")
+            && note.contains("\"clips/a/1.jpg\"")
+            && note.contains("\"driver_23/05151640_0419.MP4/00030.jpg\""),
+        "{note}"
+    );
+    let some = [frame("clips/a/1.jpg", false), frame("clips/a/20.jpg", true)];
+    assert_eq!(
+        unmatched_labels_note(&some, std::slice::from_ref(&label)),
+        None
+    );
+    assert_eq!(unmatched_labels_note(&frames, &[]), None);
 }

@@ -431,6 +431,41 @@ fn track_cli_camera_file_scale_and_bad_files() {
     let o = run_track(&fpath, &p3, &[]);
     assert!(o.status.success());
     assert_ne!(read_predictions(&p3).unwrap()[0].lanes, a[0].lanes);
+    // Points inside the 512×288 image tracked with its camera: no warning. The same points in
+    // 1280×720 pixels tracked with the 512×288 camera: the points beyond its image are counted
+    // and the run warns (it still tracks them). (The clip's nearest rows lie below the image.)
+    let warning = "image points lie outside the image of the camera";
+    let inside = |c: f64, r: f64| (0.0..=512.0).contains(&c) && (0.0..=288.0).contains(&r);
+    let (big, mut beyond) = (Camera::tusimple(), 0);
+    let mut seen = frames.clone();
+    let mut big_frames = frames.clone();
+    for (f, g) in seen.iter_mut().zip(&mut big_frames) {
+        f.points.retain(|p| inside(p[0], p[1]));
+        g.points = f
+            .points
+            .iter()
+            .map(|p| {
+                let (u, x) = small.to_bev(p[0], p[1]).unwrap();
+                let (c, r) = big.to_image(u, x).unwrap();
+                beyond += usize::from(!inside(c, r));
+                [c, r]
+            })
+            .collect();
+    }
+    assert!(beyond > 0);
+    let (spath, bpath) = (d.join("seen.jsonl"), d.join("big.jsonl"));
+    write_frames(&spath, &seen).unwrap();
+    write_frames(&bpath, &big_frames).unwrap();
+    let o = run_track(&spath, &p3, &["--scale".as_ref(), "0.4".as_ref()]);
+    assert_success(&o);
+    assert!(!String::from_utf8_lossy(&o.stderr).contains(warning));
+    let o = run_track(&bpath, &p3, &["--scale".as_ref(), "0.4".as_ref()]);
+    assert_success(&o);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(
+        err.contains(&format!("warning: {beyond} {warning}")),
+        "{err}"
+    );
     // A camera file with a missing field, and one with a zero focal length.
     let bad = d.join("badcam.json");
     std::fs::write(
