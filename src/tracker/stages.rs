@@ -1533,11 +1533,11 @@ mod slot_tests {
         cfg.identity.max_misses = 1;
         let mut t = Box::new(ReferenceTracker::UNINIT);
         t.init(&DEFAULT, cfg);
-        let mut ids = std::vec::Vec::new();
+        let mut ids = [None; 8];
         let mut k = 0u32;
-        for _ in 0..8 {
+        for id in &mut ids {
             step(&mut t, &lane(-1.8, k), &mut k);
-            ids.push(t.ids.lane(0).map(|l| l.id));
+            *id = t.ids.lane(0).map(|l| l.id);
         }
         assert!(
             ids[0].is_some() && ids.iter().all(|i| *i == ids[0]),
