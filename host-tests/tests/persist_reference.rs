@@ -11,7 +11,9 @@
 //!     exact reference pass (`reference::persist::known_lane_pass`) on the same inputs: each
 //!     lane's information `J`, `i`, its row weight and existence log-likelihood ratio, and the
 //!     explained-points masks; on the default tables and on the uncoupled ones (where the core
-//!     enumerates each row's uncorrelated clusters on their own, the reference the whole row).
+//!     enumerates each row's uncorrelated clusters on their own, the reference the whole row);
+//!     and with every row weighed by LBP (`Association::Lbp`, the smallest model's association)
+//!     against the reference's LBP with each lane's own `P_D` (`RowWeights::Lbp`).
 //!
 //! The tolerances are stated with each comparison; the measured maxima are printed
 //! (`cargo test -p stjpdacf-test-support --test persist_reference -- --nocapture`).
@@ -24,7 +26,9 @@ use stjpdacf::persist::{
     self, Evidence, Explained, Lanes, PaintGap, Pass, PassMemory, Persist, RowBasis,
 };
 use stjpdacf::probe::NoProbe;
-use stjpdacf::spatial::row::{MissModel, RowParams};
+use stjpdacf::spatial::row::{
+    Association, MissModel, RowParams, LBP_MAX_ITERATIONS, LBP_TOLERANCE,
+};
 use stjpdacf::tables::{Tables, DEFAULT, UNCOUPLED};
 use stjpdacf::temporal::filter::TemporalFilter;
 use stjpdacf::temporal::smoother::Temporal;
@@ -462,6 +466,15 @@ fn pass_params(cfg: &TrackerConfig) -> refp::PassParams {
         },
         explained: f64::from(cfg.persist.explained),
         own_pd: cfg.persist.own_pd,
+        // `ExactOrLbp` is exact on these scenes (the comparison checks that no row went over
+        // the budget).
+        weights: match cfg.persist.association {
+            Association::Lbp => refp::RowWeights::Lbp {
+                max_iterations: LBP_MAX_ITERATIONS,
+                tolerance: f64::from(LBP_TOLERANCE),
+            },
+            Association::Exact | Association::ExactOrLbp => refp::RowWeights::Exact,
+        },
     }
 }
 
@@ -529,6 +542,9 @@ struct PassDev {
     /// `max |Δ E[T]|, |Δ E[N]|` of the chain per row in view, and the lanes compared.
     chain: f64,
     chain_lanes: usize,
+    /// Rows the core weighed by LBP (`Association::Lbp`), and of them those with a cycle.
+    lbp_rows: usize,
+    lbp_cycles: usize,
 }
 
 /// Runs the tracker for `warmup` frames, then compares the known-lane pass of the next frame;
@@ -537,7 +553,7 @@ struct PassDev {
 fn compare_pass(
     (tables, hyper): (&'static Tables<2, LANES, POINTS>, &str),
     (seed, warmup, clutter, restrict): (u64, usize, f64, bool),
-    (paint_gap, own_pd): (Option<PaintGap>, bool),
+    (paint_gap, own_pd, association): (Option<PaintGap>, bool, Association),
     dev: &mut PassDev,
 ) {
     let m = model_of(hyper);
@@ -545,6 +561,7 @@ fn compare_pass(
     let mut cfg = TrackerConfig::DEFAULT;
     cfg.persist.paint_gap = paint_gap;
     cfg.persist.own_pd = own_pd;
+    cfg.persist.association = association;
     let mut tracker = Box::new(ReferenceTracker::new(tables));
     let dt_us = 50_000i64;
     for k in 0..warmup {
@@ -700,21 +717,42 @@ fn compare_pass(
     let mut basis = RowBasis::<RANK, ROWS>::NEW;
     basis.ensure(tables, &pass);
     let mut blocks = PassMemory::<RANK, LANES>::NEW;
-    let failed = ps
-        .associate(
-            tables,
-            (&basis, &mut blocks),
-            temporal.filter(),
-            &lanes,
-            &pass,
-            &pcfg,
-            |k| rows32[k].as_slice(),
-            false,
-            &mut ev,
-            &mut explained,
-        )
-        .failed_rows;
-    assert_eq!(failed, 0, "seed {seed}: rows failed in the core");
+    let counts = ps.associate(
+        tables,
+        (&basis, &mut blocks),
+        temporal.filter(),
+        &lanes,
+        &pass,
+        &pcfg,
+        |k| rows32[k].as_slice(),
+        false,
+        &mut ev,
+        &mut explained,
+    );
+    assert_eq!(
+        counts.failed_rows, 0,
+        "seed {seed}: rows failed in the core"
+    );
+    assert_eq!(
+        counts.pruned_rows, 0,
+        "seed {seed}: rows pruned in the core"
+    );
+    if association == Association::Lbp {
+        assert!(counts.lbp_rows > 0 && counts.events == 0, "{counts:?}");
+        // Rows with a point in two lanes' gates: the association graph has a cycle and the
+        // messages iterate (without one, one pass is exact).
+        dev.lbp_rows += counts.lbp_rows as usize;
+        dev.lbp_cycles += (0..n_rows)
+            .filter(|&k| {
+                (0..rows[k].points.len()).any(|j| {
+                    let gated_by = want.lanes.iter().flat_map(|w| &w.rows);
+                    gated_by.filter(|lr| lr.row == k && lr.gated[j]).count() > 1
+                })
+            })
+            .count();
+    } else {
+        assert_eq!(counts.lbp_rows, 0, "seed {seed}: LBP rows in the core");
+    }
     // Per lane.
     // A point on a lane's gate (`(z − ẑ)²/S` within GATE_MARGIN of γ) may be gated in f32 and
     // not in f64: that lane and that row are not compared (counted).
@@ -940,9 +978,12 @@ fn known_lane_pass_matches_the_reference() {
             // The existence evidence of the design's default (1/K Σ_r ln Λ_r) and of the
             // paint / gap chain (§11.5); the joint events at each lane's `P_D,b` and at the
             // stage's `P_D` (§11.3).
+            // Every row weighed by LBP (the smallest model's association) as well.
             for paint_gap in [None, Some(PaintGap::HIGHWAY)] {
                 for own_pd in [true, false] {
-                    compare_pass(model, case, (paint_gap, own_pd), &mut dev);
+                    for association in [Association::ExactOrLbp, Association::Lbp] {
+                        compare_pass(model, case, (paint_gap, own_pd, association), &mut dev);
+                    }
                 }
             }
         }
@@ -954,6 +995,14 @@ fn known_lane_pass_matches_the_reference() {
     assert!(
         dev.chain_lanes > 0,
         "no lane compared under the paint / gap chain"
+    );
+    assert!(
+        dev.lbp_cycles > 0,
+        "no LBP row with a cycle: the messages' iteration is not compared"
+    );
+    println!(
+        "known-lane pass with LBP on every row: {} rows, {} of them with a point in two gates",
+        dev.lbp_rows, dev.lbp_cycles
     );
     println!(
         "known-lane pass, paint / gap chain: E[T], E[N] max {:.2e} per row in view over {} lanes \

@@ -578,7 +578,8 @@ fn pda_track(
 /// iteration `μ_dj = ψ_dj / (1 + Σ_{j' ≠ j} ψ_dj' ν_dj')` and
 /// `ν_dj = 1 / (1 + Σ_{d' ≠ d} μ_d'j)`, until no `ν` moves by more than `tolerance` or after
 /// `max_iterations`; `β_d0 = 1 / (1 + Σ_j ψ_dj ν_dj)`, `β_dj = ψ_dj ν_dj β_d0`. Returns the
-/// marginals in [`RowResult::beta`]'s layout and the iterations run (at least 1).
+/// marginals in [`RowResult::beta`]'s layout and the iterations run (at least 1). Every track at
+/// `params.pd`: [`lbp_marginals_with_pd`].
 pub fn lbp_marginals(
     gating: &Gating,
     zs: &[f64],
@@ -586,18 +587,39 @@ pub fn lbp_marginals(
     max_iterations: u32,
     tolerance: f64,
 ) -> (Vec<Vec<f64>>, u32) {
+    let pd = vec![params.pd; gating.zhat.len()];
+    lbp_marginals_with_pd(gating, zs, params, &pd, max_iterations, tolerance)
+}
+
+/// [`lbp_marginals`] with a detection probability per track (`pd[t]` in place of `params.pd`;
+/// docs/design.md §11.3, the known-lane pass's rows): `ψ_dj = P_D,d N(z_j; ẑ_d, S_d) / (λ_c ·
+/// miss(P_D,d))`, with `|ln ψ_dj|` clamped to 60 as the design states.
+///
+/// # Panics
+/// When `pd` does not hold one value per track of `gating`.
+pub fn lbp_marginals_with_pd(
+    gating: &Gating,
+    zs: &[f64],
+    params: &RowParams,
+    pd: &[f64],
+    max_iterations: u32,
+    tolerance: f64,
+) -> (Vec<Vec<f64>>, u32) {
     let d = gating.zhat.len();
+    assert_eq!(pd.len(), d, "one P_D per track");
     let m = zs.len();
-    let miss = params.miss.miss_factor(params.pd, params.pg);
     let psi: Vec<Vec<f64>> = (0..d)
         .map(|t| {
+            let s = gating.s[t];
+            let ln_norm = pd[t].ln()
+                - 0.5 * (2.0 * PI * s).ln()
+                - params.clutter_density.ln()
+                - params.miss.miss_factor(pd[t], params.pg).ln();
             (0..m)
                 .map(|j| {
                     if gating.valid[t][j] {
-                        let s = gating.s[t];
                         let e = zs[j] - gating.zhat[t];
-                        params.pd * (-0.5 * e * e / s).exp()
-                            / ((2.0 * PI * s).sqrt() * params.clutter_density * miss)
+                        (ln_norm - 0.5 * e * e / s).clamp(-60.0, 60.0).exp()
                     } else {
                         0.0
                     }

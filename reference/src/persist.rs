@@ -5,7 +5,8 @@
 //!
 //! Written from the design text with dynamic nalgebra matrices; nothing here uses the core crate.
 //! Everything is exact: all joint events of a row are enumerated ([`crate::jpda::row_step_with_pd`], no
-//! budget `E`, no pruning), the basis is computed in f64 from the Gram eigenpairs of
+//! budget `E`, no pruning; or, as the core's `Association::Lbp`, every row weighed by LBP,
+//! [`RowWeights::Lbp`]), the basis is computed in f64 from the Gram eigenpairs of
 //! [`ModelTables`], and the temporal update ([`info_update`]) is the textbook Kalman update of the
 //! whole dense state with an equivalent measurement, not the core's Woodbury algebra.
 //!
@@ -187,6 +188,23 @@ pub struct PassParams {
     pub miss: MissConvention,
     /// A point whose `Σ_s β_{s,j}` reaches this is explained by the known lanes.
     pub explained: f64,
+    /// How each row's marginals `β` are weighed.
+    pub weights: RowWeights,
+}
+
+/// How the pass weighs a row's association (docs/design.md §11.3).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RowWeights {
+    /// Every joint event of the coupled likelihood, no budget.
+    Exact,
+    /// Loopy belief propagation on the uncoupled likelihood on every row
+    /// ([`jpda::lbp_marginals_with_pd`]; the core's `Association::Lbp`).
+    Lbp {
+        /// Most message iterations.
+        max_iterations: u32,
+        /// The iteration stops once no point → track message moves by more than this.
+        tolerance: f64,
+    },
 }
 
 /// The paint / gap chain of a lane's rows for its existence evidence (docs/design.md §11.5):
@@ -392,6 +410,8 @@ fn normal_pdf(x: f64, s: f64) -> f64 {
 /// (`P_row,st = c_rᵀ Cov(a_s, a_t) c_r + ρ_r B_ρ(s)ρ(t)`), point variance `r_b` and each lane's
 /// `P_D,b`, so that its `S̄` is the joint `S` of §11.3). A lane that gates no point is missed in every event: its constant miss
 /// factor changes no `β`, so including it equals enumerating only the lanes with candidates.
+/// With [`RowWeights::Lbp`] the `β` are instead the LBP marginals of the uncoupled likelihood
+/// ([`jpda::lbp_marginals_with_pd`] on each lane's marginal gate and `S_ss`, its `P_D,b`).
 ///
 /// # Errors
 /// Shapes that disagree (coefficients of another length than the tables' rank, a covariance of
@@ -504,13 +524,34 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
                 }
             })
             .collect();
-        let res = jpda::row_step_with_pd(&zhat, &p_row, &one, &row.points, &params, &pds)
-            .with_context(|| format!("row {ri}: the joint events cannot be weighed"))?;
+        let (beta_all, gating) = match prm.weights {
+            RowWeights::Exact => {
+                let res =
+                    jpda::row_step_with_pd(&zhat, &p_row, &one, &row.points, &params, &pds)
+                        .with_context(|| format!("row {ri}: the joint events cannot be weighed"))?;
+                (res.beta, res.gating)
+            }
+            RowWeights::Lbp {
+                max_iterations,
+                tolerance,
+            } => {
+                let gating = jpda::gate(&zhat, &p_row, &one, band.noise, &row.points, prm.gamma);
+                let (beta, _) = jpda::lbp_marginals_with_pd(
+                    &gating,
+                    &row.points,
+                    &params,
+                    &pds,
+                    max_iterations,
+                    tolerance,
+                );
+                (beta, gating)
+            }
+        };
         // Each point's density under the other lanes' detections: λ + Σ_t P_D P_t N(z_j; ẑ_t,
         // S_tt) over the lanes that gate it; a lane's own term is taken out below (§11.5).
         let lane_density = |a: usize, j: usize| -> f64 {
-            if res.gating.valid[a][j] {
-                normal_pdf(row.points[j] - zhat[a], res.gating.s[a])
+            if gating.valid[a][j] {
+                normal_pdf(row.points[j] - zhat[a], gating.s[a])
             } else {
                 0.0
             }
@@ -521,14 +562,14 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             .collect();
         for (a, &s) in idx.iter().enumerate() {
             let lane = &input.lanes[s];
-            let beta: Vec<f64> = res.beta[a].iter().skip(1).copied().collect();
-            let beta_miss = res.beta[a][0];
+            let beta: Vec<f64> = beta_all[a].iter().skip(1).copied().collect();
+            let beta_miss = beta_all[a][0];
             for (sum, b) in sums.iter_mut().zip(&beta) {
                 *sum += b;
             }
             let zh = zhat[a];
             let p = p_row[(a, a)];
-            let st = res.gating.s[a];
+            let st = gating.s[a];
             let w = 1.0 - beta_miss;
             let nu_bar: f64 = beta
                 .iter()
@@ -543,7 +584,7 @@ pub fn known_lane_pass(model: &ModelTables, input: &PassInput<'_>) -> Result<Pas
             let spread = n2 - nu_bar * nu_bar;
             let q = w / st - spread / (st * st);
             let equivalent = (q > 0.0).then(|| (1.0 / q - p, zh + nu_bar / (q * st)));
-            let gated = res.gating.valid[a].clone();
+            let gated = gating.valid[a].clone();
             let gated_likelihood: f64 = (0..m)
                 .filter(|&j| gated[j])
                 .map(|j| {
