@@ -23,7 +23,8 @@ import sys
 import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-EXE = os.path.join(ROOT, "target", "release", "examples", "spatial_icount")
+TARGET = os.environ.get("CARGO_TARGET_DIR") or os.path.join(ROOT, "target")
+EXE = os.path.join(os.path.abspath(TARGET), "release", "examples", "spatial_icount")
 SCALAR_DIR = os.path.join(ROOT, "target", "icount-scalar")
 SCALAR_FLAGS = "-C llvm-args=-vectorize-loops=false -C llvm-args=-vectorize-slp=false"
 STAGES = ["binning", "row_predict", "gating", "events", "update", "management", "backward"]

@@ -25,7 +25,8 @@
 //! * `tracker_step_adversarial_256points` — core only (its rows exceed E: the reference would
 //!   enumerate every event of them);
 //! * `stage_<stage>_<sequence>` for spatial, identity, temporal, smoother — `core_f32_in_step`:
-//!   the stage's time inside the core's full step, from the timing probe
+//!   the stage's time inside the core's full step, from the timing probe (spatial: the
+//!   known-lane rows, `Stage::Known`, and the JPDACF walk on the points they leave)
 //!   (`Bencher::iter_custom` returns the time charged to the stage, over frames the thread ran
 //!   throughout); `reference_f64`: the
 //!   reference's piece of that stage alone on the same frames (spatial `run_frame`; identity
@@ -217,14 +218,14 @@ fn in_step(
     g: &mut criterion::BenchmarkGroup<'_, ThreadCpuTime>,
     driver: &mut Driver<ReferenceTracker>,
     frames: &[Frame],
-    group: StageGroup,
+    groups: &[StageGroup],
 ) {
     g.bench_function("core_f32_in_step", |b| {
         b.iter_custom(|iters| {
             let mut acc = Duration::ZERO;
             for _ in 0..iters {
                 let p = driver.step_clean(frames, StageTimer::new);
-                acc += group.of(&p);
+                acc += groups.iter().map(|gr| gr.of(&p)).sum::<Duration>();
             }
             acc
         })
@@ -401,7 +402,15 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
             let r = sf.run(&DEFAULT, &scfg, black_box(&p[..p.len().min(256)]), &mut obs);
             (r, obs)
         });
-        in_step(&mut g, &mut core, frames, StageGroup::Spatial);
+        // The core's spatial association of a frame is the known-lane rows (`Stage::Known`,
+        // which explain most points at steady state) and the JPDACF walk on the rest: both,
+        // as the reference's `run_frame` and the core's `SpatialFilter::run` alone do it all.
+        in_step(
+            &mut g,
+            &mut core,
+            frames,
+            &[StageGroup::Spatial, StageGroup::Known],
+        );
         if with_reference {
             bench_cycling(&mut g, "reference_f64", frames.len(), |s2| {
                 let p = &frames[s2].p64;
@@ -411,7 +420,7 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         g.finish();
 
         let mut g = c.benchmark_group(format!("stage_identity_{name}"));
-        in_step(&mut g, &mut core, frames, StageGroup::Identity);
+        in_step(&mut g, &mut core, frames, &[StageGroup::Identity]);
         if let Some(rs) = rs.as_ref() {
             bench_cycling(&mut g, "reference_f64", rs.curves.len(), |k| {
                 identity::assign(black_box(&rs.curves[k]), &rs.preds[k], gate)
@@ -420,7 +429,7 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         g.finish();
 
         let mut g = c.benchmark_group(format!("stage_temporal_{name}"));
-        in_step(&mut g, &mut core, frames, StageGroup::Temporal);
+        in_step(&mut g, &mut core, frames, &[StageGroup::Temporal]);
         if let Some(rs) = rs.as_ref() {
             bench_cycling(&mut g, "reference_f64_predict_update", rs.meas.len(), |k| {
                 dense
@@ -431,7 +440,7 @@ fn tracker(c: &mut Criterion<ThreadCpuTime>) {
         g.finish();
 
         let mut g = c.benchmark_group(format!("stage_smoother_{name}"));
-        in_step(&mut g, &mut core, frames, StageGroup::Smoother);
+        in_step(&mut g, &mut core, frames, &[StageGroup::Smoother]);
         if let Some(r) = rdrv.as_mut() {
             // The newest window whose fixed-lag output is computable.
             let mut tries = 0;

@@ -16,9 +16,11 @@ use crate::probes::{CallCounter, StageGroup, StageTimer};
 pub struct FrameSummary {
     /// Points given to the spatial filter (after the `MEAS` cut).
     pub points: u32,
-    /// Joint events scored over the frame.
+    /// Joint events scored over the frame: the known-lane rows' (almost all of them at steady
+    /// state) and the spatial walk's on the points those rows leave.
     pub events: u32,
-    /// Rows whose events were pruned to fit E.
+    /// Rows over E: the spatial walk's pruned rows and the known-lane rows pruned or (with
+    /// `Association::ExactOrLbp`, the default) weighed by LBP instead.
     pub rows_approximated: u32,
     /// Filtered lanes published.
     pub lanes: u32,
@@ -61,8 +63,8 @@ impl<
         let r = &out.report;
         Some(FrameSummary {
             points: r.spatial.points_in,
-            events: r.spatial.events,
-            rows_approximated: r.spatial.rows_approximated,
+            events: r.spatial.events + r.known.events,
+            rows_approximated: r.spatial.rows_approximated + r.known.pruned_rows + r.known.lbp_rows,
             lanes: out.filtered.len() as u32,
             smoothed: out.smoothed.len() as u32,
         })

@@ -569,7 +569,8 @@ pub fn render_markdown(r: &Results) -> Result<String> {
         writeln!(s, "### Each stage, core f32 vs dense f64 reference\n")?;
         writeln!(
             s,
-            "`core in step`: the stage's time inside the core's full step (timing probe); \
+            "`core in step`: the stage's time inside the core's full step (timing probe; \
+             spatial = the known-lane rows + the JPDACF walk on the points they leave); \
              `core alone`: `SpatialFilter::run` by itself; `reference`: the reference's piece \
              alone on the same frames (spatial `run_frame`; identity `assign` against the dense \
              predictions; dense predict + update over the lanes it carries; fixed-lag RTS \

@@ -428,7 +428,8 @@ impl Diff {
         for (k, d) in values {
             s2 += d * d;
             n += 1;
-            if d.abs() > max {
+            // A NaN makes `max` NaN (and every `max <= bound` false) instead of being skipped.
+            if d.is_nan() || d.abs() > max {
                 max = d.abs();
                 at = k;
             }

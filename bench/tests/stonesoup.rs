@@ -104,3 +104,18 @@ fn lbp_marginals_equal_exact_enumeration_without_shared_points() {
     assert_eq!(a.max_iterations, 1);
     assert!(a.beta.max <= BETA_MAX, "β max {:e}", a.beta.max);
 }
+
+/// A NaN among the compared values breaks every bound (a `max` that skipped it would not).
+#[test]
+fn a_nan_breaks_the_bounds() {
+    let scans = Scans::load().unwrap();
+    let rep = replay(&scans);
+    let mut ss = StoneSoupBeta::load().unwrap();
+    ss.beta[10][0][0].1 = f64::NAN;
+    let b = beta_agreement(&rep, &ss);
+    assert!(
+        b.beta.max.is_nan() && !(b.beta.max <= BETA_MAX),
+        "β with a NaN: max {:e}",
+        b.beta.max
+    );
+}
