@@ -113,9 +113,6 @@ fn a_nan_breaks_the_bounds() {
     let mut ss = StoneSoupBeta::load().unwrap();
     ss.beta[10][0][0].1 = f64::NAN;
     let b = beta_agreement(&rep, &ss);
-    assert!(
-        b.beta.max.is_nan() && !(b.beta.max <= BETA_MAX),
-        "β with a NaN: max {:e}",
-        b.beta.max
-    );
+    // NaN: `states_and_association_agree_with_stonesoup`'s `max <= BETA_MAX` fails.
+    assert!(b.beta.max.is_nan(), "β with a NaN: max {:e}", b.beta.max);
 }
