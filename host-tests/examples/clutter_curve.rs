@@ -7,8 +7,7 @@
 //!
 //! Each cell drives `--drives` seeded roads of `--frames` frames (30 fps) with the uniform
 //! clutter held at one density (points per metre per BEV row over ±12 m, on every stretch) and
-//! the lines all solid or all dashed (every line but the leftmost visible one: 3 m dashes, 9 m
-//! gaps); everything else — lines, weave, lane changes, detection rate 0.6–0.97, point noise
+//! the lines all solid or all dashed (3 m dashes, 9 m gaps; `soak::Forced::dashed`); everything else — lines, weave, lane changes, detection rate 0.6–0.97, point noise
 //! 3–15 cm, blackouts, dropped frames — varies as in the soak. Published lanes (the tracker's
 //! filtered lanes; the fit's quadratics over their inliers' extent) are matched to the true lines
 //! by the soak's rule (`soak::match_truth`: mean |Δx| < 0.5 m over the lane's observed index
@@ -131,6 +130,7 @@ fn drive<const RANK: usize, const NX: usize, const NA: usize>(
         let f = road.next_frame();
         let out = tracker.step(Instant::from_micros(f.t_us), &f.points);
         if f.blackout {
+            id_switches(&mut last_id, &[], &[]);
             continue;
         }
         c.frames += 1;
@@ -146,7 +146,8 @@ fn drive<const RANK: usize, const NX: usize, const NA: usize>(
                 .iter()
                 .filter(|l| l.age >= 30 && m.iter().all(|(_, id, _)| *id != l.id.0))
                 .count() as u64;
-            c.id_switches += id_switches(&mut last_id, &m);
+            let visible: Vec<i64> = f.truth.iter().map(|(k, _)| *k).collect();
+            c.id_switches += id_switches(&mut last_id, &visible, &m);
         }
         let pts: Vec<(f64, f64)> = f
             .points

@@ -131,7 +131,8 @@ struct Conditions {
 pub struct Forced {
     /// Uniform clutter, points per metre per BEV row over ±12 m.
     pub clutter: Option<f64>,
-    /// Dashed lines (every line but the leftmost visible one: 3 m dashes, 9 m gaps) or solid.
+    /// Dashed lines (3 m dashes, 9 m gaps: in effect every visible line, see `Road::next_frame`)
+    /// or solid.
     pub dashed: Option<bool>,
     /// Lateral point noise, standard deviation in metres (the soak draws 0.03–0.15).
     pub sigma: Option<f64>,
@@ -329,6 +330,9 @@ impl Road {
             for r in 0..rows {
                 let u = u_min + r as f64 * row;
                 for &k in &visible {
+                    // Dashed: every line but `k_lo`, the first candidate, one spacing beyond
+                    // the window's left edge and so almost never visible (meant as the leftmost
+                    // visible line; kept, as every soak figure since stop 54 was drawn with it).
                     if self.cond.dashed
                         && k != k_lo
                         && (u + travelled + 5.0 * k as f64) % 12.0 >= 3.0
@@ -730,16 +734,23 @@ pub fn match_truth(
     (m, [unmatched, coasting])
 }
 
-/// Counts the id switches of one frame's matches ([`match_truth`]): a line whose matched lane
-/// id differs from the one it had in the last frame it was matched. A line not matched this
-/// frame forgets its id (a new id after a gap is not a switch). `last` carries each line's id
+/// Counts the id switches of one frame's matches ([`match_truth`]) among its `visible` lines (the
+/// road indices of `RoadFrame::truth`): a line whose matched lane id differs from the one it had
+/// in the last frame it was matched while it stayed visible (a frame where it is visible but not
+/// matched does not end its run: a new id after it is a switch). A line that is not visible
+/// forgets its id (a blackout frame: call with no visible line). `last` carries each line's id
 /// from frame to frame.
-pub fn id_switches(last: &mut BTreeMap<i64, u32>, matches: &[(i64, u32, f64)]) -> u64 {
+pub fn id_switches(
+    last: &mut BTreeMap<i64, u32>,
+    visible: &[i64],
+    matches: &[(i64, u32, f64)],
+) -> u64 {
     let switches = matches
         .iter()
         .filter(|(line, id, _)| last.get(line).is_some_and(|prev| prev != id))
         .count() as u64;
-    *last = matches.iter().map(|&(line, id, _)| (line, id)).collect();
+    last.retain(|line, _| visible.contains(line));
+    last.extend(matches.iter().map(|&(line, id, _)| (line, id)));
     switches
 }
 
@@ -836,7 +847,10 @@ pub fn run_drive(
                 for l in &out.filtered {
                     max_id = max_id.max(Some(l.id.0));
                 }
-                if !f.blackout {
+                if f.blackout {
+                    // No line is visible: each forgets its id.
+                    id_switches(&mut last_id, &[], &[]);
+                } else {
                     let (m, [unmatched, coasting]) = match_truth(&out.filtered, &f.truth);
                     s.line_frames += f.truth.len() as u64;
                     s.line_frames_matched += m.len() as u64;
@@ -845,7 +859,8 @@ pub fn run_drive(
                     for (_, _, e) in &m {
                         err_sum += e;
                     }
-                    s.id_switches += id_switches(&mut last_id, &m);
+                    let visible: Vec<i64> = f.truth.iter().map(|(k, _)| *k).collect();
+                    s.id_switches += id_switches(&mut last_id, &visible, &m);
                 }
             }
         }

@@ -165,19 +165,35 @@ fn forced_conditions_hold() {
     assert!(dashed_on < 0.6 * solid_on, "{dashed_on} {solid_on}");
 }
 
-/// Id switches count a line whose matched id changed since the last frame it was matched in,
-/// and forget a line that was not matched.
+/// Id switches count a line whose matched id changed since the last frame it was matched in
+/// while it stayed visible, and forget a line that was not visible.
 #[test]
 fn id_switches_follow_each_line() {
     use std::collections::BTreeMap;
     use stjpdacf_test_support::soak::id_switches;
     let mut last = BTreeMap::new();
-    assert_eq!(id_switches(&mut last, &[(0, 5, 0.1), (1, 6, 0.1)]), 0);
+    let both = [0, 1];
+    assert_eq!(
+        id_switches(&mut last, &both, &[(0, 5, 0.1), (1, 6, 0.1)]),
+        0
+    );
     // Line 0 keeps its id, line 1 changes: one switch.
-    assert_eq!(id_switches(&mut last, &[(0, 5, 0.1), (1, 7, 0.1)]), 1);
-    // Line 1 is not matched: forgotten, so a new id after the gap is not a switch.
-    assert_eq!(id_switches(&mut last, &[(0, 5, 0.1)]), 0);
-    assert_eq!(id_switches(&mut last, &[(0, 9, 0.1), (1, 8, 0.1)]), 1);
+    assert_eq!(
+        id_switches(&mut last, &both, &[(0, 5, 0.1), (1, 7, 0.1)]),
+        1
+    );
+    // Line 1 is not visible: forgotten, so a new id after the gap is not a switch.
+    assert_eq!(id_switches(&mut last, &[0], &[(0, 5, 0.1)]), 0);
+    assert_eq!(
+        id_switches(&mut last, &both, &[(0, 9, 0.1), (1, 8, 0.1)]),
+        1
+    );
+    // Line 1 visible but not matched: it keeps id 8, so id 4 after it is a switch.
+    assert_eq!(id_switches(&mut last, &both, &[(0, 9, 0.1)]), 0);
+    assert_eq!(
+        id_switches(&mut last, &both, &[(0, 9, 0.1), (1, 4, 0.1)]),
+        1
+    );
 }
 
 /// The process-noise scale (docs/design.md §11.7) on a drive whose dashed lines sit in dense
@@ -216,4 +232,76 @@ fn process_noise_scale_does_not_run_away_in_clutter() {
     assert!(inflated > 0, "q_scale never left 1");
     // …and does not run away.
     assert!(worst < 100.0, "q_scale reached {worst}");
+}
+
+/// Every check of `invariants::check_output` and `cov_health` rejects a corrupted input (the
+/// soak's "0 violations" can fail).
+#[test]
+fn invariant_checks_reject_corrupted_output() {
+    use nalgebra::SMatrix;
+    use stjpdacf::tables::DEFAULT;
+    use stjpdacf::tracker::{Instant, ReferenceTracker};
+    use stjpdacf_test_support::invariants::{check_output, cov_health, PsdCheck};
+    let pts: Vec<[f32; 2]> = (0..120)
+        .map(|i| {
+            let u = 3.0 + (i / 2) as f32 * 77.0 / 60.0;
+            [u, if i % 2 == 0 { -1.8 } else { 1.8 }]
+        })
+        .collect();
+    let mut t = Box::new(ReferenceTracker::new(&DEFAULT));
+    let mut out = None;
+    for k in 0..8 {
+        out = Some(t.step(Instant::from_millis(50 * k), &pts).unwrap());
+    }
+    let good = out.unwrap();
+    assert!(good.filtered.len() == 2 && good.smoothed.len() == 2);
+    check_output(&good, pts.len()).unwrap();
+    type Corrupt = Box<dyn Fn(&mut stjpdacf::tracker::StepOutput<6, 16>)>;
+    let bad: Vec<(&str, Corrupt)> = vec![
+        ("over budget", Box::new(|o| o.report.over_budget_points = 1)),
+        ("points_in", Box::new(|o| o.report.spatial.points_in += 1)),
+        (
+            "rejected",
+            Box::new(|o| o.report.spatial.rejected_window = 1000),
+        ),
+        ("dt", Box::new(|o| o.report.dt = f32::NAN)),
+        ("dup id", Box::new(|o| o.filtered[1].id = o.filtered[0].id)),
+        (
+            "dup slot",
+            Box::new(|o| o.filtered[1].slot = o.filtered[0].slot),
+        ),
+        ("slot", Box::new(|o| o.filtered[1].slot = 6)),
+        ("z", Box::new(|o| o.filtered[0].z[3] = f32::INFINITY)),
+        ("var", Box::new(|o| o.smoothed[0].var[3] = -1e-9)),
+        ("existence", Box::new(|o| o.filtered[0].existence = 1.01)),
+        ("extent", Box::new(|o| o.filtered[0].u_last = 82.0)),
+        (
+            "extent order",
+            Box::new(|o| o.filtered[0].u_first = o.filtered[0].u_last + 1.0),
+        ),
+        (
+            "smoothed not published",
+            Box::new(|o| {
+                o.filtered.pop();
+            }),
+        ),
+    ];
+    for (what, f) in bad {
+        let mut o = good.clone();
+        f(&mut o);
+        assert!(check_output(&o, pts.len()).is_err(), "{what} passed");
+    }
+    let idx = [0usize, 1];
+    let ok = SMatrix::<f32, 2, 2>::new(1.0, 0.5, 0.5, 1.0);
+    for c in [PsdCheck::Cholesky, PsdCheck::Eigen] {
+        cov_health(&ok, &idx, c).unwrap();
+        let asym = SMatrix::<f32, 2, 2>::new(1.0, 0.5, 0.5001, 1.0);
+        assert!(cov_health(&asym, &idx, c).is_err());
+        let indefinite = SMatrix::<f32, 2, 2>::new(1.0, 1.01, 1.01, 1.0);
+        assert!(cov_health(&indefinite, &idx, c).is_err());
+        let neg = SMatrix::<f32, 2, 2>::new(-1.0, 0.0, 0.0, 1.0);
+        assert!(cov_health(&neg, &idx, c).is_err());
+        let nan = SMatrix::<f32, 2, 2>::new(1.0, f32::NAN, f32::NAN, 1.0);
+        assert!(cov_health(&nan, &idx, c).is_err());
+    }
 }

@@ -249,7 +249,7 @@ pub struct DemoRow {
     /// Distinct lane ids published (seen within `MAX_REPORT_MISSES` frames) per clip: with
     /// stable identities, about the number of lanes in the clip (replay only).
     pub ids_per_clip: Option<f64>,
-    /// Ground-truth lanes per clip (of the last frame; replay only).
+    /// Ground-truth lanes with at least one point per clip (of the last frame; replay only).
     pub gt_lanes_per_clip: Option<f64>,
     /// Distinct true lanes (with a point in at least one frame) per clip (replay only; see
     /// [`IdentityScore`]).
@@ -711,6 +711,13 @@ impl IdentityTally {
             false_lanes_per_frame: sum(&|c| c.false_lanes) as f64 / frames.max(1) as f64,
         })
     }
+}
+
+/// Ground-truth lanes with at least one point per clip on the clips' labelled last frames
+/// (`gt_last`, one per clip): a label lane with no point (all −2) is no lane to track.
+fn gt_lanes_per_clip(gt_last: &[TuSimpleRecord]) -> f64 {
+    let lanes: usize = gt_last.iter().map(|g| g.lanes_with_points().count()).sum();
+    lanes as f64 / gt_last.len().max(1) as f64
 }
 
 /// Each tracker configuration of `variants` on `frames` (image space), scored on `gts` with
@@ -1267,10 +1274,7 @@ pub fn run(opts: &DemoOptions, mut progress: impl FnMut(usize, usize, &str)) -> 
                 clips: stats.clips,
                 ids_per_clip: Some(ids.len() as f64 / stats.clips.max(1) as f64),
                 smoother: smoother_score(&preds, &smoothed_preds, &o.gt_all, opts.score_run_time)?,
-                gt_lanes_per_clip: Some(
-                    o.gt_last.iter().map(|g| g.lanes.len()).sum::<usize>() as f64
-                        / o.gt_last.len().max(1) as f64,
-                ),
+                gt_lanes_per_clip: Some(gt_lanes_per_clip(&o.gt_last)),
                 true_lanes_per_clip: identity.map(|i| i.true_lanes_per_clip),
                 id_switches_per_clip: identity.map(|i| i.id_switches_per_clip),
                 false_ids_per_clip: identity.map(|i| i.false_ids_per_clip),
@@ -2609,6 +2613,68 @@ mod tests {
         assert_eq!(both.lane_ids_per_clip, 3.0);
         assert_eq!(both.false_ids_per_clip, 1.5); // and id 1 in clip d
         assert!(t.score(|c| c == "e").is_none());
+    }
+
+    /// The "(gt lanes)" figure the lane ids per clip are compared with counts the lanes a
+    /// tracker could find: a label lane with no point (all −2; 6 of the 160 bundled labels')
+    /// is no lane of the road.
+    #[test]
+    fn gt_lanes_per_clip_counts_lanes_with_points() {
+        let rec = |lanes: Vec<Vec<f64>>| TuSimpleRecord {
+            raw_file: "a".into(),
+            lanes,
+            h_samples: vec![300.0, 310.0],
+            run_time: None,
+        };
+        let gts = [
+            rec(vec![
+                vec![100.0, 101.0],
+                vec![-2.0, -2.0],
+                vec![500.0, -2.0],
+            ]),
+            rec(vec![vec![100.0, 101.0]]),
+        ];
+        assert_eq!(gt_lanes_per_clip(&gts), 1.5);
+        // On the bundled replay (40 labels, the low preset's last frames).
+        let labels = replay_labels().unwrap();
+        let o = synth::synthesize(
+            &labels,
+            &SynthParams::preset(NoiseLevel::Low),
+            &Camera::tusimple(),
+            1,
+        )
+        .unwrap();
+        let with_points = o
+            .gt_last
+            .iter()
+            .map(|g| g.lanes_with_points().count())
+            .sum::<usize>() as f64
+            / o.gt_last.len() as f64;
+        let all = o.gt_last.iter().map(|g| g.lanes.len()).sum::<usize>() as f64 / 40.0;
+        println!("gt lanes per clip: all {all}, with points {with_points}");
+        assert_eq!(gt_lanes_per_clip(&o.gt_last), with_points);
+    }
+
+    /// `TrackStats::merge` ("adds another run's figures") keeps every count: `run_real` merges
+    /// its clips' runs when the images have their own cameras.
+    #[test]
+    fn track_stats_merge_adds_lane_ids_and_published_lanes() {
+        let mut a = track::TrackStats {
+            frames: 2,
+            clips: 1,
+            lane_ids: 3,
+            published_lanes: 6,
+            ..Default::default()
+        };
+        let b = track::TrackStats {
+            frames: 2,
+            clips: 1,
+            lane_ids: 4,
+            published_lanes: 8,
+            ..Default::default()
+        };
+        a.merge(&b);
+        assert_eq!((a.clips, a.lane_ids, a.published_lanes), (2, 7, 14));
     }
 
     #[test]

@@ -132,6 +132,8 @@ impl TrackStats {
         self.known_pruned_rows += o.known_pruned_rows;
         self.known_lbp_rows += o.known_lbp_rows;
         self.repaired_frames += o.repaired_frames;
+        self.lane_ids += o.lane_ids;
+        self.published_lanes += o.published_lanes;
     }
 
     /// Sets the means from the run's sums.
