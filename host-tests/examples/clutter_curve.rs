@@ -7,8 +7,9 @@
 //!
 //! Each cell drives `--drives` seeded roads of `--frames` frames (30 fps) with the uniform
 //! clutter held at one density (points per metre per BEV row over ±12 m, on every stretch) and
-//! the lines all solid or all dashed (3 m dashes, 9 m gaps; `soak::Forced::dashed`); everything else — lines, weave, lane changes, detection rate 0.6–0.97, point noise
-//! 3–15 cm, blackouts, dropped frames — varies as in the soak. Published lanes (the tracker's
+//! the lines all solid or all dashed (3 m dashes, 9 m gaps; `soak::Forced::dashed`);
+//! everything else — lines, weave, lane changes, detection rate 0.6–0.97, point noise 3–15 cm,
+//! blackouts, dropped frames — varies as in the soak. Published lanes (the tracker's
 //! filtered lanes; the fit's quadratics over their inliers' extent) are matched to the true lines
 //! by the soak's rule (`soak::match_truth`: mean |Δx| < 0.5 m over the lane's observed index
 //! points, greedy). Per cell: points a frame and how many of them exceeded the tracker's budget
