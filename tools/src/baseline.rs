@@ -40,6 +40,7 @@
 use std::time::Instant as WallClock;
 
 use anyhow::Result;
+use cpu_time::ThreadTime;
 use nalgebra::{Matrix3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -288,7 +289,7 @@ pub fn track(
             .iter()
             .map(|p| (f64::from(p[0]), f64::from(p[1])))
             .collect();
-        let fit_start = WallClock::now();
+        let fit_start = ThreadTime::now();
         let lanes = fit_frame(&pts, params);
         stats.add_step(&mut times, fit_start.elapsed().as_secs_f64() * 1e3);
         let prediction = match (&f.raw_file, &f.h_samples) {

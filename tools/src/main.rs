@@ -622,7 +622,7 @@ fn main() -> Result<()> {
             }
             tusimple::write_records(&out, &preds)?;
             eprintln!(
-                "{} frames in {} clips, {} predictions to {}; run_time {:.3} ms mean, {:.3} ms max (Tracker::step {:.3} / {:.3} ms; wall clock, so a busy machine inflates the maxima); {} points above the horizon or non-finite; {} steps rejected",
+                "{} frames in {} clips, {} predictions to {}; run_time {:.3} ms mean, {:.3} ms max (wall clock; Tracker::step {:.3} / {:.3} ms of CPU time); {} points above the horizon or non-finite; {} steps rejected",
                 stats.frames, stats.clips, stats.predictions, out.display(), stats.run_mean_ms, stats.run_max_ms, stats.step_mean_ms, stats.step_max_ms, stats.unmapped_points, stats.rejected_steps
             );
             if stats.frames > 0 {
