@@ -131,7 +131,7 @@ fn drive<const RANK: usize, const NX: usize, const NA: usize>(
         let f = road.next_frame();
         let out = tracker.step(Instant::from_micros(f.t_us), &f.points);
         if f.blackout {
-            id_switches(&mut last_id, &[], &[]);
+            id_switches(&mut last_id, &f.visible_lines(), &[]);
             continue;
         }
         c.frames += 1;
@@ -147,8 +147,7 @@ fn drive<const RANK: usize, const NX: usize, const NA: usize>(
                 .iter()
                 .filter(|l| l.age >= 30 && m.iter().all(|(_, id, _)| *id != l.id.0))
                 .count() as u64;
-            let visible: Vec<i64> = f.truth.iter().map(|(k, _)| *k).collect();
-            c.id_switches += id_switches(&mut last_id, &visible, &m);
+            c.id_switches += id_switches(&mut last_id, &f.visible_lines(), &m);
         }
         let pts: Vec<(f64, f64)> = f
             .points

@@ -176,6 +176,18 @@ pub struct RoadFrame {
     pub blackout: bool,
 }
 
+impl RoadFrame {
+    /// The road indices of the lines visible in this frame ([`RoadFrame::truth`]'s), none in a
+    /// blackout: the `visible` of [`id_switches`].
+    pub fn visible_lines(&self) -> Vec<i64> {
+        if self.blackout {
+            Vec::new()
+        } else {
+            self.truth.iter().map(|(k, _)| *k).collect()
+        }
+    }
+}
+
 impl Road {
     /// A new drive.
     pub fn new(seed: u64) -> Self {
@@ -849,7 +861,7 @@ pub fn run_drive(
                 }
                 if f.blackout {
                     // No line is visible: each forgets its id.
-                    id_switches(&mut last_id, &[], &[]);
+                    id_switches(&mut last_id, &f.visible_lines(), &[]);
                 } else {
                     let (m, [unmatched, coasting]) = match_truth(&out.filtered, &f.truth);
                     s.line_frames += f.truth.len() as u64;
@@ -859,8 +871,7 @@ pub fn run_drive(
                     for (_, _, e) in &m {
                         err_sum += e;
                     }
-                    let visible: Vec<i64> = f.truth.iter().map(|(k, _)| *k).collect();
-                    s.id_switches += id_switches(&mut last_id, &visible, &m);
+                    s.id_switches += id_switches(&mut last_id, &f.visible_lines(), &m);
                 }
             }
         }
