@@ -155,7 +155,20 @@
 //! 0.903 / 0.859 / 0.859 against 0.904; at `gap_ratio` 0.7, 60 and above ≤ 0.841; so the tuning
 //! half cannot choose it and it stays 0; for the record, 40 on the held-out frames: precision
 //! 0.679, recall 0.636, the tracker unchanged; counting bright peaks only in the strength:
-//! tuning precision 0.780, worse).
+//! tuning precision 0.780, worse). A **width test** of each bright peak (stop 72, a scratch
+//! build: the full width at half the peak's contrast over its brighter flank, interpolated,
+//! where an image pixel is narrower than half a marking, i.e. nearer than 40 m at 512×288;
+//! horizon refined, tuning half choosing): peaks wider than 0.30 m (the widest regulated
+//! line) left out of the lane filter but kept for the camera fit give tuning precision /
+//! recall 0.821 / 0.776 → 0.831 / 0.781 (21 points, mostly one line of 0313-2/1755), held-out
+//! 0.778 / 0.703 → 0.783 / 0.701, the tracker on all ten 0.880 → 0.884; at 0.35 m the gain is
+//! gone, and every tighter bound (0.15 / 0.20 / 0.25 m) loses whole lanes on the tuning half
+//! (tracker 0.674 / 0.795 / 0.866): what the τ = 0.2 m filter finds on concrete strips and
+//! pavement joints is about as narrow as paint. Dropping too-wide peaks before the camera fit
+//! as well, counting only paint-width peaks toward `bright_support`, dropping lines whose
+//! median width is too wide, and a second filter scale (0.1 / 0.16 m, the response the
+//! maximum or minimum of the two) were worse on the tuning half. Not kept: a gain this small
+//! and this sensitive to its bound is not worth two parameters.
 //!
 //! Where the false points are (issue 16, `--example frontend_diag`, default parameters, every
 //! false point assigned by its line and the overlay): of the held-out half's 795 false points
