@@ -140,7 +140,8 @@ impl Camera {
     /// A camera from a command-line value: `tusimple` ([`Camera::tusimple`]), `culane`
     /// ([`Camera::culane`]) or the path of a
     /// JSON file with the fields of [`Camera`] (`width`, `height`, `vp_col`, `vp_row`,
-    /// `height_m`, `focal_px`).
+    /// `height_m`, `focal_px`), valid ([`Camera::check`]), its horizon above the image's
+    /// bottom row and its vanishing column within the image.
     pub fn from_spec(spec: &str) -> anyhow::Result<Self> {
         use anyhow::Context;
         if spec == "tusimple" {
@@ -155,6 +156,19 @@ impl Camera {
         let cam: Camera =
             serde_json::from_str(&text).with_context(|| format!("{spec}: malformed camera"))?;
         cam.check().map_err(|e| anyhow::anyhow!("{spec}: {e}"))?;
+        // A calibration (unlike a frame's estimate, which may miss) sees the road: a horizon at
+        // or below the bottom row leaves no image row that does. The mapping has no yaw, so the
+        // vanishing column is the principal point's and lies in the image. A horizon above the
+        // image is a camera pitched down, and allowed.
+        anyhow::ensure!(
+            cam.vp_row < cam.height && (0.0..=cam.width).contains(&cam.vp_col),
+            "{spec}: the vanishing point ({}, {}) must lie above the bottom row of the {}x{} \
+             image (the horizon; no row sees the road otherwise) and within its columns",
+            cam.vp_col,
+            cam.vp_row,
+            cam.width,
+            cam.height
+        );
         Ok(cam)
     }
 

@@ -359,17 +359,133 @@ impl FrontendParams {
             "gap_ratio" => &mut self.gap_ratio,
             "gap_contrast" => &mut self.gap_contrast,
             "fps" => &mut self.fps,
-            "support_rows" => {
-                self.support_rows = v.round().max(0.0) as usize;
-                return Ok(());
-            }
-            "support" => {
-                self.support = v.round().max(0.0) as usize;
+            "support_rows" | "support" => {
+                ensure!(
+                    v.is_finite() && (0.0..=Self::MAX_SUPPORT as f64).contains(&v.round()),
+                    "front-end parameter {name} = {v} must be a count in 0..={}",
+                    Self::MAX_SUPPORT
+                );
+                let n = v.round() as usize;
+                match name {
+                    "support_rows" => self.support_rows = n,
+                    _ => self.support = n,
+                }
                 return Ok(());
             }
             _ => bail!("unknown front-end parameter {name}"),
         };
         *f = v;
+        Ok(())
+    }
+
+    /// The largest `support_rows` and `support` (image rows and peaks).
+    pub const MAX_SUPPORT: usize = 1000;
+    /// The most cells of the BEV window's rows (`2 · x_max / dx`) and of the parallel-lane
+    /// filter's histogram (`2 · (x_max + max_slope · u_max) / 0.1 m`): a window of 10⁹ m or
+    /// cells of 10⁻⁹ m would ask for terabytes.
+    pub const MAX_CELLS: f64 = 100_000.0;
+    /// The largest `fps`: the tracker's clock counts microseconds, so frames closer than that
+    /// would be one time (`tusimple::check_sequence`).
+    pub const MAX_FPS: f64 = 1e6;
+
+    /// Check the values (the first one out of range is the error): every parameter finite;
+    /// the BEV window `0 < u_min < u_max`, `x_max` and `dx` positive, with at most
+    /// [`Self::MAX_CELLS`] cells a row and in the lane filter's histogram; the lane filter's
+    /// heading (≤ 10) and curvature (≤ 1 /m) searched and `refit_exponent` (|·| ≤ 10) bounded;
+    /// the saturations in [0, 1]; the other thresholds, widths and distances ≥ 0;
+    /// `support_rows` and `support` at most [`Self::MAX_SUPPORT`]; `0 < fps ≤ MAX_FPS`.
+    ///
+    /// # Errors
+    /// The first parameter out of range, by name.
+    pub fn validate(&self) -> Result<()> {
+        let non_negative = [
+            ("x_max", self.x_max),
+            ("dx", self.dx),
+            ("yellow_gain", self.yellow_gain),
+            ("white_max_sat", self.white_max_sat),
+            ("yellow_hue.0", self.yellow_hue.0),
+            ("yellow_hue.1", self.yellow_hue.1),
+            ("yellow_min_sat", self.yellow_min_sat),
+            ("marking_width", self.marking_width),
+            ("min_px", self.min_px),
+            ("ridge_threshold", self.ridge_threshold),
+            ("road_tolerance", self.road_tolerance),
+            ("noise_k", self.noise_k),
+            ("dark_threshold", self.dark_threshold),
+            ("dark_exclusion", self.dark_exclusion),
+            ("lane_support", self.lane_support),
+            ("lane_tol", self.lane_tol),
+            ("max_slope", self.max_slope),
+            ("max_curvature", self.max_curvature),
+            ("fill_gap", self.fill_gap),
+            ("bright_support", self.bright_support),
+            ("line_spacing", self.line_spacing),
+            ("lane_gap", self.lane_gap),
+            ("gap_ratio", self.gap_ratio),
+            ("gap_contrast", self.gap_contrast),
+        ];
+        for (name, v) in non_negative {
+            ensure!(
+                v.is_finite() && v >= 0.0,
+                "front-end parameter {name} = {v} must be finite and ≥ 0"
+            );
+        }
+        ensure!(
+            self.u_min.is_finite()
+                && self.u_max.is_finite()
+                && 0.0 < self.u_min
+                && self.u_min < self.u_max,
+            "front-end parameters u_min = {} and u_max = {} must be finite with 0 < u_min < u_max",
+            self.u_min,
+            self.u_max
+        );
+        ensure!(
+            self.x_max > 0.0 && self.dx > 0.0 && 2.0 * self.x_max / self.dx <= Self::MAX_CELLS,
+            "front-end parameters x_max = {} and dx = {} must be > 0 with 2·x_max/dx ≤ {} cells",
+            self.x_max,
+            self.dx,
+            Self::MAX_CELLS
+        );
+        ensure!(
+            self.max_slope <= 10.0 && self.max_curvature <= 1.0,
+            "front-end parameters max_slope = {} (≤ 10) and max_curvature = {} (≤ 1 /m) are \
+             beyond any road",
+            self.max_slope,
+            self.max_curvature
+        );
+        ensure!(
+            2.0 * (self.x_max + self.max_slope * self.u_max) / 0.1 <= Self::MAX_CELLS,
+            "front-end parameters x_max + max_slope·u_max = {} m: the lane filter's histogram \
+             (0.1 m bins) would have more than {} cells",
+            self.x_max + self.max_slope * self.u_max,
+            Self::MAX_CELLS
+        );
+        ensure!(
+            self.white_max_sat <= 1.0 && self.yellow_min_sat <= 1.0,
+            "front-end parameters white_max_sat = {} and yellow_min_sat = {} are saturations in \
+             [0, 1]",
+            self.white_max_sat,
+            self.yellow_min_sat
+        );
+        ensure!(
+            self.refit_exponent.is_finite() && self.refit_exponent.abs() <= 10.0,
+            "front-end parameter refit_exponent = {} must be in [-10, 10]",
+            self.refit_exponent
+        );
+        ensure!(
+            self.support_rows <= Self::MAX_SUPPORT && self.support <= Self::MAX_SUPPORT,
+            "front-end parameters support_rows = {} and support = {} must be at most {}",
+            self.support_rows,
+            self.support,
+            Self::MAX_SUPPORT
+        );
+        ensure!(
+            self.fps.is_finite() && self.fps > 0.0 && self.fps <= Self::MAX_FPS,
+            "fps must be a positive number of at most {:e} (the tracker's clock counts \
+             microseconds), not {}",
+            Self::MAX_FPS,
+            self.fps
+        );
         Ok(())
     }
 }
@@ -1717,11 +1833,7 @@ pub fn run_dir_cameras(
             .map(|(d, _)| d.to_string())
             .unwrap_or_default()
     };
-    ensure!(
-        p.fps.is_finite() && p.fps > 0.0,
-        "fps must be a positive number, not {}",
-        p.fps
-    );
+    p.validate()?;
     // Clips whose files are numbered from 0.
     let zero_based: std::collections::HashSet<String> = files
         .iter()
@@ -1825,7 +1937,7 @@ pub fn run_dir_cameras(
             .iter()
             .find(|l| l.raw_file == raw_file)
             .map(|l| l.h_samples.clone());
-        frames.push(Frame {
+        let frame = Frame {
             clip,
             t,
             points,
@@ -1836,7 +1948,17 @@ pub fn run_dir_cameras(
                 CameraMode::Estimate(_) | CameraMode::EstimateShared { .. } | CameraMode::Refine(_)
             )
             .then_some(cam),
-        });
+        };
+        // What `track` checks (`Frame::check`): a time its microsecond clock holds (a file
+        // named by a nanosecond time stamp is frame 10¹⁸ or so, beyond it).
+        frame.check().with_context(|| {
+            format!(
+                "{}: a file named by a number n is frame n of its clip, at time (n − 1) / \
+                 --fps; rename the files (frame numbers) or give another --fps",
+                path.display()
+            )
+        })?;
+        frames.push(frame);
         progress(n + 1, files.len());
     }
     Ok(frames

@@ -145,7 +145,12 @@ impl HeldoutParams {
         for (name, p) in probs {
             ensure!((0.0..=1.0).contains(&p), "{name} {p} is not in [0, 1]");
         }
-        ensure!(self.frames_per_clip >= 1, "frames_per_clip must be ≥ 1");
+        ensure!(
+            (1..=crate::synth::SynthParams::MAX_FRAMES_PER_CLIP).contains(&self.frames_per_clip),
+            "frames_per_clip = {} must be in 1..={}",
+            self.frames_per_clip,
+            crate::synth::SynthParams::MAX_FRAMES_PER_CLIP
+        );
         ensure!(self.row_step >= 1, "row_step must be ≥ 1");
         let positive = [
             ("frame_step", self.frame_step),

@@ -465,6 +465,11 @@ fn main() -> Result<()> {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,
                 None => &stjpdacf::tables::DEFAULT,
             });
+            anyhow::ensure!(
+                lane_width >= 0.0 && lane_width.is_finite(),
+                "--lane-width must be finite and ≥ 0 (metres; 0 publishes every line structure), \
+                 not {lane_width}"
+            );
             let cam = Camera::from_spec(&camera)?;
             let cam = match scale {
                 Some(s) => {
@@ -475,6 +480,11 @@ fn main() -> Result<()> {
             };
             let frames_path = frames;
             let mut frames = tusimple::read_frames(&frames_path)?;
+            anyhow::ensure!(
+                !frames.is_empty(),
+                "{}: no frames (JSON lines of clip, t, points)",
+                frames_path.display()
+            );
             if every_frame {
                 stjpdacf_tools::track::predict_every_frame(&mut frames, &cam);
                 // Every frame is predicted now: a raw_file that names two frames would name
@@ -1004,6 +1014,13 @@ fn main() -> Result<()> {
                 Some(p) => tusimple::read_labels(p)?,
                 None => Vec::new(),
             };
+            if let (Some(p), true) = (&labels, recs.is_empty()) {
+                eprintln!(
+                    "warning: {}: no labels, so no frame has h_samples (`track` writes no \
+                     prediction for them)",
+                    p.display()
+                );
+            }
             let bar = indicatif::ProgressBar::hidden();
             let start = std::time::Instant::now();
             let frames = frontend::run_dir_cameras(&images, &mode, &recs, &p, |k, n| {

@@ -260,9 +260,24 @@ impl SynthParams {
         Ok(())
     }
 
-    /// Check ranges (probabilities in [0, 1], positive steps, non-negative rates).
+    /// The most frames a clip, and the largest mean count of each source of false points
+    /// (clutter points and distractor segments a frame, shadows and cars a clip): bounds far
+    /// above any preset that keep a clip's points in memory (a mean of 10¹² clutter points
+    /// exhausts it, one of 10¹² distractors runs for hours).
+    pub const MAX_FRAMES_PER_CLIP: usize = 100_000;
+    /// See [`Self::MAX_FRAMES_PER_CLIP`].
+    pub const MAX_RATE: f64 = 10_000.0;
+
+    /// Check ranges (probabilities in [0, 1], positive steps, non-negative rates, the clip
+    /// length and the false-point rates at most [`Self::MAX_FRAMES_PER_CLIP`] and
+    /// [`Self::MAX_RATE`]).
     pub fn validate(&self) -> Result<()> {
-        ensure!(self.frames_per_clip >= 1, "frames_per_clip must be ≥ 1");
+        ensure!(
+            (1..=Self::MAX_FRAMES_PER_CLIP).contains(&self.frames_per_clip),
+            "frames_per_clip = {} must be in 1..={}",
+            self.frames_per_clip,
+            Self::MAX_FRAMES_PER_CLIP
+        );
         ensure!(self.row_step >= 1, "row_step must be ≥ 1");
         ensure!(
             self.frame_step > 0.0 && self.frame_step.is_finite(),
@@ -296,6 +311,18 @@ impl SynthParams {
             ensure!(
                 v >= 0.0 && v.is_finite(),
                 "{name} = {v} must be finite and ≥ 0"
+            );
+        }
+        for (name, v) in [
+            ("clutter_rate", self.clutter_rate),
+            ("distractors", self.distractors),
+            ("shadows", self.shadows),
+            ("cars", self.cars),
+        ] {
+            ensure!(
+                v <= Self::MAX_RATE,
+                "{name} = {v} is above {} (a mean count of false points or structures)",
+                Self::MAX_RATE
             );
         }
         ensure!(

@@ -183,6 +183,12 @@ pub fn render(t: &ModelTables, name: &str, origin: &str) -> Result<String> {
         ("frame_step", h.temporal.frame_step),
         ("gram_variance_fraction", h.temporal.gram_variance_fraction),
     ] {
+        // The core's `Tables::validate` refuses tables with a scalar that is not a positive
+        // f32 (a window from u = 0, say): name it rather than write tables the core refuses.
+        ensure!(
+            (v as f32).is_finite() && v as f32 > 0.0,
+            "{field} = {v:e} must be positive and fit an f32: the core refuses tables with it"
+        );
         writeln!(s, "        {field}: {},", lit(v)?)?;
     }
     writeln!(s, "    }},")?;

@@ -119,7 +119,9 @@ impl LabelFrame {
     }
 }
 
-/// Reads TuSimple label files (JSON lines).
+/// Reads TuSimple label files (JSON lines), checking each label's shape as
+/// `tusimple::read_labels` does (`TuSimpleRecord::check_shape`: `h_samples` non-empty, every
+/// lane one value per row).
 pub fn read_labels(path: &Path) -> Result<Vec<LabelFrame>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
@@ -127,8 +129,18 @@ pub fn read_labels(path: &Path) -> Result<Vec<LabelFrame>> {
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
-            serde_json::from_str(l)
-                .with_context(|| format!("{}:{}: not a TuSimple label line", path.display(), i + 1))
+            let label: LabelFrame = serde_json::from_str(l).with_context(|| {
+                format!("{}:{}: not a TuSimple label line", path.display(), i + 1)
+            })?;
+            crate::tusimple::TuSimpleRecord {
+                raw_file: label.raw_file.clone(),
+                lanes: label.lanes.clone(),
+                h_samples: label.h_samples.clone(),
+                run_time: None,
+            }
+            .check_shape()
+            .with_context(|| format!("{}:{}: bad TuSimple label", path.display(), i + 1))?;
+            Ok(label)
         })
         .collect()
 }

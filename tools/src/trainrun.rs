@@ -74,6 +74,26 @@ pub fn run(
     progress: &(dyn Fn(usize, usize, f64) + Sync),
 ) -> Result<TrainOutcome> {
     let t0 = std::time::Instant::now();
+    anyhow::ensure!(
+        opts.spacing.is_finite() && opts.spacing >= 0.0,
+        "the spacing of the points kept per lane must be finite and ≥ 0 m, not {}",
+        opts.spacing
+    );
+    anyhow::ensure!(
+        opts.max_frames >= 1,
+        "the most frames to train on must be ≥ 1"
+    );
+    anyhow::ensure!(
+        opts.max_gap.is_finite() && opts.max_gap >= 0.0,
+        "the largest gap of a temporal series must be finite and ≥ 0 s, not {}",
+        opts.max_gap
+    );
+    if let Some(v) = opts.offset_variance {
+        anyhow::ensure!(
+            v.is_finite() && v > 0.0,
+            "the offset variance σ_c² must be finite and > 0 m², not {v}"
+        );
+    }
     let base = HyperFile::load(&opts.base)?;
     let d = base.lanes();
     let frame_cfg = FrameConfig {

@@ -305,16 +305,37 @@ pub fn parse_frames<R: BufRead>(reader: R, source: &str) -> Result<Vec<Frame>> {
 
 /// The order of a frames file: the frames of a clip are consecutive (a clip that reappears after
 /// another clip is an error: the tracker would have been reset), times increase strictly within
-/// a clip at the tracker's microsecond resolution ([`Frame::micros`]), and a `raw_file` that
-/// asks for a prediction (`h_samples` present) appears once.
+/// a clip at the tracker's microsecond resolution ([`Frame::micros`]), the frames of a clip
+/// that carry a `camera` agree on its image size (`track` maps the clip with one camera, the
+/// median of theirs), and a `raw_file` that asks for a prediction (`h_samples` present)
+/// appears once.
 /// `frames` pairs each frame with its line number; errors are `SOURCE:LINE: ...`.
 pub fn check_sequence(frames: &[(usize, Frame)], source: &str) -> Result<()> {
     use std::collections::HashMap;
     let mut clip_end: HashMap<&str, usize> = HashMap::new();
     let mut predicted: HashMap<&str, usize> = HashMap::new();
     let mut prev: Option<&(usize, Frame)> = None;
+    // The image size of the first frame of the current clip that carries a camera, its line.
+    let mut clip_size: Option<(usize, f64, f64)> = None;
     for item in frames {
         let (n, f) = item;
+        if prev.is_none_or(|(_, p)| p.clip != f.clip) {
+            clip_size = None;
+        }
+        if let Some(c) = &f.camera {
+            match clip_size {
+                Some((first, w, h)) => ensure!(
+                    (c.width, c.height) == (w, h),
+                    "{source}:{n}: the camera of clip {} is {}x{} here but {w}x{h} at line \
+                     {first}; `track` maps a clip with one camera, so its images must have one \
+                     size (put images of another size in a clip of their own)",
+                    f.clip,
+                    c.width,
+                    c.height
+                ),
+                None => clip_size = Some((*n, c.width, c.height)),
+            }
+        }
         match prev {
             // The tracker's clock counts microseconds: times closer than that are one time.
             Some((pn, p)) if p.clip == f.clip => ensure!(

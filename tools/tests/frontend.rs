@@ -852,3 +852,73 @@ fn labels_that_name_no_image_are_reported() {
     );
     assert_eq!(unmatched_labels_note(&frames, &[]), None);
 }
+
+/// Out-of-range front-end input refused up front (the CLI audit): `--param` values that asked
+/// for terabytes (`dx=1e-9`, `x_max=1e9`, `u_max=1e9`), ran for hours (`support_rows=1e18`,
+/// `max_curvature=1e9`) or were taken silently (`ridge_threshold=NaN`, a negative `x_max`);
+/// an `--fps` whose frames are less than the tracker's microsecond apart (`track` refused the
+/// frames file); files named by a nanosecond time stamp (times beyond the tracker's clock);
+/// and a camera file whose horizon lies below the image (no points, exit 0).
+#[test]
+fn cli_out_of_range_parameters_and_times_are_refused() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-range-{}", std::process::id()));
+    let images = d.join("images");
+    let blank = image::RgbImage::from_fn(1640, 590, asphalt);
+    std::fs::create_dir_all(images.join("a")).unwrap();
+    for n in ["1", "2"] {
+        blank
+            .save(images.join("a").join(format!("{n}.png")))
+            .unwrap();
+    }
+    let out = d.join("f.jsonl");
+    let run = |extra: &[&str]| {
+        frontend_cli(
+            &images,
+            &out,
+            &[&["--camera", "culane"][..], extra].concat(),
+        )
+    };
+    for (param, needle) in [
+        ("dx=1e-9", "2·x_max/dx"),
+        ("x_max=1e9", "2·x_max/dx"),
+        ("u_max=1e9", "histogram"),
+        ("support_rows=1e18", "support_rows"),
+        ("max_curvature=1e9", "max_curvature"),
+        ("ridge_threshold=NaN", "ridge_threshold = NaN"),
+        ("x_max=-1", "x_max = -1"),
+    ] {
+        let err = run(&["--param", param]).unwrap_err();
+        assert!(err.contains(needle), "{param}: {err}");
+    }
+    let err = run(&["--fps", "1e9"]).unwrap_err();
+    assert!(
+        err.contains("fps must be a positive number of at most 1e6"),
+        "{err}"
+    );
+    assert!(run(&["--fps", "1e6"]).is_ok());
+    let cam = d.join("cam.json");
+    let below = Camera {
+        vp_row: 600.0,
+        ..Camera::culane()
+    };
+    std::fs::write(&cam, serde_json::to_string(&below).unwrap()).unwrap();
+    let err = frontend_cli(&images, &out, &["--camera", cam.to_str().unwrap()]).unwrap_err();
+    assert!(
+        err.contains("must lie above the bottom row of the 1640x590"),
+        "{err}"
+    );
+    // Nanosecond time stamps as file names: frame 1.7e18 at 20 fps is beyond the clock.
+    let stamped = d.join("stamped");
+    std::fs::create_dir_all(stamped.join("a")).unwrap();
+    for n in ["1700000000000000000", "1700000000050000000"] {
+        blank
+            .save(stamped.join("a").join(format!("{n}.png")))
+            .unwrap();
+    }
+    let err = frontend_cli(&stamped, &out, &["--camera", "culane"]).unwrap_err();
+    assert!(
+        err.contains("1700000000000000000.png") && err.contains("microsecond clock"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).unwrap();
+}

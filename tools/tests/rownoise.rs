@@ -155,3 +155,32 @@ fn row_noise_command_fits_and_refuses_empty_labels() {
     assert_failure_mentions(&out, "no lanes");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A label whose lane has fewer values than `h_samples` rows is refused by `row-noise` (and
+/// `train`, the same reader) as by `eval` and `synth` (the CLI audit: it was fitted silently,
+/// each lane's values paired with the first rows).
+#[test]
+fn row_noise_and_train_refuse_labels_of_the_wrong_shape() {
+    let dir = std::env::temp_dir().join(format!("stjpdacf-rownoise-shape-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let short = dir.join("short.json");
+    std::fs::write(
+        &short,
+        r#"{"raw_file": "a.jpg", "h_samples": [300, 310, 320], "lanes": [[600, 610]]}"#.to_string()
+            + "\n",
+    )
+    .unwrap();
+    assert!(read_labels(&short).is_err());
+    let out = row_noise(&["--labels".as_ref(), short.as_os_str()]);
+    assert_failure_mentions(&out, "short.json:1: bad TuSimple label");
+    let out = stjpdacf()
+        .current_dir(stjpdacf_tools::repo_root())
+        .args(["train", "--restarts", "1", "--labels"])
+        .arg(&short)
+        .arg("--out")
+        .arg(dir.join("h.json"))
+        .output()
+        .unwrap();
+    assert_failure_mentions(&out, "lane 0 has 2 values but h_samples has 3 rows");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -536,3 +536,55 @@ fn sources_switched_off_make_no_points() {
     let e = p.switch_off("cars,trees").unwrap_err().to_string();
     assert!(e.contains("trees") && e.contains("road_edge"), "{e}");
 }
+
+/// Rates and clip lengths far beyond any preset are refused up front (the CLI audit: `synth
+/// --clutter-rate 1e12` exhausted the memory, `--distractors 1e12` ran for hours, `demo
+/// --frames-per-clip 1e11` aborted on a 16 TB allocation).
+#[test]
+fn huge_rates_and_clip_lengths_are_refused() {
+    for (name, p) in [
+        (
+            "clutter_rate",
+            SynthParams {
+                clutter_rate: 1e12,
+                ..SynthParams::default()
+            },
+        ),
+        (
+            "distractors",
+            SynthParams {
+                distractors: 1e12,
+                ..SynthParams::default()
+            },
+        ),
+        (
+            "frames_per_clip",
+            SynthParams {
+                frames_per_clip: 100_000_000_000,
+                ..SynthParams::default()
+            },
+        ),
+    ] {
+        let e = synthesize(&labels_first(1), &p, &Camera::tusimple(), 0).unwrap_err();
+        assert!(format!("{e:#}").contains(name), "{e:#}");
+    }
+    let at_bound = SynthParams {
+        clutter_rate: SynthParams::MAX_RATE,
+        ..SynthParams::default()
+    };
+    assert!(synthesize(&labels_first(1), &at_bound, &Camera::tusimple(), 0).is_ok());
+    let d = temp_dir("huge");
+    let labels = stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json");
+    for flag in ["--clutter-rate", "--distractors"] {
+        let out = stjpdacf()
+            .args(["synth", "--clips", "1", "--labels"])
+            .arg(&labels)
+            .arg("--out")
+            .arg(d.join("x.jsonl"))
+            .args([flag, "1e12"])
+            .output()
+            .unwrap();
+        assert_failure_mentions(&out, "is above 10000");
+    }
+    std::fs::remove_dir_all(&d).unwrap();
+}

@@ -965,3 +965,97 @@ fn track_stats_count_lane_ids_per_clip() {
     assert_eq!(stats.lane_ids, 2 * lanes, "{stats:?}");
     assert_eq!(stats.published_lanes, 12 * lanes, "{stats:?}");
 }
+
+/// Out-of-range input that was accepted silently (the CLI audit): `--lane-width` NaN or
+/// negative (the rule silently off), an empty frames file (exit 0, an empty output), a camera
+/// file whose horizon is at or below the image's bottom row or whose vanishing column is beside
+/// it (every point above the horizon or off the road window: no lanes, exit 0; a horizon above
+/// the image, a camera pitched down, is allowed), and a clip whose
+/// frames carry cameras of two image sizes (mapped with one median camera of the first size).
+#[test]
+fn track_cli_refuses_out_of_range_input() {
+    let rows: Vec<f64> = (0..48).map(|i| 96.0 + 4.0 * f64::from(i)).collect();
+    let (d, fpath, frames) = two_lane_clip_file("range", 3, &rows);
+    let out = d.join("p.jsonl");
+    for w in ["--lane-width=NaN", "--lane-width=-1"] {
+        let o = run_track(
+            &fpath,
+            &out,
+            &["--space".as_ref(), "bev".as_ref(), w.as_ref()],
+        );
+        assert_failure_mentions(&o, "--lane-width must be finite and ≥ 0");
+    }
+    let o = run_track(
+        &fpath,
+        &out,
+        &[
+            "--space".as_ref(),
+            "bev".as_ref(),
+            "--lane-width".as_ref(),
+            "0".as_ref(),
+        ],
+    );
+    assert_success(&o);
+    let empty = d.join("empty.jsonl");
+    std::fs::write(&empty, "\n").unwrap();
+    assert_failure_mentions(&run_track(&empty, &out, &[]), "empty.jsonl: no frames");
+    let cam = d.join("cam.json");
+    let small = Camera::tusimple().scaled(0.4);
+    for (vp_col, vp_row) in [(261.6, 288.0), (261.6, 500.0), (1e6, 95.4), (-1.0, 95.4)] {
+        let c = Camera {
+            vp_col,
+            vp_row,
+            ..small
+        };
+        std::fs::write(&cam, serde_json::to_string(&c).unwrap()).unwrap();
+        let o = run_track(&fpath, &out, &["--camera".as_ref(), cam.as_ref()]);
+        assert_failure_mentions(&o, "must lie above the bottom row of the 512x288");
+    }
+    for vp_row in [95.4, -40.0] {
+        let c = Camera { vp_row, ..small };
+        std::fs::write(&cam, serde_json::to_string(&c).unwrap()).unwrap();
+        assert_success(&run_track(
+            &fpath,
+            &out,
+            &["--camera".as_ref(), cam.as_ref()],
+        ));
+    }
+    // One clip, its frames' cameras of two sizes.
+    let mut mixed = frames.clone();
+    mixed[0].camera = Some(Camera::culane());
+    mixed[1].camera = Some(small);
+    let mpath = d.join("mixed.jsonl");
+    write_frames(&mpath, &mixed).unwrap();
+    assert_failure_mentions(
+        &run_track(&mpath, &out, &[]),
+        "mixed.jsonl:2: the camera of clip c is 512x288 here but 1640x590 at line 1",
+    );
+    mixed[0].camera = Some(small);
+    write_frames(&mpath, &mixed).unwrap();
+    assert_success(&run_track(&mpath, &out, &[]));
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// `tables` refuses a hyperparameter file the core's `Tables::validate` refuses (a window from
+/// u = 0 passes the file's own check) instead of writing tables that do not load.
+#[test]
+fn tables_cli_refuses_tables_the_core_refuses() {
+    let d = temp_dir("tables-range");
+    let mut h: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(repo_root().join("data/hyper/default.json")).unwrap(),
+    )
+    .unwrap();
+    h["window"]["u_min"] = 0.0.into();
+    let hpath = d.join("h.json");
+    std::fs::write(&hpath, h.to_string()).unwrap();
+    let o = run_cli(&[
+        "tables".as_ref(),
+        "--hyper".as_ref(),
+        hpath.as_ref(),
+        "--out".as_ref(),
+        d.join("t.rs").as_ref(),
+    ]);
+    assert_failure_mentions(&o, "u_min = 0e0 must be positive");
+    assert!(!d.join("t.rs").exists());
+    std::fs::remove_dir_all(&d).unwrap();
+}

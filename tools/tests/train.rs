@@ -458,3 +458,61 @@ fn pipeline_on_label_subset_writes_a_valid_file_and_report() {
         .contains("Restarts"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Options out of range are refused before training (the CLI audit: a negative spacing, a
+/// NaN gap or `--max-frames 0` were taken silently, a NaN offset variance failed as "every
+/// start failed").
+#[test]
+fn out_of_range_options_are_refused() {
+    use stjpdacf_tools::camera::Camera;
+    use stjpdacf_tools::trainrun::{run, TrainOptions};
+    let root = stjpdacf_tools::repo_root();
+    let good = TrainOptions {
+        labels: vec![root.join("data/tusimple/train_subset/label_data_0601_subset.json")],
+        base: root.join("data/hyper/default.json"),
+        camera: Camera::tusimple(),
+        restarts: 1,
+        seed: 0,
+        max_frames: 2,
+        spacing: 4.0,
+        max_iters: 1,
+        offset_variance: None,
+        train_offset: false,
+        use_fitted_temporal: false,
+        max_gap: 10.0,
+    };
+    for (opts, needle) in [
+        (
+            TrainOptions {
+                spacing: -1.0,
+                ..good.clone()
+            },
+            "spacing",
+        ),
+        (
+            TrainOptions {
+                max_frames: 0,
+                ..good.clone()
+            },
+            "most frames",
+        ),
+        (
+            TrainOptions {
+                max_gap: f64::NAN,
+                ..good.clone()
+            },
+            "largest gap",
+        ),
+        (
+            TrainOptions {
+                offset_variance: Some(f64::NAN),
+                ..good.clone()
+            },
+            "offset variance",
+        ),
+    ] {
+        let e = run(&opts, &|_, _, _| {}).unwrap_err();
+        assert!(format!("{e:#}").contains(needle), "{e:#}");
+    }
+    assert!(run(&good, &|_, _, _| {}).is_ok());
+}
