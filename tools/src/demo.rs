@@ -2664,6 +2664,7 @@ mod tests {
             clips: 1,
             lane_ids: 3,
             published_lanes: 6,
+            outside_image_rows: 1,
             ..Default::default()
         };
         let b = track::TrackStats {
@@ -2671,10 +2672,12 @@ mod tests {
             clips: 1,
             lane_ids: 4,
             published_lanes: 8,
+            outside_image_rows: 2,
             ..Default::default()
         };
         a.merge(&b);
         assert_eq!((a.clips, a.lane_ids, a.published_lanes), (2, 7, 14));
+        assert_eq!(a.outside_image_rows, 3);
     }
 
     #[test]

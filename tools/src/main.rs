@@ -653,6 +653,15 @@ fn main() -> Result<()> {
                     stats.outside_image_points, cam.width, cam.height
                 );
             }
+            if stats.outside_image_rows > 0 {
+                eprintln!(
+                    "warning: {} label rows (h_samples) lie outside the image of the camera the \
+                     frames were tracked with ({}x{} unless a frame carries its own), so the \
+                     predictions are -2 there: labels of another image size (scale the \
+                     h_samples to the frames' images, or give --scale)",
+                    stats.outside_image_rows, cam.width, cam.height
+                );
+            }
             if unlabelled > 0 {
                 eprintln!(
                     "({unlabelled} frames without h_samples rows or raw_file got no prediction; \

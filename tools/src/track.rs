@@ -55,6 +55,10 @@ pub struct TrackStats {
     /// ([`outside_image`]): points found with another camera or image scale, mapped to the road
     /// by the wrong one (they are tracked as they are; `stjpdacf track` warns).
     pub outside_image_points: usize,
+    /// Label rows (`h_samples`) of the predicted frames outside the image of the camera they
+    /// were predicted with (below row 0 or beyond its height): labels of another image size
+    /// (1280×720 rows with a 512×288 camera, say), whose predicted lanes are −2 there.
+    pub outside_image_rows: usize,
     /// Steps the tracker rejected (non-increasing time within a clip).
     pub rejected_steps: usize,
     /// Mean `Tracker::step` time, ms: the thread's CPU time (`cpu_time::ThreadTime`), so
@@ -129,6 +133,7 @@ impl TrackStats {
         self.predictions += o.predictions;
         self.unmapped_points += o.unmapped_points;
         self.outside_image_points += o.outside_image_points;
+        self.outside_image_rows += o.outside_image_rows;
         self.rejected_steps += o.rejected_steps;
         self.known_events += o.known_events;
         self.known_pruned_rows += o.known_pruned_rows;
@@ -853,6 +858,10 @@ pub fn track_with(
         let mut prediction_ids: Vec<u32> = Vec::new();
         let prediction = match (&output, &f.raw_file, &f.h_samples) {
             (Some(output), Some(raw), Some(rows)) => {
+                stats.outside_image_rows += rows
+                    .iter()
+                    .filter(|r| !(0.0..=cam.height).contains(*r))
+                    .count();
                 let mut lanes: Vec<(f64, Vec<f64>, u32)> = output
                     .filtered
                     .iter()

@@ -1059,3 +1059,42 @@ fn tables_cli_refuses_tables_the_core_refuses() {
     assert!(!d.join("t.rs").exists());
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// Label rows outside the camera's image (1280×720 `h_samples` with a 512×288 camera) are
+/// counted and `track` warns: their predicted lanes are −2 there, which would otherwise pass
+/// unnoticed as lanes not found.
+#[test]
+fn label_rows_outside_the_image_are_counted_and_warned() {
+    let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
+    let small = Camera::tusimple().scaled(0.4);
+    let beyond = rows.iter().filter(|r| **r > small.height).count();
+    assert!(beyond > 0);
+    let frames = bev_clip(&[-1.8, 1.8], 80.0, 3, &rows);
+    let (_, stats) = track(&frames, &DEFAULT, &small, Space::Bev, |_| {}).unwrap();
+    assert_eq!((stats.predictions, stats.outside_image_rows), (1, beyond));
+    let (_, stats) = track(&frames, &DEFAULT, &Camera::tusimple(), Space::Bev, |_| {}).unwrap();
+    assert_eq!(stats.outside_image_rows, 0);
+    let (d, fpath, _) = two_lane_clip_file("rows-outside", 3, &rows);
+    let out = d.join("p.jsonl");
+    let warning = "label rows (h_samples) lie outside the image";
+    let o = run_track(
+        &fpath,
+        &out,
+        &[
+            "--space".as_ref(),
+            "bev".as_ref(),
+            "--scale".as_ref(),
+            "0.4".as_ref(),
+        ],
+    );
+    assert_success(&o);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(
+        err.contains(&format!("warning: {beyond} {warning}")),
+        "{err}"
+    );
+    let o = run_track(&fpath, &out, &["--space".as_ref(), "bev".as_ref()]);
+    assert_success(&o);
+    assert!(!String::from_utf8_lossy(&o.stderr).contains(warning));
+    std::fs::remove_dir_all(&d).unwrap();
+}
