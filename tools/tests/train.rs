@@ -400,24 +400,36 @@ fn matern_gradient_and_recovery() {
     );
 }
 
-#[test]
-fn pipeline_on_label_subset_writes_a_valid_file_and_report() {
-    use stjpdacf_tools::camera::Camera;
-    use stjpdacf_tools::trainrun::{run, write_report, TrainOptions};
+/// Training options on the bundled label subset with the default base file (spacing 4 m, no
+/// offset variance, the fitted temporal scales off, series gaps up to 10 s).
+fn subset_options() -> stjpdacf_tools::trainrun::TrainOptions {
     let root = stjpdacf_tools::repo_root();
-    let opts = TrainOptions {
+    stjpdacf_tools::trainrun::TrainOptions {
         labels: vec![root.join("data/tusimple/train_subset/label_data_0601_subset.json")],
         base: root.join("data/hyper/default.json"),
-        camera: Camera::tusimple(),
+        camera: stjpdacf_tools::camera::Camera::tusimple(),
+        restarts: 1,
+        seed: 0,
+        max_frames: 2,
+        spacing: 4.0,
+        max_iters: 1,
+        offset_variance: None,
+        train_offset: false,
+        use_fitted_temporal: false,
+        max_gap: 10.0,
+    }
+}
+
+#[test]
+fn pipeline_on_label_subset_writes_a_valid_file_and_report() {
+    use stjpdacf_tools::trainrun::{run, write_report, TrainOptions};
+    let opts = TrainOptions {
         restarts: 2,
         seed: 3,
         max_frames: 8,
-        spacing: 4.0,
         max_iters: 60,
-        offset_variance: None,
-        train_offset: false,
         use_fitted_temporal: true,
-        max_gap: 10.0,
+        ..subset_options()
     };
     let out = run(&opts, &|_, _, _| {}).unwrap();
     let base = stjpdacf_reference::hyper::HyperFile::load(&opts.base).unwrap();
@@ -464,23 +476,8 @@ fn pipeline_on_label_subset_writes_a_valid_file_and_report() {
 /// start failed").
 #[test]
 fn out_of_range_options_are_refused() {
-    use stjpdacf_tools::camera::Camera;
     use stjpdacf_tools::trainrun::{run, TrainOptions};
-    let root = stjpdacf_tools::repo_root();
-    let good = TrainOptions {
-        labels: vec![root.join("data/tusimple/train_subset/label_data_0601_subset.json")],
-        base: root.join("data/hyper/default.json"),
-        camera: Camera::tusimple(),
-        restarts: 1,
-        seed: 0,
-        max_frames: 2,
-        spacing: 4.0,
-        max_iters: 1,
-        offset_variance: None,
-        train_offset: false,
-        use_fitted_temporal: false,
-        max_gap: 10.0,
-    };
+    let good = subset_options();
     for (opts, needle) in [
         (
             TrainOptions {
