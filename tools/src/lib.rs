@@ -37,3 +37,20 @@ pub fn repo_root() -> std::path::PathBuf {
         .map(std::path::Path::to_path_buf)
         .unwrap_or_default()
 }
+
+/// A file the checkout bundles (`rel` under [`repo_root`], e.g. `data/hyper/default.json`): what
+/// the tools read when an input is not given, from whatever folder they run in, as the demo
+/// does. A path the user gives is relative to the working folder, as usual.
+pub fn bundled(rel: &str) -> std::path::PathBuf {
+    repo_root().join(rel)
+}
+
+/// `path` as a record names it (a provenance, a summary): relative to the checkout when it lies
+/// in it (a [`bundled`] default reads `data/hyper/default.json`, not the build machine's folder),
+/// else as given; `/` as the separator.
+pub fn shown_path(path: &std::path::Path) -> String {
+    path.strip_prefix(repo_root())
+        .unwrap_or(path)
+        .to_string_lossy()
+        .replace('\\', "/")
+}

@@ -60,9 +60,10 @@ enum ShareArg {
 enum Command {
     /// Generate the static model tables (a Rust source file) from a hyperparameter file.
     Tables {
-        /// Hyperparameter file (JSON, schema stjpdacf-hyper/v1).
-        #[arg(long, default_value = tablegen::DEFAULT_HYPER)]
-        hyper: PathBuf,
+        /// Hyperparameter file (JSON, schema stjpdacf-hyper/v1) [default: the checkout's
+        /// data/hyper/default.json, from any working folder].
+        #[arg(long)]
+        hyper: Option<PathBuf>,
         /// Output Rust file (`-` for standard output).
         #[arg(long, default_value = "-")]
         out: PathBuf,
@@ -242,12 +243,13 @@ enum Command {
     /// Fit the spatial filter's within-frame row-noise scale (PersistConfig::row_noise_scale)
     /// to labelled lanes by maximum likelihood under the tables' spatial model.
     RowNoise {
-        /// TuSimple labels (JSON lines).
-        #[arg(long, num_args = 1.., default_value = "data/tusimple/train_subset.json")]
+        /// TuSimple labels (JSON lines) [default: the checkout's
+        /// data/tusimple/train_subset.json, from any working folder].
+        #[arg(long, num_args = 1..)]
         labels: Vec<PathBuf>,
-        /// Hyperparameter file of the tables.
-        #[arg(long, default_value = tablegen::DEFAULT_HYPER)]
-        hyper: PathBuf,
+        /// Hyperparameter file of the tables [default: the checkout's data/hyper/default.json].
+        #[arg(long)]
+        hyper: Option<PathBuf>,
         /// Camera of the labels, a JSON file with the fields of `Camera` (default: TuSimple).
         #[arg(long)]
         camera: Option<PathBuf>,
@@ -370,9 +372,10 @@ struct TrainArgs {
     /// Output hyperparameter file.
     #[arg(long)]
     out: PathBuf,
-    /// Base hyperparameter file (window, D, N and every field not trained).
-    #[arg(long, default_value = tablegen::DEFAULT_HYPER)]
-    base: PathBuf,
+    /// Base hyperparameter file (window, D, N and every field not trained) [default: the
+    /// checkout's data/hyper/default.json, from any working folder].
+    #[arg(long)]
+    base: Option<PathBuf>,
     /// L-BFGS starts (the first from the base values, the others random around them).
     #[arg(long, default_value_t = 4)]
     restarts: usize,
@@ -411,9 +414,19 @@ struct TrainArgs {
 fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Tables { hyper, out, name } => {
+            // The generated file names its source as given (the default by its checkout path).
+            let (hyper, origin) = match hyper {
+                Some(p) => {
+                    let origin = p.to_string_lossy().replace('\\', "/");
+                    (p, origin)
+                }
+                None => (
+                    stjpdacf_tools::bundled(tablegen::DEFAULT_HYPER),
+                    tablegen::DEFAULT_HYPER.to_string(),
+                ),
+            };
             let h = HyperFile::load(&hyper)?;
             let t = tablegen::ModelTables::from_hyper(&h)?;
-            let origin = hyper.to_string_lossy().replace('\\', "/");
             let src = tablegen::render(&t, &name, &origin)?;
             if out.as_os_str() == "-" {
                 print!("{src}");
@@ -766,6 +779,12 @@ fn main() -> Result<()> {
                 Some(p) => Camera::from_spec(&p.to_string_lossy())?,
                 None => Camera::tusimple(),
             };
+            let hyper = hyper.unwrap_or_else(|| stjpdacf_tools::bundled(tablegen::DEFAULT_HYPER));
+            let labels = if labels.is_empty() {
+                vec![stjpdacf_tools::bundled("data/tusimple/train_subset.json")]
+            } else {
+                labels
+            };
             let tables = stjpdacf_reference::model::ModelTables::from_hyper(
                 &stjpdacf_reference::hyper::HyperFile::load(&hyper)?,
             )?;
@@ -800,7 +819,9 @@ fn main() -> Result<()> {
             let (out, report, restarts) = (a.out, a.report, a.restarts);
             let opts = trainrun::TrainOptions {
                 labels: a.labels,
-                base: a.base,
+                base: a
+                    .base
+                    .unwrap_or_else(|| stjpdacf_tools::bundled(tablegen::DEFAULT_HYPER)),
                 camera,
                 restarts,
                 seed: a.seed,

@@ -107,7 +107,7 @@ pub fn run(
     let mut per_file = Vec::new();
     for p in &opts.labels {
         let l = read_labels(p)?;
-        per_file.push(json!({ "path": p.to_string_lossy().replace('\\', "/"), "frames": l.len() }));
+        per_file.push(json!({ "path": crate::shown_path(p), "frames": l.len() }));
         labels.extend(l);
     }
     let mut too_many = 0usize;
@@ -267,12 +267,12 @@ pub fn run(
         } else {
             "kept from the base file (the fit on label series is in the provenance)"
         },
-        opts.base.to_string_lossy().replace('\\', "/"),
+        crate::shown_path(&opts.base),
     );
     let summary = json!({
         "tool": "stjpdacf train",
         "labels": per_file,
-        "base": opts.base.to_string_lossy().replace('\\', "/"),
+        "base": crate::shown_path(&opts.base),
         "camera": opts.camera,
         "frame_config": frame_cfg,
         "frames_total": labels.len(),

@@ -1060,6 +1060,25 @@ fn tables_cli_refuses_tables_the_core_refuses() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// With no `--hyper`, `tables` reads the checkout's `data/hyper/default.json` from any working
+/// folder (it was relative to the working folder, so only the checkout's root found it) and
+/// writes exactly the committed default tables, their provenance naming the file as before.
+#[test]
+fn tables_default_is_the_checkouts_from_any_folder() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-tables-default-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    let o = stjpdacf()
+        .current_dir(&d)
+        .args(["tables", "--out", "t.rs"])
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let committed =
+        std::fs::read_to_string(stjpdacf_tools::repo_root().join("src/tables/default.rs")).unwrap();
+    assert_eq!(std::fs::read_to_string(d.join("t.rs")).unwrap(), committed);
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
 /// Label rows outside the camera's image (1280×720 `h_samples` with a 512×288 camera) are
 /// counted and `track` warns: their predicted lanes are −2 there, which would otherwise pass
 /// unnoticed as lanes not found.
