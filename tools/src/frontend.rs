@@ -1891,8 +1891,28 @@ pub fn run_dir_cameras(
     let mut times = Vec::with_capacity(files.len());
     let mut cams = Vec::with_capacity(files.len());
     let mut index_in_clip = 0usize;
+    // The image size of the previous image, to hold a clip (one drive of one camera) to one.
+    let mut prev_dims = (0, 0);
     for (n, path) in files.iter().enumerate() {
         let img = load_rgb(path)?;
+        let raw_file = raw_file_of(dir, path);
+        let clip = clip_of(&raw_file);
+        // `track` maps a clip with one camera; a folder of two image sizes is two cameras (or a
+        // resized copy beside the original) and its points would be mapped with the wrong one.
+        if let Some(prev) = frames.last().filter(|prev| prev.clip == clip) {
+            ensure!(
+                img.dimensions() == prev_dims,
+                "{}: {}x{} pixels, but {} in the same folder (clip) is {}x{}: a clip's images \
+                 come from one camera at one size; put each size in its own folder",
+                path.display(),
+                img.width(),
+                img.height(),
+                prev.raw_file.as_deref().unwrap_or_default(),
+                prev_dims.0,
+                prev_dims.1
+            );
+        }
+        prev_dims = img.dimensions();
         let start = std::time::Instant::now();
         let (cam, points) = match (mode, shared[n]) {
             (CameraMode::EstimateShared { .. }, Some(cam)) => {
@@ -1908,8 +1928,6 @@ pub fn run_dir_cameras(
         .with_context(|| format!("{}", path.display()))?;
         cams.push(cam);
         times.push(start.elapsed().as_secs_f64() * 1e3 + estimate_ms[n]);
-        let raw_file = raw_file_of(dir, path);
-        let clip = clip_of(&raw_file);
         // The image's index in its clip (files of one folder are consecutive).
         index_in_clip = match frames.last() {
             Some(prev) if prev.clip == clip => index_in_clip + 1,

@@ -815,6 +815,38 @@ fn cli_mixed_file_names_in_a_clip_are_an_error() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// A clip folder of two image sizes (a resized copy beside the originals, or two cameras) is an
+/// error naming both images, whatever the camera: `track` maps a clip with one camera, so its
+/// points would be mapped with the wrong one (it refuses such a clip only when the frames carry
+/// cameras); two folders of two sizes are fine.
+#[test]
+fn cli_two_image_sizes_in_a_clip_are_an_error() {
+    let d = std::env::temp_dir().join(format!("stjpdacf-frontend-sizes-{}", std::process::id()));
+    let big = image::RgbImage::from_fn(512, 288, asphalt);
+    let small = image::RgbImage::from_fn(256, 144, asphalt);
+    let mixed = d.join("mixed").join("clip");
+    std::fs::create_dir_all(&mixed).unwrap();
+    big.save(mixed.join("1.png")).unwrap();
+    small.save(mixed.join("2.png")).unwrap();
+    for camera in ["tusimple", "estimate"] {
+        let err =
+            frontend_cli(&d.join("mixed"), &d.join("f.jsonl"), &["--camera", camera]).unwrap_err();
+        assert!(err.contains("2.png: 256x144 pixels"), "{camera}: {err}");
+        assert!(
+            err.contains("clip/1.png in the same folder (clip) is 512x288"),
+            "{camera}: {err}"
+        );
+    }
+    let apart = d.join("apart");
+    for (clip, img) in [("a", &big), ("b", &small)] {
+        std::fs::create_dir_all(apart.join(clip)).unwrap();
+        img.save(apart.join(clip).join("1.png")).unwrap();
+        img.save(apart.join(clip).join("2.png")).unwrap();
+    }
+    frontend_cli(&apart, &d.join("f.jsonl"), &["--camera", "tusimple"]).unwrap();
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
 /// A label file that names none of the images is reported (with an image's and a label's
 /// name, to compare); one that names some of them is not (TuSimple labels one frame a clip).
 #[test]
