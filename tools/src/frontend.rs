@@ -362,7 +362,7 @@ impl FrontendParams {
             "support_rows" | "support" => {
                 ensure!(
                     v.is_finite() && (0.0..=Self::MAX_SUPPORT as f64).contains(&v.round()),
-                    "front-end parameter {name} = {v} must be a count in 0..={}",
+                    "front-end parameter {name} = {v:?} must be a count in 0..={}",
                     Self::MAX_SUPPORT
                 );
                 let n = v.round() as usize;
@@ -427,7 +427,7 @@ impl FrontendParams {
         for (name, v) in non_negative {
             ensure!(
                 v.is_finite() && v >= 0.0,
-                "front-end parameter {name} = {v} must be finite and ≥ 0"
+                "front-end parameter {name} = {v:?} must be finite and ≥ 0"
             );
         }
         ensure!(
@@ -435,41 +435,41 @@ impl FrontendParams {
                 && self.u_max.is_finite()
                 && 0.0 < self.u_min
                 && self.u_min < self.u_max,
-            "front-end parameters u_min = {} and u_max = {} must be finite with 0 < u_min < u_max",
+            "front-end parameters u_min = {:?} and u_max = {:?} must be finite with 0 < u_min < u_max",
             self.u_min,
             self.u_max
         );
         ensure!(
             self.x_max > 0.0 && self.dx > 0.0 && 2.0 * self.x_max / self.dx <= Self::MAX_CELLS,
-            "front-end parameters x_max = {} and dx = {} must be > 0 with 2·x_max/dx ≤ {} cells",
+            "front-end parameters x_max = {:?} and dx = {:?} must be > 0 with 2·x_max/dx ≤ {} cells",
             self.x_max,
             self.dx,
             Self::MAX_CELLS
         );
         ensure!(
             self.max_slope <= 10.0 && self.max_curvature <= 1.0,
-            "front-end parameters max_slope = {} (≤ 10) and max_curvature = {} (≤ 1 /m) are \
+            "front-end parameters max_slope = {:?} (≤ 10) and max_curvature = {:?} (≤ 1 /m) are \
              beyond any road",
             self.max_slope,
             self.max_curvature
         );
         ensure!(
             2.0 * (self.x_max + self.max_slope * self.u_max) / 0.1 <= Self::MAX_CELLS,
-            "front-end parameters x_max + max_slope·u_max = {} m: the lane filter's histogram \
+            "front-end parameters x_max + max_slope·u_max = {:?} m: the lane filter's histogram \
              (0.1 m bins) would have more than {} cells",
             self.x_max + self.max_slope * self.u_max,
             Self::MAX_CELLS
         );
         ensure!(
             self.white_max_sat <= 1.0 && self.yellow_min_sat <= 1.0,
-            "front-end parameters white_max_sat = {} and yellow_min_sat = {} are saturations in \
+            "front-end parameters white_max_sat = {:?} and yellow_min_sat = {:?} are saturations in \
              [0, 1]",
             self.white_max_sat,
             self.yellow_min_sat
         );
         ensure!(
             self.refit_exponent.is_finite() && self.refit_exponent.abs() <= 10.0,
-            "front-end parameter refit_exponent = {} must be in [-10, 10]",
+            "front-end parameter refit_exponent = {:?} must be in [-10, 10]",
             self.refit_exponent
         );
         ensure!(
@@ -482,7 +482,7 @@ impl FrontendParams {
         ensure!(
             self.fps.is_finite() && self.fps > 0.0 && self.fps <= Self::MAX_FPS,
             "fps must be a positive number of at most {:e} (the tracker's clock counts \
-             microseconds), not {}",
+             microseconds), not {:?}",
             Self::MAX_FPS,
             self.fps
         );

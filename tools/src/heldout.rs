@@ -143,7 +143,7 @@ impl HeldoutParams {
             ("segment_detect", self.segment_detect),
         ];
         for (name, p) in probs {
-            ensure!((0.0..=1.0).contains(&p), "{name} {p} is not in [0, 1]");
+            ensure!((0.0..=1.0).contains(&p), "{name} {p:?} is not in [0, 1]");
         }
         ensure!(
             (1..=crate::synth::SynthParams::MAX_FRAMES_PER_CLIP).contains(&self.frames_per_clip),
@@ -158,7 +158,7 @@ impl HeldoutParams {
             ("lateral_tau", self.lateral_tau),
         ];
         for (name, v) in positive {
-            ensure!(v.is_finite() && v > 0.0, "{name} {v} must be > 0");
+            ensure!(v.is_finite() && v > 0.0, "{name} {v:?} must be > 0");
         }
         let non_negative = [
             ("pixel_noise", self.pixel_noise),
@@ -170,7 +170,7 @@ impl HeldoutParams {
             ("segments", self.segments),
         ];
         for (name, v) in non_negative {
-            ensure!(v.is_finite() && v >= 0.0, "{name} {v} must be ≥ 0");
+            ensure!(v.is_finite() && v >= 0.0, "{name} {v:?} must be ≥ 0");
         }
         let ranges = [
             ("dash_paint", self.dash_paint),

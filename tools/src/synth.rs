@@ -292,7 +292,7 @@ impl SynthParams {
             ("road_edge_prob", self.road_edge_prob),
             ("road_edge_detect", self.road_edge_detect),
         ] {
-            ensure!((0.0..=1.0).contains(&p), "{name} = {p} is not in [0, 1]");
+            ensure!((0.0..=1.0).contains(&p), "{name} = {p:?} is not in [0, 1]");
         }
         for (name, v) in [
             ("pixel_noise", self.pixel_noise),
@@ -310,7 +310,7 @@ impl SynthParams {
         ] {
             ensure!(
                 v >= 0.0 && v.is_finite(),
-                "{name} = {v} must be finite and ≥ 0"
+                "{name} = {v:?} must be finite and ≥ 0"
             );
         }
         for (name, v) in [
@@ -321,7 +321,7 @@ impl SynthParams {
         ] {
             ensure!(
                 v <= Self::MAX_RATE,
-                "{name} = {v} is above {} (a mean count of false points or structures)",
+                "{name} = {v:?} is above {} (a mean count of false points or structures)",
                 Self::MAX_RATE
             );
         }

@@ -103,7 +103,7 @@ pub fn static_tables<const NT: usize, const LANES: usize, const POINTS: usize>(
 
 fn lit(v: f64) -> Result<String> {
     let f = v as f32;
-    ensure!(f.is_finite(), "value {v} does not fit an f32 table");
+    ensure!(f.is_finite(), "value {v:?} does not fit an f32 table");
     Ok(format!("{f:?}"))
 }
 

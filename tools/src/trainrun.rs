@@ -85,13 +85,13 @@ pub fn run(
     );
     anyhow::ensure!(
         opts.max_gap.is_finite() && opts.max_gap >= 0.0,
-        "the largest gap of a temporal series must be finite and ≥ 0 s, not {}",
+        "the largest gap of a temporal series must be finite and ≥ 0 s, not {:?}",
         opts.max_gap
     );
     if let Some(v) = opts.offset_variance {
         anyhow::ensure!(
             v.is_finite() && v > 0.0,
-            "the offset variance σ_c² must be finite and > 0 m², not {v}"
+            "the offset variance σ_c² must be finite and > 0 m², not {v:?}"
         );
     }
     let base = HyperFile::load(&opts.base)?;
