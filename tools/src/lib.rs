@@ -45,6 +45,29 @@ pub fn bundled(rel: &str) -> std::path::PathBuf {
     repo_root().join(rel)
 }
 
+/// Create (or replace) the output file `path`, and its folder if it does not exist yet (an
+/// output under `out/run1/` needs no `mkdir` first, as the demo's `--out` needs none).
+///
+/// # Errors
+/// The folder or the file cannot be created; the error names the path.
+pub fn create_output(path: &std::path::Path) -> anyhow::Result<std::fs::File> {
+    use anyhow::Context;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))
+}
+
+/// Write `bytes` to the output file `path` ([`create_output`]: its folder created if needed).
+///
+/// # Errors
+/// As [`create_output`], or the write fails; the error names the path.
+pub fn write_output(path: &std::path::Path, bytes: impl AsRef<[u8]>) -> anyhow::Result<()> {
+    use anyhow::Context;
+    std::io::Write::write_all(&mut create_output(path)?, bytes.as_ref())
+        .with_context(|| format!("writing {}", path.display()))
+}
+
 /// `path` as a record names it (a provenance, a summary): relative to the checkout when it lies
 /// in it (a [`bundled`] default reads `data/hyper/default.json`, not the build machine's folder),
 /// else as given; `/` as the separator.

@@ -431,7 +431,7 @@ fn main() -> Result<()> {
             if out.as_os_str() == "-" {
                 print!("{src}");
             } else {
-                std::fs::write(&out, &src).with_context(|| format!("writing {}", out.display()))?;
+                stjpdacf_tools::write_output(&out, &src)?;
                 eprintln!(
                     "wrote {} (NT = {}, LANES = {}, POINTS = {}, Gram rank {} of {})",
                     out.display(),
@@ -535,10 +535,7 @@ fn main() -> Result<()> {
             };
             let mut export = match &export_points {
                 Some(p) => {
-                    let mut w = std::io::BufWriter::new(
-                        std::fs::File::create(p)
-                            .with_context(|| format!("creating {}", p.display()))?,
-                    );
+                    let mut w = std::io::BufWriter::new(stjpdacf_tools::create_output(p)?);
                     stjpdacf_tools::track::write_points_header(&mut w, &cam)
                         .with_context(|| format!("writing {}", p.display()))?;
                     Some(w)
@@ -558,10 +555,7 @@ fn main() -> Result<()> {
                 _ => None,
             };
             let mut lanes_out = match &lanes {
-                Some(p) => Some(std::io::BufWriter::new(
-                    std::fs::File::create(p)
-                        .with_context(|| format!("creating {}", p.display()))?,
-                )),
+                Some(p) => Some(std::io::BufWriter::new(stjpdacf_tools::create_output(p)?)),
                 None => None,
             };
             let mut lanes_err: Option<anyhow::Error> = None;
@@ -807,8 +801,7 @@ fn main() -> Result<()> {
                 frames.len()
             );
             if let Some(p) = json {
-                std::fs::write(&p, serde_json::to_string_pretty(&fit)? + "\n")
-                    .with_context(|| format!("writing {}", p.display()))?;
+                stjpdacf_tools::write_output(&p, serde_json::to_string_pretty(&fit)? + "\n")?;
             }
         }
         Command::Train(a) => {
@@ -848,7 +841,7 @@ fn main() -> Result<()> {
             let outcome = trainrun::run(&opts, &progress)?;
             bar.finish_and_clear();
             let text = serde_json::to_string_pretty(&outcome.hyper)? + "\n";
-            std::fs::write(&out, text).with_context(|| format!("writing {}", out.display()))?;
+            stjpdacf_tools::write_output(&out, text)?;
             let p = &outcome.fit.params;
             eprintln!(
                 "wrote {}: {} frames, LML {:.3}, ℓ_u = {:.3} m, noise = {:.5} m², σ_c² = {:.3} m²",
@@ -1211,9 +1204,7 @@ fn print_estimated_cameras(frames: &[tusimple::Frame], shared: bool, refined: bo
 
 /// Write `items` to `path` as JSON lines.
 fn write_jsonl<T: serde::Serialize>(path: &std::path::Path, items: &[T]) -> Result<()> {
-    let mut w = std::io::BufWriter::new(
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
-    );
+    let mut w = std::io::BufWriter::new(stjpdacf_tools::create_output(path)?);
     for item in items {
         serde_json::to_writer(&mut w, item).context("serialising a JSON line")?;
         std::io::Write::write_all(&mut w, b"\n")?;

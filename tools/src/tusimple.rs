@@ -250,7 +250,7 @@ pub fn write_jsonl_to<T: Serialize, W: Write>(mut w: W, items: &[T]) -> Result<(
 
 /// Write items to a JSON-lines file, replacing it.
 pub fn write_jsonl<T: Serialize>(path: &Path, items: &[T]) -> Result<()> {
-    let f = File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let f = crate::create_output(path)?;
     write_jsonl_to(BufWriter::new(f), items).with_context(|| format!("writing {}", path.display()))
 }
 

@@ -675,12 +675,13 @@ fn track_cli_every_frame_refuses_a_repeated_raw_file() {
 }
 
 /// `--lanes` writes every frame's published lanes with their ids, in the BEV: one record per
-/// frame, the same ids from frame to frame for the same markings.
+/// frame, the same ids from frame to frame for the same markings. Output files may name
+/// folders that do not exist yet (they are created).
 #[test]
 fn track_cli_lanes_file_carries_ids() {
     let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
     let (d, fpath, frames) = two_lane_clip_file("lanes", 7, &rows);
-    let (p, l) = (d.join("p.jsonl"), d.join("l.jsonl"));
+    let (p, l) = (d.join("new/p.jsonl"), d.join("other/deeper/l.jsonl"));
     let o = run_track(
         &fpath,
         &p,
