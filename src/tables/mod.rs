@@ -308,8 +308,14 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
         let h = &self.hyper;
         let sp = &self.spatial;
         let tp = &self.temporal;
-        let lower =
-            self.coreg_chol.upper_triangle().abs().max() <= self.coreg_chol.diagonal().abs().max();
+        // Lower: the lane starts (§4.1 step 6, §4.2.2) read only its lower triangle, so every
+        // entry above the diagonal is 0 (any factor L·G, G orthogonal, also reproduces B).
+        // (Column-major storage: entry k is row k % LANES, column k / LANES.)
+        let lower = self
+            .coreg_chol
+            .iter()
+            .enumerate()
+            .all(|(k, v)| k / LANES <= k % LANES || *v == 0.0);
         let recon = (self.coreg_chol * self.coreg_chol.transpose() - self.coreg)
             .abs()
             .max()
@@ -416,6 +422,23 @@ mod tests {
         assert_eq!(t.validate(), Err(TablesError::IndexPoints));
         let mut t = DEFAULT;
         t.coreg[(0, 1)] += 1.0;
+        assert_eq!(t.validate(), Err(TablesError::NotPositiveDefinite));
+        // A factor of B that is not lower: L·G with G a rotation by 0.1 rad in the (0, 1) plane
+        // reproduces B (to 2e-6) but the starts read only L's lower triangle.
+        let mut t = DEFAULT;
+        let (c, s) = (libm::cosf(0.1), libm::sinf(0.1));
+        let mut g = SMatrix::<f32, 6, 6>::identity();
+        g[(0, 0)] = c;
+        g[(1, 1)] = c;
+        g[(0, 1)] = -s;
+        g[(1, 0)] = s;
+        t.coreg_chol = DEFAULT.coreg_chol * g;
+        assert!(
+            (t.coreg_chol * t.coreg_chol.transpose() - t.coreg)
+                .abs()
+                .max()
+                < 1e-4
+        );
         assert_eq!(t.validate(), Err(TablesError::NotPositiveDefinite));
         let mut t = DEFAULT;
         t.gram_rank = 0;
