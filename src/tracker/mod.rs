@@ -181,7 +181,7 @@ impl_tracker! {
     }
 
     /// A tracker with no tables, every byte zero, so that a `static` of it is placed in `.bss`
-    /// and takes no flash (a `static` of [`Tracker::new`] is in `.data`: its ~148 KB initial
+    /// and takes no flash (a `static` of [`Tracker::new`] is in `.data`: its ~154 KB initial
     /// image is stored in flash). It must be given its tables with [`Tracker::init`] before it
     /// runs; until then [`Tracker::step`] returns [`StepError::NotInitialised`] and it has no
     /// lanes.
@@ -225,13 +225,13 @@ impl_tracker! {
     };
 
     /// Makes this tracker a fresh one on `tables` with `cfg`, in place: what
-    /// [`Tracker::with_config`] returns, without building a ~148 KB value on the stack (so a
+    /// [`Tracker::with_config`] returns, without building a ~154 KB value on the stack (so a
     /// `static` [`Tracker::UNINIT`] is set up with a few hundred bytes of stack). Also restarts
     /// a running tracker (a new drive): every lane, estimate and id is forgotten, ids start at
     /// 0 again.
     ///
     /// # Complexity
-    /// A `memset` of the tracker (`size_of`, ~148 KB at the reference configuration) and
+    /// A `memset` of the tracker (`size_of`, ~154 KB at the reference configuration) and
     /// `O(LANES·(LAG + POINTS))` stores.
     pub const fn init(&mut self, tables: &'static Tables<NT, LANES, POINTS>, cfg: TrackerConfig) {
         *self = Self::UNINIT;

@@ -15,8 +15,8 @@
 //!
 //! # Cost per frame
 //! Only the active slots are touched (`n` lanes, `n_act = 2·r·n` state entries; free slots' rows
-//! and columns stay zero): prediction about `8·n_act²/2` multiply-adds (`F̄ P F̄ᵀ` on one triangle
-//! of 2×2 blocks, Kronecker noise), each lane update a rank-`r` correction `P −= G M Gᵀ` in
+//! and columns stay zero): prediction about `2·n_act²` multiply-adds (`F̄ P F̄ᵀ` on one triangle
+//! of 2×2 blocks, 16 a block, Kronecker noise), each lane update a rank-`r` correction `P −= G M Gᵀ` in
 //! `n_act²·r/2` (one triangle, mirrored) plus `m³/6 + m²·r` for its gain (`m ≤ POINTS` present
 //! points, one `m×m` Cholesky). At 3 lanes, rank 7: ≈ 3.5 k + 3 × 6.2 k multiply-adds. Updates
 //! are checked (bounds on every product) before anything is written, then applied in place: no
@@ -540,8 +540,8 @@ impl<const LANES: usize, const POINTS: usize, const RANK: usize, const NX: usize
     /// [`TemporalError::BadStep`]; the state is unchanged.
     ///
     /// # Complexity
-    /// About `8·n_act²` multiply-adds for `F̄ P F̄ᵀ` on one triangle of 2×2 blocks, plus
-    /// `(lanes·r)·lanes` noise blocks; `n_act = 2r·lanes`.
+    /// About `2·n_act²` multiply-adds for `F̄ P F̄ᵀ` on one triangle of 2×2 blocks (16 a
+    /// block), plus `(lanes·r)·lanes` noise blocks; `n_act = 2r·lanes`.
     pub fn predict<const NT: usize>(
         &mut self,
         tables: &Tables<NT, LANES, POINTS>,
