@@ -214,6 +214,35 @@ fn finding_f4_validator_refuses_tables_off_their_model() {
     );
 }
 
+/// **F9** (fixed in `src/tables/mod.rs`, stop 73): an hour of `tables_validate` found tables
+/// with `B` and its factor scaled by 2⁻⁴⁵ and `r₀²` by 2⁻⁴⁵ as well (so F3's temporal ratio
+/// held) whose lane offset prior σ_c² = 25 m² stayed: the pseudo-measurements' covariance
+/// (~2e-4 m²) against `r₀²` = 7e-17 m² made `R̃` too ill-conditioned for f32, and the first
+/// temporal update on a four-lane frame gave a variance of −5.5e-11 m² from a prior of
+/// 5.3e-12 m². `Tables::validate` now also bounds the spatial prior at a point,
+/// `σ_c² + max B_kk · σ_u²`, by 1e7 · `r₀²` (`TablesError::IllConditioned`; default 1.6e4).
+#[test]
+fn finding_f9_validator_refuses_spatial_prior_beyond_f32() {
+    let data = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../fuzz/regressions/tables_validate/f9-spatial-prior-over-noise-beyond-f32"),
+    )
+    .expect("read input");
+    let t = harness::mutate_tables(&mut arbitrary::Unstructured::new(&data));
+    assert_eq!(
+        t.validate(),
+        Err(stjpdacf::tables::TablesError::IllConditioned)
+    );
+    assert_eq!(
+        replay(
+            "regressions/tables_validate",
+            "f9-",
+            harness::tables_validate
+        ),
+        1
+    );
+}
+
 /// Prints, for each `temporal_ops` regression input named `prefix*`, `describe` of its first
 /// unrepaired break ([`first_unrepaired_break`] with `check`); then replays them with the repair
 /// and returns how many pass ([`replay`]).

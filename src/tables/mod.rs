@@ -155,9 +155,11 @@ pub enum TablesError {
     /// of `temporal.kernel` at `frame_step`; the spatial `f`, `q` not those of `spatial.model` at
     /// `row_step`.
     Inconsistent,
-    /// The largest prior variance of a temporal state (`max_k B_kk · λ₁ · σ_t²`) exceeds
-    /// [`MAX_PRIOR_OVER_NOISE`] times the pseudo-measurement noise floor `r₀²`: the f32 Kalman
-    /// update of a new lane would lose its posterior to rounding.
+    /// The largest prior variance of a temporal state (`max_k B_kk · λ₁ · σ_t²`), or of a
+    /// lane at a point in the spatial filter (`σ_c² + max_k B_kk · σ_u²`, the most a
+    /// pseudo-measurement can carry), exceeds [`MAX_PRIOR_OVER_NOISE`] times the
+    /// pseudo-measurement noise floor `r₀²`: the f32 Kalman update of a new lane would lose its
+    /// posterior to rounding (fuzz findings F3 and F9).
     IllConditioned,
 }
 
@@ -199,7 +201,8 @@ fn max_abs_diff<const R: usize, const C: usize>(
         .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()))
 }
 
-/// Largest ratio of a temporal state's prior variance (`max_k B_kk · λ₁ · σ_t²`, m²) to the
+/// Largest ratio of a temporal state's prior variance (`max_k B_kk · λ₁ · σ_t²`, m²), and of a
+/// lane's spatial prior variance at a point (`σ_c² + max_k B_kk · σ_u²`, m²), to the
 /// pseudo-measurement noise floor `r₀²` that [`Tables::validate`] accepts.
 ///
 /// The first update of a new lane takes its covariance from the prior down to about the noise;
@@ -208,6 +211,13 @@ fn max_abs_diff<const R: usize, const C: usize>(
 /// with the Gram matrix and its eigenvalues scaled by `2^k`, three clean lanes): the default
 /// ratio is 7.5e4; the temporal covariance stays PSD up to a ratio of 3.8e7 (×512) and loses
 /// it at 7.7e7 (×1024). 1e7 keeps a margin of ~4 below the failure and ~130 above the default.
+///
+/// The spatial ratio bounds the pseudo-measurements' covariance `R_m` against the floor added
+/// to it (`R̃ = R_m + r₀² I`, design §4.2.3): with `r₀²` far below `R_m` the update inverts an
+/// `R̃` whose condition is `R_m / r₀²` (fuzz finding F9: `B` and `r₀²` scaled down together by
+/// 2⁻⁴⁵ passed the temporal ratio; an `R_m` of 2e-4 m² against `r₀²` = 7e-17 m² made the
+/// posterior variance −5e-11 m² from a prior of 5e-12). On F9's points, with `B` and `r₀²`
+/// scaled together, the ratio first failed at 7e14; the default ratio is 1.6e4 (41 m² / 0.0025 m²).
 pub const MAX_PRIOR_OVER_NOISE: f32 = 1e7;
 
 fn all_finite<'a>(it: impl IntoIterator<Item = &'a f32>) -> bool {
@@ -293,8 +303,12 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
         let b_max = self.coreg.diagonal().iter().fold(0.0f32, |m, v| m.max(*v));
         let lam1 = self.gram_eigval.get(0).copied().unwrap_or(0.0);
         let prior = b_max * lam1 * self.temporal.kernel.variance;
-        // Finite positive factors (checked above): the product is finite or +inf, never NaN.
-        if prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise {
+        // The most a pseudo-measurement can carry: a lane's spatial prior at a point (F9).
+        let spatial_prior = h.offset_variance + b_max * h.spatial_variance;
+        // Finite positive factors (checked above): the products are finite or +inf, never NaN.
+        if prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise
+            || spatial_prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise
+        {
             return Err(TablesError::IllConditioned);
         }
         Ok(())
@@ -451,6 +465,19 @@ mod tests {
         let mut t = DEFAULT;
         t.hyper.pseudo_noise = 1e-9;
         assert_eq!(t.validate(), Err(TablesError::IllConditioned));
+        // Fuzz finding F9: B and r₀² scaled down together (the temporal ratio kept) leave the
+        // offset prior σ_c² = 25 m² against r₀² = 7e-17 m².
+        let mut t = DEFAULT;
+        let f = libm::exp2f(-22.5);
+        t.coreg *= f * f;
+        t.coreg_chol *= f;
+        t.hyper.pseudo_noise *= f * f;
+        assert_eq!(t.validate(), Err(TablesError::IllConditioned));
+        // Only B scaled down: both ratios shrink, the tables stay valid.
+        let mut t = DEFAULT;
+        t.coreg *= f * f;
+        t.coreg_chol *= f;
+        assert_eq!(t.validate(), Ok(()));
         // Fuzz finding F4: stored matrices that disagree with their models.
         let mut t = DEFAULT;
         t.gram_eigvec[(3, 2)] = 80.0;
