@@ -609,7 +609,8 @@ fn check_obs(o: &LaneObservation<POINTS>, tables: &ReferenceTables) -> Result<()
 
 /// `Tables::validate` on mutated default tables (must not panic; the unmutated tables pass);
 /// tables it accepts run through the spatial filter (observation invariants) and the temporal
-/// stage (start, predict, update: [`check_temporal`]) on three straight lanes plus input points.
+/// stage (start, predict, update and the per-frame covariance repair, as the tracker runs it:
+/// [`check_temporal`]) on three straight lanes plus input points.
 ///
 /// # Errors
 /// A description of the first invariant violated.
@@ -670,6 +671,10 @@ pub fn tables_validate(data: &[u8]) -> Result<(), String> {
                 }
             }
         }
+        // As the tracker does after every frame's lane updates (docs/design.md §4.2.4): the f32
+        // update may lose positive definiteness to rounding (F5, F7); the stage is update +
+        // repair, and the repaired state is what must be healthy.
+        temporal.repair_covariance(&t);
         check_temporal(&temporal, &t, PsdCheck::Cholesky)
             .map_err(|e| format!("frame {frame}: {e}"))?;
     }
