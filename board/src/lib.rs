@@ -101,7 +101,8 @@ pub enum Polled {
     },
     /// The frame was rejected (counted in the receiver's `LinkStats`); nothing was written.
     Rejected,
-    /// The tracker refused the frame's time (cannot happen after the receiver's check).
+    /// The tracker refused the frame: its time does not increase (cannot happen after the
+    /// receiver's check), or [`Board::init`] was not called.
     Refused,
 }
 
@@ -114,7 +115,7 @@ pub enum BoardError<S, U> {
     Uart(U),
 }
 
-/// The tracker with its receiver and buffers (~150 KB: put it in a `static` of [`Board::UNINIT`]).
+/// The tracker with its receiver and buffers (~158 KB: put it in a `static` of [`Board::UNINIT`]).
 pub struct Board {
     tracker: ReferenceTracker,
     rx: Receiver,
@@ -136,7 +137,7 @@ impl Board {
     }
 
     /// A board whose tracker is [`ReferenceTracker::UNINIT`]: every byte zero, so a `static` of
-    /// it is in `.bss` and takes no flash (a `static` [`Board::new`] stores its ~148 KB initial
+    /// it is in `.bss` and takes no flash (a `static` [`Board::new`] stores its ~158 KB initial
     /// image in flash). Call [`Board::init`] before [`Board::poll`].
     pub const UNINIT: Self = Self {
         tracker: ReferenceTracker::UNINIT,
