@@ -243,6 +243,34 @@ fn finding_f9_validator_refuses_spatial_prior_beyond_f32() {
     );
 }
 
+/// **F10** (fixed in `src/tables/mod.rs`, stop 73): `tables_validate`, continuing after F9,
+/// found tables with `B` scaled by 3e-22 and the Gram matrix and its eigenvalues by 2⁻⁶³: every
+/// ratio held, but the whole temporal prior was subnormal in f32 (6e-39 m²) and, on a frame of
+/// clean lanes and an input's extra points, the covariance after the per-frame repair was not
+/// positive definite. `Tables::validate` now refuses a largest prior, temporal or spatial, below
+/// `MIN_PRIOR_VARIANCE` = 1e-6 m² (`TablesError::IllConditioned`; defaults 186 m², 41 m²).
+#[test]
+fn finding_f10_validator_refuses_prior_below_f32_range() {
+    let data = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../fuzz/regressions/tables_validate/f10-prior-subnormal"),
+    )
+    .expect("read input");
+    let t = harness::mutate_tables(&mut arbitrary::Unstructured::new(&data));
+    assert_eq!(
+        t.validate(),
+        Err(stjpdacf::tables::TablesError::IllConditioned)
+    );
+    assert_eq!(
+        replay(
+            "regressions/tables_validate",
+            "f10-",
+            harness::tables_validate
+        ),
+        1
+    );
+}
+
 /// Prints, for each `temporal_ops` regression input named `prefix*`, `describe` of its first
 /// unrepaired break ([`first_unrepaired_break`] with `check`); then replays them with the repair
 /// and returns how many pass ([`replay`]).

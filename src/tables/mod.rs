@@ -159,7 +159,9 @@ pub enum TablesError {
     /// lane at a point in the spatial filter (`σ_c² + max_k B_kk · σ_u²`, the most a
     /// pseudo-measurement can carry), exceeds [`MAX_PRIOR_OVER_NOISE`] times the
     /// pseudo-measurement noise floor `r₀²`: the f32 Kalman update of a new lane would lose its
-    /// posterior to rounding (fuzz findings F3 and F9).
+    /// posterior to rounding (fuzz findings F3 and F9); or either prior is below
+    /// [`MIN_PRIOR_VARIANCE`], where the filters' products of variances leave f32's normal
+    /// range (F10).
     IllConditioned,
 }
 
@@ -219,6 +221,17 @@ fn max_abs_diff<const R: usize, const C: usize>(
 /// posterior variance −5e-11 m² from a prior of 5e-12). On F9's points, with `B` and `r₀²`
 /// scaled together, the ratio first failed at 7e14; the default ratio is 1.6e4 (41 m² / 0.0025 m²).
 pub const MAX_PRIOR_OVER_NOISE: f32 = 1e7;
+
+/// Smallest largest prior variance, temporal (`max_k B_kk · λ₁ · σ_t²`) or spatial
+/// (`σ_c² + max_k B_kk · σ_u²`), that [`Tables::validate`] accepts, m²: a lateral prior of 1 mm.
+///
+/// The filters multiply variances (gains, `G M Gᵀ`, the repair's correlation form), and the
+/// smallest variances they reach are the noise floor, up to [`MAX_PRIOR_OVER_NOISE`] below the
+/// prior: at a prior of 1e-6 m² those products stay above 1e-26, far inside f32's normal range
+/// (from 1.2e-38). Fuzz finding F10: `B` scaled by 3e-22 and the Gram matrix by 1e-19 put the
+/// whole temporal prior below it (6e-39 m², subnormal), and the repaired covariance was not
+/// positive definite. The defaults are 186 m² and 41 m².
+pub const MIN_PRIOR_VARIANCE: f32 = 1e-6;
 
 fn all_finite<'a>(it: impl IntoIterator<Item = &'a f32>) -> bool {
     it.into_iter().all(|v| v.is_finite())
@@ -308,6 +321,8 @@ impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES,
         // Finite positive factors (checked above): the products are finite or +inf, never NaN.
         if prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise
             || spatial_prior > MAX_PRIOR_OVER_NOISE * h.pseudo_noise
+            || prior < MIN_PRIOR_VARIANCE
+            || spatial_prior < MIN_PRIOR_VARIANCE
         {
             return Err(TablesError::IllConditioned);
         }
@@ -473,10 +488,19 @@ mod tests {
         t.coreg_chol *= f;
         t.hyper.pseudo_noise *= f * f;
         assert_eq!(t.validate(), Err(TablesError::IllConditioned));
-        // Only B scaled down: both ratios shrink, the tables stay valid.
+        // Fuzz finding F10: B and the Gram matrix scaled down until the temporal prior is
+        // subnormal (B by 2⁻⁷², the Gram matrix and its eigenvalues by 2⁻⁶³: 6e-39 m²).
         let mut t = DEFAULT;
-        t.coreg *= f * f;
-        t.coreg_chol *= f;
+        t.coreg = DEFAULT.coreg * libm::exp2f(-72.0);
+        t.coreg_chol = DEFAULT.coreg_chol * libm::exp2f(-36.0);
+        t.gram *= libm::exp2f(-63.0);
+        t.gram_eigval *= libm::exp2f(-63.0);
+        assert_eq!(t.validate(), Err(TablesError::IllConditioned));
+        // Only B scaled down, to a temporal prior of 1e-5 m² (by 2⁻²⁴): both ratios shrink, the
+        // tables are still accepted.
+        let mut t = DEFAULT;
+        t.coreg *= libm::exp2f(-24.0);
+        t.coreg_chol *= libm::exp2f(-12.0);
         assert_eq!(t.validate(), Ok(()));
         // Fuzz finding F4: stored matrices that disagree with their models.
         let mut t = DEFAULT;
