@@ -25,7 +25,9 @@
 //! returned as a value. The crate never allocates.
 //!
 //! # Feature flags
-//! * `defmt` — derive `defmt::Format` on public types.
+//! * `defmt` — derive `defmt::Format` on the configuration, report, error and wire types
+//!   (`TrackerConfig`, `StepReport` and their parts; `Tables` prints its header); not on
+//!   `LaneEstimate`, `StepOutput` or the stateful types (the crate itself logs nothing).
 //!
 //! # MSRV
 //! Rust 1.85 (edition 2021, `core::error::Error`, inline `const` blocks).

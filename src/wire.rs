@@ -19,9 +19,10 @@
 //!
 //! A frame is [`frame_len`]`(n) = 24 + 4·n` bytes: 1,048 bytes for the reference `M = 256`.
 //! Fixed point keeps a frame compact and makes every decodable point finite: the range is
-//! ±128 m (the BEV window is 3–80 m ahead, ±12 m lateral) in steps of 3.9 mm, far below the
-//! 10 cm feature-point noise. Points outside the tracker's window are the tracker's business
-//! (it rejects and counts them).
+//! −128 m to +127.996 m (the reference tables' BEV window is 3–80 m ahead; the tracker does not
+//! limit the lateral position) in steps of 3.9 mm, far below the 10 cm feature-point noise.
+//! Points outside the tracker's window in `u` are the tracker's business (it rejects and counts
+//! them, `rejected_window`).
 //!
 //! # API
 //!
@@ -166,7 +167,8 @@ pub enum EncodeError {
         /// Bytes needed.
         needed: usize,
     },
-    /// A coordinate is not finite or outside ±128 m.
+    /// A coordinate is not finite or does not round into the `i16` range, −128 m to +127.996 m
+    /// (`i16::MAX`·[`LSB_M`]).
     PointOutOfRange {
         /// Index of the point.
         index: usize,

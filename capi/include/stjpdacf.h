@@ -275,7 +275,10 @@ typedef struct stjpdacf_known_report {
 typedef struct stjpdacf_step_report {
   // The spatial filter's counters.
   struct stjpdacf_spatial_report spatial;
-  // Lane identity's counters.
+  // Lane identity's counters, over this frame's spatial lanes: with the known-lane stage (the
+  // default) a lane its pass saw and no spatial lane matched is counted in `coasting`
+  // although it was seen (its `misses` is 0; [`KnownReport::seen`] counts those), and lanes
+  // the known-lane stage deletes or merges are in `known`, not in `removed`.
   struct stjpdacf_identity_report identity;
   // Points beyond `MEAS`, ignored.
   uint32_t over_budget_points;

@@ -69,8 +69,8 @@ pub struct PersistConfig {
     pub survival_time: f32,
     /// Existence of a lane before its first frame's evidence.
     pub p_birth: f32,
-    /// A lane is published while its existence is at least this (a lane started this frame
-    /// may wait one frame more, docs/design.md §11.5).
+    /// A lane is published while its existence is at least this (a new lane may wait up to
+    /// `1 + newcomer_wait` frames, docs/design.md §11.5; see `StepOutput::filtered`).
     pub p_publish: f32,
     /// A lane is deleted when its existence falls below this.
     pub p_delete: f32,
@@ -90,7 +90,7 @@ pub struct PersistConfig {
     /// Scale of the spatial filter's row-to-row process noise while this stage is on (the
     /// spatial filter's `row_noise_scale`, docs/design.md §11.12): the maximum of the
     /// state-space likelihood of the bundled `0313` label lanes under the table's spatial model
-    /// (`stjpdacf row-noise`, 0.0434). Labelled lanes are about 23× smoother from row to row
+    /// (`stjpdacf row-noise`, 0.0434; [`PersistConfig::DEFAULT`] rounds it to 0.043). Labelled lanes are about 23× smoother from row to row
     /// than the `N_T = 2` approximation of the RBF; with the table's noise a new lane's track
     /// bends so freely across a dash gap that the next dash's points do not count against
     /// clutter.
@@ -101,6 +101,7 @@ pub struct PersistConfig {
     pub q_memory: f32,
     /// Probability that a lane that exists is visible in a frame (not occluded, not blurred
     /// out): the rows' evidence of a frame counts only in that case (docs/design.md §11.5).
+    /// Default 0.9.
     pub p_visible: f32,
     /// Memory, in frames, of the estimate of a lane's lateral offset common to its rows in one
     /// frame (docs/design.md §11.4: the edge of a marking the detector sees, a camera's pitch
@@ -139,7 +140,8 @@ pub struct PersistConfig {
     /// as a solid line would; `false`, the spatial stage's `P_D` for every lane (until stop 55).
     pub own_pd: bool,
     /// How each row's joint events are weighed (docs/design.md §11.3): exact enumeration with
-    /// pruning over the budget, LBP over the budget, or LBP everywhere.
+    /// pruning over the budget, LBP over the budget (the default, `ExactOrLbp`), or LBP
+    /// everywhere.
     pub association: Association,
     /// The ray test (docs/design.md §11.10, [`ray`]): a lane consistent with a straight line
     /// through the camera's foot point (the BEV origin) within `ray_z` standard deviations, in
@@ -161,7 +163,7 @@ pub struct PersistConfig {
     pub ray_aligned: bool,
     /// A live lane whose offset at the camera's foot point moves (its rate from the temporal
     /// state, `ray_z` standard deviations from zero) is not deleted as a vertical structure
-    /// (docs/design.md §11.10): the marking under the camera in a lane change.
+    /// (docs/design.md §11.10): the marking under the camera in a lane change. `true` by default.
     pub ray_motion: bool,
     /// Slots by existence (docs/design.md §11.13): a new lane whose track's evidence is
     /// positive and that finds every slot taken takes the slot of the unmatched lane of lowest

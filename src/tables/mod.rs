@@ -22,14 +22,14 @@ use crate::kernel::{Matern32, RbfStateSpace};
 mod default;
 pub use default::DEFAULT;
 
+#[rustfmt::skip]
+mod uncoupled;
 /// The uncoupled model: [`DEFAULT`] with `B` replaced by `diag(B)` (the same per-lane variance,
 /// no coupling between lanes; generated from `data/hyper/ablation_diag_b.json`). With it the
 /// temporal filter's covariance stays block-diagonal and every temporal and smoother loop runs
 /// on the lanes' own blocks (`TemporalFilter::uncoupled`, docs/design.md §4.2.6): the choice
 /// for a controller that cannot spend the coupled model's instructions, at the accuracy cost
 /// measured in docs/measurements.md ("The uncoupled model").
-#[rustfmt::skip]
-mod uncoupled;
 pub use uncoupled::UNCOUPLED;
 
 /// Version of the table layout; the generator writes it and [`Tables::validate`] checks it.
@@ -102,8 +102,8 @@ pub struct TemporalTables {
 /// Constructible in `const`/`static` context (every field is a plain value or a nalgebra matrix
 /// built with `from_array_storage`), so generated tables live in flash.
 ///
-/// RAM/flash cost: `4·(NT² ·4 + 30 + POINTS·(2·POINTS + 2) + 2·LANES²) + 8` bytes
-/// (reference configuration: see `size_of::<ReferenceTables>()`).
+/// RAM/flash cost: `4·(4·NT² + 30 + POINTS·(2·POINTS + 2) + 2·LANES²)` bytes (2,648 at the
+/// reference configuration, `size_of::<ReferenceTables>()`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Tables<const NT: usize, const LANES: usize, const POINTS: usize> {
     /// Layout version ([`FORMAT_VERSION`]).
@@ -142,13 +142,16 @@ pub enum TablesError {
     Order,
     /// A value is NaN or infinite.
     NonFinite,
-    /// A variance, length-scale or step is not positive, or the window is empty.
+    /// A variance, length-scale, step or window edge (`u_min`, `u_max`) is not positive,
+    /// `gram_variance_fraction` is not in (0, 1], or the window is empty.
     NonPositive,
     /// Index points are not increasing inside the window.
     IndexPoints,
-    /// A covariance or factor has a non-positive diagonal, or `B` ≠ `L Lᵀ`, or is not symmetric.
+    /// A covariance or factor has a non-positive diagonal, or `B` ≠ `L Lᵀ`, or is not symmetric,
+    /// or `L` is not lower triangular.
     NotPositiveDefinite,
-    /// `gram_rank` is 0 or larger than `POINTS`, or eigenvalues are not decreasing.
+    /// `gram_rank` is 0 or larger than `POINTS`, or an eigenvalue is negative, or the
+    /// eigenvalues are not decreasing.
     GramBasis,
     /// A stored matrix disagrees with the model it is derived from: `gram_eigvec` not orthonormal
     /// or not eigenvectors of `gram` with `gram_eigval`; the temporal `f`, `q`, `p_inf` not those
@@ -244,8 +247,11 @@ fn symmetric_pos_diag<const N: usize>(m: &SMatrix<f32, N, N>) -> bool {
 
 impl<const NT: usize, const LANES: usize, const POINTS: usize> Tables<NT, LANES, POINTS> {
     /// Checks the tables for internal consistency: version, order, finiteness, positive scalars,
-    /// increasing index points, symmetric positive-diagonal covariances, `B = L Lᵀ`, a sound Gram
-    /// basis. Generated tables always pass; use it on tables loaded at run time.
+    /// increasing index points, symmetric positive-diagonal covariances, `B = L Lᵀ` with `L`
+    /// lower, a sound Gram basis, the stored matrices against their models, and priors that f32
+    /// can update ([`TablesError::IllConditioned`]). Generated tables always pass; use it on
+    /// tables loaded at run time (the tracker does not call it). `NT` must be 2..=6, `LANES`
+    /// 1..=16 and `POINTS` 2..=64 (checked at compile time).
     ///
     /// # Complexity
     /// O(NT³·log + POINTS³ + LANES³) (two discretisations, the eigen-equation), no allocation.

@@ -19,8 +19,8 @@
 //! lanes active now): lane starts and removals keep it so. Every loop runs over those blocks only.
 //!
 //! # RAM
-//! `LAG · 4 · (NA + LANES·RANK² + NA·NX)` bytes: 62 KiB at 6 lanes, rank 7, L = 4 — the largest
-//! item of the tracker, as docs/design.md §5 expects.
+//! `LAG · 4 · (NA + LANES·RANK² + NA·NX)` bytes: 61,824 B (60.4 KiB) at 6 lanes, rank 7,
+//! L = 4 — the largest item of the tracker, as docs/design.md §5 expects.
 //!
 //! # Cost
 //! With `p` lanes present in a lag, `n` active now, `r` Gram components: per prediction
@@ -42,8 +42,8 @@ use crate::tables::Tables;
 /// The largest smoother lag `LAG` (frames) of [`Temporal`] and of the tracker
 /// (`crate::tracker::Tracker`), which keeps `2·LAG + 1` frames of lane extents and `LAG + 1`
 /// frames of lane ids for the smoothed output. RAM grows linearly with `LAG` (see the module
-/// docs: about 15.5 KiB a frame of lag at 6 lanes and rank 7), so a larger lag is rarely wanted
-/// on a microcontroller; raise this constant (and re-measure) if it is.
+/// docs: 15,456 B (15.1 KiB) a frame of lag at 6 lanes and rank 7), so a larger lag is rarely
+/// wanted on a microcontroller; raise this constant (and re-measure) if it is.
 pub const MAX_LAG: usize = 7;
 
 /// One lag of the window.

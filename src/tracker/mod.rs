@@ -126,7 +126,8 @@ pub type ReferenceTracker = Tracker<2, 3, 6, 16, 64, 16, 256, 7, 84, 42, 4>;
 
 /// The reference configuration compiled for Gram rank 5 (`RANK` = 5, `NX` = 60, `NA` = 30): with
 /// [`crate::tables::DEFAULT`] (coupled B) the default model's accuracy within 0.008 on the
-/// replay at about 60 % of its Cortex-M4F instructions on the typical clip (3.39 M against 5.76 M)
+/// replay at about 60 % of its Cortex-M4F instructions on the typical clip (3.42 M against 5.79 M,
+/// stop 63)
 /// and 71 % of [`ReferenceTracker`]'s memory (docs/measurements.md "Fitting the MCU"). On any
 /// tables it runs `r = min(gram_rank, 5)` components, bit for bit what [`ReferenceTracker`]
 /// publishes on the same tables truncated to rank 5 (host test `rank_capacity`).
@@ -142,8 +143,8 @@ pub type Rank4Tracker = Tracker<2, 3, 6, 16, 64, 16, 256, 4, 48, 24, 4>;
 
 /// The reference configuration compiled for Gram rank 3 (`RANK` = 3, `NX` = 36, `NA` = 18): with
 /// [`crate::tables::UNCOUPLED`] and LBP on every known-lane row, the cheapest model measured on
-/// the Cortex-M4F (1.22 M instructions the typical clip's worst frame, 0.99 M before each lane's
-/// own `P_D` in its joint events; docs/measurements.md "Fitting the MCU"), at
+/// the Cortex-M4F (1.24 M instructions the typical clip's worst frame, stop 63; 0.99 M before
+/// each lane's own `P_D` in its joint events; docs/measurements.md "Fitting the MCU"), at
 /// a further accuracy cost against [`Rank4Tracker`]'s. Bit for bit [`ReferenceTracker`] on the
 /// same tables truncated to rank 3 (host test `rank_capacity`).
 pub type Rank3Tracker = Tracker<2, 3, 6, 16, 64, 16, 256, 3, 36, 18, 4>;

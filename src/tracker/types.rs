@@ -35,6 +35,7 @@ impl core::error::Error for StepError {}
 
 /// Tuning of the whole tracker.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TrackerConfig {
     /// The spatial JPDACF.
     pub spatial: SpatialConfig,
@@ -74,7 +75,10 @@ impl TrackerConfig {
     /// known-lane stage's hits and dash gap become `⌈n·k/K⌉` (at least 1), and the clutter
     /// densities, which are per row, `K/k` times theirs (a row then collects the points of
     /// `K/k` rows). Rows cost per frame in proportion to their number, `(N − 1)·k + 1`
-    /// (docs/measurements.md "Fitting the MCU"); `k = 0` is taken as 1.
+    /// (docs/measurements.md "Fitting the MCU"); `k = 0` is taken as 1. The tracker needs
+    /// `ROWS ≥ (POINTS − 1)·k + 1` (61 at k = 4 for the reference `ROWS` = 64, so k ≤ 4 there);
+    /// a configuration that does not fit is not refused by [`crate::tracker::Tracker::init`]:
+    /// every frame then reports `spatial.bad_config` and finds no lane.
     #[must_use]
     pub const fn with_rows_per_interval(self, k: u8) -> Self {
         let k = if k == 0 { 1 } else { k };
@@ -195,14 +199,16 @@ pub struct LaneEstimate<const POINTS: usize> {
     pub id: LaneId,
     /// Temporal slot (for [`Tracker::lane_at`]).
     pub slot: u8,
-    /// Lateral position at each index point, metres.
+    /// Lateral position at each index point ([`crate::tables::Tables::index_u`], evenly spaced
+    /// over the window `u_min..=u_max`), metres.
     pub z: SVector<f32, POINTS>,
     /// Its variance, m².
     pub var: SVector<f32, POINTS>,
     /// Observed extent, metres ahead: the union over the `LAG + 1` frames ending at the lane's
-    /// frame (the current one for filtered lanes, `LAG` frames back for smoothed lanes).
+    /// frame (the current one for filtered lanes, `LAG` frames back for smoothed lanes);
+    /// `u_first == u_last ==` the window's `u_min` when the lane was observed in none of them.
     pub u_first: f32,
-    /// Far end of the observed extent.
+    /// Far end of the observed extent, metres ahead.
     pub u_last: f32,
     /// Existence in [0, 1]: with the known-lane stage (the default) the lane's existence
     /// probability (docs/design.md §11.5); in the round-1 pipeline the spatial existence when
@@ -222,11 +228,15 @@ pub struct LaneEstimate<const POINTS: usize> {
 
 /// What one frame did (`repr(C)`: the C API hands it to C as is).
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(C)]
 pub struct StepReport {
     /// The spatial filter's counters.
     pub spatial: SpatialReport,
-    /// Lane identity's counters.
+    /// Lane identity's counters, over this frame's spatial lanes: with the known-lane stage (the
+    /// default) a lane its pass saw and no spatial lane matched is counted in `coasting`
+    /// although it was seen (its `misses` is 0; [`KnownReport::seen`] counts those), and lanes
+    /// the known-lane stage deletes or merges are in `known`, not in `removed`.
     pub identity: IdentityReport,
     /// Points beyond `MEAS`, ignored.
     pub over_budget_points: u32,
