@@ -214,33 +214,42 @@ fn finding_f4_validator_refuses_tables_off_their_model() {
     );
 }
 
-/// **F9** (fixed in `src/tables/mod.rs`, stop 73): an hour of `tables_validate` found tables
-/// with `B` and its factor scaled by 2⁻⁴⁵ and `r₀²` by 2⁻⁴⁵ as well (so F3's temporal ratio
-/// held) whose lane offset prior σ_c² = 25 m² stayed: the pseudo-measurements' covariance
-/// (~2e-4 m²) against `r₀²` = 7e-17 m² made `R̃` too ill-conditioned for f32, and the first
-/// temporal update on a four-lane frame gave a variance of −5.5e-11 m² from a prior of
-/// 5.3e-12 m². `Tables::validate` now also bounds the spatial prior at a point,
-/// `σ_c² + max B_kk · σ_u²`, by 1e7 · `r₀²` (`TablesError::IllConditioned`; default 1.6e4).
-#[test]
-fn finding_f9_validator_refuses_spatial_prior_beyond_f32() {
+/// The `tables_validate` regression input `name`: `Tables::validate` refuses its tables as
+/// ill-conditioned (which it did not before the fix), and the harness passes it.
+fn refused_as_ill_conditioned(name: &str) {
     let data = std::fs::read(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../fuzz/regressions/tables_validate/f9-spatial-prior-over-noise-beyond-f32"),
+        repo_root()
+            .join("fuzz/regressions/tables_validate")
+            .join(name),
     )
     .expect("read input");
     let t = harness::mutate_tables(&mut arbitrary::Unstructured::new(&data));
     assert_eq!(
         t.validate(),
-        Err(stjpdacf::tables::TablesError::IllConditioned)
+        Err(stjpdacf::tables::TablesError::IllConditioned),
+        "{name}"
     );
     assert_eq!(
         replay(
             "regressions/tables_validate",
-            "f9-",
+            name,
             harness::tables_validate
         ),
         1
     );
+}
+
+/// **F9** (fixed in `src/tables/mod.rs`, stop 73): the first 556 k executions of
+/// `tables_validate` at stop 73 found tables with `B` and its factor scaled by 2⁻⁴⁵ and `r₀²`
+/// by 2⁻⁴⁵ as well (so F3's temporal ratio held) whose lane offset prior σ_c² = 25 m² stayed:
+/// the pseudo-measurements' covariance (~2e-4 m²) against `r₀²` = 7e-17 m² made `R̃` too
+/// ill-conditioned for f32, and the first temporal update on a four-lane frame gave a variance
+/// of −5.5e-11 m² from a prior of 5.3e-12 m². `Tables::validate` now also bounds the spatial
+/// prior at a point, `σ_c² + max B_kk · σ_u²`, by 1e7 · `r₀²` (`TablesError::IllConditioned`;
+/// default 1.6e4).
+#[test]
+fn finding_f9_validator_refuses_spatial_prior_beyond_f32() {
+    refused_as_ill_conditioned("f9-spatial-prior-over-noise-beyond-f32");
 }
 
 /// **F10** (fixed in `src/tables/mod.rs`, stop 73): `tables_validate`, continuing after F9,
@@ -251,24 +260,7 @@ fn finding_f9_validator_refuses_spatial_prior_beyond_f32() {
 /// `MIN_PRIOR_VARIANCE` = 1e-6 m² (`TablesError::IllConditioned`; defaults 186 m², 41 m²).
 #[test]
 fn finding_f10_validator_refuses_prior_below_f32_range() {
-    let data = std::fs::read(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../fuzz/regressions/tables_validate/f10-prior-subnormal"),
-    )
-    .expect("read input");
-    let t = harness::mutate_tables(&mut arbitrary::Unstructured::new(&data));
-    assert_eq!(
-        t.validate(),
-        Err(stjpdacf::tables::TablesError::IllConditioned)
-    );
-    assert_eq!(
-        replay(
-            "regressions/tables_validate",
-            "f10-",
-            harness::tables_validate
-        ),
-        1
-    );
+    refused_as_ill_conditioned("f10-prior-subnormal");
 }
 
 /// Prints, for each `temporal_ops` regression input named `prefix*`, `describe` of its first
