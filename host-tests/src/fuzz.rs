@@ -13,7 +13,7 @@
 //!   reversals, microsecond steps, days, any `i64`).
 //! * [`temporal_ops`]: the temporal filter and fixed-lag smoother (`Temporal`) alone, under any
 //!   sequence of predict (any step), start (any slot and ranks), update (any present mask, any
-//!   positions, PSD covariances from 1e-10 to 1e2 m² and injected NaN/inf), remove, re-rank.
+//!   positions, PSD covariances with variances from 1e-16 to 1e3 m² and injected NaN/inf), remove, re-rank.
 //! * [`tables_validate`]: `Tables::validate` on the default tables after arbitrary mutations
 //!   (raw values, special values, scaling, symmetric edits and consistent rescalings that the
 //!   validator should accept); tables it accepts then run through the spatial and temporal
@@ -232,7 +232,7 @@ pub fn tracker_step_with(data: &[u8], tables: &'static ReferenceTables) -> Resul
 }
 
 /// A pseudo-measurement as the spatial filter would give (present mask, positions near a line,
-/// PSD covariance `L Lᵀ` with variances from 1e-10 to 1e2 m²), with special values injected
+/// PSD covariance `L Lᵀ` with variances from 1e-16 to 1e3 m²), with special values injected
 /// into a position, or NaN/±inf into the covariance, at a small rate.
 fn decode_obs(u: &mut Unstructured<'_>) -> LaneObservation<POINTS> {
     let mask = u.arbitrary::<u16>().unwrap_or(0);

@@ -5,7 +5,7 @@
 //! cargo xtask bench-report
 //! ```
 //!
-//! Reads `target/stjpdacf-bench/{tracker,stages,scaling}.json` and criterion's estimates under
+//! Reads `target/stjpdacf-bench/{tracker,stages,scaling,icount}.json` and criterion's estimates under
 //! `target/criterion/`, merges them into `docs/bench/results.json` (what was not measured again
 //! keeps its committed value), rewrites the tables between the `bench_report` markers of
 //! `docs/bench/README.md`, and writes `docs/bench/scaling.csv` and `docs/bench/scaling.png`.

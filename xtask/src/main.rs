@@ -3,6 +3,7 @@
 //! | command | what it does |
 //! |---|---|
 //! | `firmware [--check \| --update-budget]` | builds `bench/firmware` for the Cortex-M4F, runs every binary under QEMU, writes the JSON summary and checks (or rewrites) `bench/firmware/budget.json` |
+//! | `firmware-profile [--bin B] [--top N] [--lines N]` | where a firmware binary's instructions go, per function and per source line, under QEMU |
 //! | `firmware-scenarios` | regenerates the firmware's scenario files |
 //! | `nopanic` | the no-panic proof: links only if no panicking branch survives in the core |
 //! | `fuzz-smoke [--cap S]` | the seeded, bounded cargo-fuzz run CI does |
