@@ -486,13 +486,19 @@ mod tests {
         let mut t = DEFAULT;
         t.hyper.pseudo_noise = 1e-9;
         assert_eq!(t.validate(), Err(TablesError::IllConditioned));
-        // Fuzz finding F9: B and r₀² scaled down together (the temporal ratio kept) leave the
-        // offset prior σ_c² = 25 m² against r₀² = 7e-17 m².
+        // Fuzz finding F9's bound alone: B and r₀² scaled down together by 2⁻²⁰ keep the
+        // temporal ratio (7.5e4) and a temporal prior above `MIN_PRIOR_VARIANCE` (1.8e-4 m²),
+        // but leave the offset prior σ_c² = 25 m² against r₀² = 2.4e-9 m² (1e10). (F9's input
+        // itself, scaled by 2⁻⁴⁵, is refused by F10's bound too.)
         let mut t = DEFAULT;
-        let f = libm::exp2f(-22.5);
+        let f = libm::exp2f(-10.0);
         t.coreg *= f * f;
         t.coreg_chol *= f;
         t.hyper.pseudo_noise *= f * f;
+        let prior = t.coreg.diagonal().max() * t.gram_eigval[0] * t.temporal.kernel.variance;
+        assert!(
+            prior >= MIN_PRIOR_VARIANCE && prior <= MAX_PRIOR_OVER_NOISE * t.hyper.pseudo_noise
+        );
         assert_eq!(t.validate(), Err(TablesError::IllConditioned));
         // Fuzz finding F10: B and the Gram matrix scaled down until the temporal prior is
         // subnormal (B by 2⁻⁷², the Gram matrix and its eigenvalues by 2⁻⁶³: 6e-39 m²).
