@@ -414,17 +414,9 @@ struct TrainArgs {
 fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Tables { hyper, out, name } => {
-            // The generated file names its source as given (the default by its checkout path).
-            let (hyper, origin) = match hyper {
-                Some(p) => {
-                    let origin = p.to_string_lossy().replace('\\', "/");
-                    (p, origin)
-                }
-                None => (
-                    stjpdacf_tools::bundled(tablegen::DEFAULT_HYPER),
-                    tablegen::DEFAULT_HYPER.to_string(),
-                ),
-            };
+            let hyper = hyper.unwrap_or_else(|| stjpdacf_tools::bundled(tablegen::DEFAULT_HYPER));
+            // The generated file names its source as given, one in the checkout by its path there.
+            let origin = stjpdacf_tools::shown_path(&hyper);
             let h = HyperFile::load(&hyper)?;
             let t = tablegen::ModelTables::from_hyper(&h)?;
             let src = tablegen::render(&t, &name, &origin)?;
@@ -712,7 +704,7 @@ fn main() -> Result<()> {
                         .total_cmp(&b.accuracy)
                         .then((b.fp + b.fn_).total_cmp(&(a.fp + a.fn_)))
                 });
-                write_jsonl(p, &frames)?;
+                tusimple::write_jsonl(p, &frames)?;
                 eprintln!(
                     "{} frame scores to {}; the worst:",
                     frames.len(),
@@ -733,7 +725,7 @@ fn main() -> Result<()> {
             }
             if let Some(p) = &per_lane {
                 let lanes = metric::frame_lane_rows(&preds, &gts);
-                write_jsonl(p, &lanes)?;
+                tusimple::write_jsonl(p, &lanes)?;
                 let lost: Vec<&metric::LaneRows> = lanes
                     .iter()
                     .map(|l| &l.lane)
@@ -1200,14 +1192,4 @@ fn print_estimated_cameras(frames: &[tusimple::Frame], shared: bool, refined: bo
             "the guess's"
         },
     );
-}
-
-/// Write `items` to `path` as JSON lines.
-fn write_jsonl<T: serde::Serialize>(path: &std::path::Path, items: &[T]) -> Result<()> {
-    let mut w = std::io::BufWriter::new(stjpdacf_tools::create_output(path)?);
-    for item in items {
-        serde_json::to_writer(&mut w, item).context("serialising a JSON line")?;
-        std::io::Write::write_all(&mut w, b"\n")?;
-    }
-    std::io::Write::flush(&mut w).with_context(|| format!("writing {}", path.display()))
 }
