@@ -544,15 +544,12 @@ fn snapshot(v: &FrameView<'_>, tables: &ReferenceTables, us: &[f64]) -> Snapshot
 /// # Errors
 /// A prediction file the metric refuses (not one-to-one with `gts`).
 pub fn score_on(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord], timed: bool) -> Result<Score> {
-    let files: HashSet<&str> = gts.iter().map(|g| g.raw_file.as_str()).collect();
-    let kept: Vec<TuSimpleRecord> = preds
-        .iter()
-        .filter(|p| files.contains(p.raw_file.as_str()))
-        .map(|p| TuSimpleRecord {
-            run_time: if timed { p.run_time } else { Some(0.0) },
-            ..p.clone()
-        })
-        .collect();
+    let (mut kept, _) = metric::labelled_only(preds.to_vec(), gts);
+    if !timed {
+        for p in &mut kept {
+            p.run_time = Some(0.0);
+        }
+    }
     metric::check_one_to_one(&kept, gts)?;
     metric::bench_one_submit(&kept, gts)
 }

@@ -197,6 +197,12 @@ enum Command {
         /// predicted but not labelled), and sum up on stderr how the unmatched lanes were lost.
         #[arg(long, value_name = "OUT.jsonl")]
         per_lane: Option<PathBuf>,
+        /// Score only the predictions of frames the ground truth lists and say how many others
+        /// were left out (the official scorer refuses a prediction of an unlabelled frame). For
+        /// predictions of every frame of a clip against labels of its last frame, as `synth
+        /// --gt` writes them; a labelled frame without a prediction is still an error.
+        #[arg(long)]
+        labelled_only: bool,
     },
     /// The demo on bundled data: replay clips (three noise levels, coupled B and diag(B)) and the
     /// 10 real frames through the front end → tracker → official TuSimple metric; prints the
@@ -266,7 +272,10 @@ enum Command {
         /// Output frames (JSON lines, one frame per line).
         #[arg(long)]
         out: PathBuf,
-        /// Output ground truth of each clip's last frame (TuSimple JSON lines).
+        /// Output ground truth of each clip's last frame (TuSimple JSON lines). Every frame
+        /// names its rows (`h_samples`), so `track` predicts every frame: score those
+        /// predictions against this file with `eval --labelled-only` (against `--gt-all`'s as
+        /// they are).
         #[arg(long)]
         gt: Option<PathBuf>,
         /// Output ground truth of every frame (TuSimple JSON lines).
@@ -689,13 +698,21 @@ fn main() -> Result<()> {
             pixel_scale,
             per_frame,
             per_lane,
+            labelled_only,
         } => {
             anyhow::ensure!(
                 pixel_scale > 0.0 && pixel_scale.is_finite(),
                 "--pixel-scale must be > 0"
             );
             // Read and checked once for the score and both lists.
-            let (preds, gts) = metric::read_scaled(&pred, &gt, pixel_scale)?;
+            let (preds, gts, left_out) =
+                metric::read_scaled(&pred, &gt, pixel_scale, labelled_only)?;
+            if labelled_only {
+                eprintln!(
+                    "{} predictions of labelled frames scored, {left_out} of unlabelled frames left out",
+                    preds.len()
+                );
+            }
             let (s, mut frames) = metric::score_frames(&preds, &gts, (&pred, &gt))?;
             if let Some(p) = &per_frame {
                 // Worst first: accuracy up, then FP + FN down; ties in file order.
@@ -892,6 +909,27 @@ fn main() -> Result<()> {
                 recs.truncate(k);
             }
             anyhow::ensure!(!recs.is_empty(), "{}: no labels", labels.display());
+            // The labels are mapped to the road through `--camera`: points outside its image
+            // mean labels drawn in another camera or image size.
+            let label_points: Vec<[f64; 2]> = recs
+                .iter()
+                .flat_map(|r| {
+                    r.lanes
+                        .iter()
+                        .flat_map(|l| r.points_of(l).map(|(c, w)| [c, w]))
+                })
+                .collect();
+            let outside = stjpdacf_tools::track::outside_image(&label_points, &cam);
+            if outside > 0 {
+                eprintln!(
+                    "warning: {outside} of the {} label points lie outside the {}x{} image of \
+                     --camera {camera}: it is the camera the labels were drawn in (tusimple for \
+                     TuSimple's 1280x720 labels)",
+                    label_points.len(),
+                    cam.width,
+                    cam.height
+                );
+            }
             let bar = indicatif::ProgressBar::new(recs.len() as u64);
             let o = synth::synthesize_with_progress(&recs, &params, &cam, seed, || bar.inc(1))
                 .with_context(|| format!("synthesising from {}", labels.display()))?;

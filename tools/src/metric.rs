@@ -460,10 +460,18 @@ pub fn check_one_to_one(preds: &[TuSimpleRecord], gts: &[TuSimpleRecord]) -> Res
     };
     let gt_files = files(gts, "ground truth lists")?;
     let pred_files = files(preds, "predictions list")?;
+    let unlabelled = preds
+        .iter()
+        .filter(|p| !gt_files.contains(&p.raw_file))
+        .count();
     if let Some(p) = preds.iter().find(|p| !gt_files.contains(&p.raw_file)) {
         bail!(
-            "prediction for {}: raw_file not in the ground truth",
-            p.raw_file
+            "prediction for {}: raw_file not in the ground truth ({unlabelled} of the {} \
+             predictions are for frames it does not list; the official scorer refuses them: \
+             score the labelled frames alone with `eval --labelled-only`, e.g. when the \
+             ground truth labels each clip's last frame, as `synth --gt` writes it)",
+            p.raw_file,
+            preds.len()
         );
     }
     if let Some(missing) = gts.iter().find(|g| !pred_files.contains(&g.raw_file)) {
@@ -518,7 +526,7 @@ pub fn evaluate_files(pred_path: &Path, gt_path: &Path) -> Result<Score> {
 /// (negative "no point" values stay as they are), e.g. 2.5 to score files of 512×288 frames at
 /// TuSimple's 1280×720, where the metric's 20 px threshold is defined.
 pub fn evaluate_files_scaled(pred_path: &Path, gt_path: &Path, scale: f64) -> Result<Score> {
-    let (preds, gts) = read_scaled(pred_path, gt_path, scale)?;
+    let (preds, gts, _) = read_scaled(pred_path, gt_path, scale, false)?;
     Ok(score_frames(&preds, &gts, (pred_path, gt_path))?.0)
 }
 
@@ -572,14 +580,33 @@ fn scoring(pred_path: &Path, gt_path: &Path) -> String {
     )
 }
 
-/// Both files read, scaled by `scale` and checked one to one ([`check_one_to_one`]).
+/// The predictions whose `raw_file` the ground truth lists, in their order, and how many others
+/// were left out: what `eval --labelled-only` scores (a clip's frames predicted, its last frame
+/// labelled). The kept ones still go through [`check_one_to_one`].
+pub fn labelled_only(
+    preds: Vec<TuSimpleRecord>,
+    gts: &[TuSimpleRecord],
+) -> (Vec<TuSimpleRecord>, usize) {
+    let files: HashSet<&str> = gts.iter().map(|g| g.raw_file.as_str()).collect();
+    let n = preds.len();
+    let kept: Vec<TuSimpleRecord> = preds
+        .into_iter()
+        .filter(|p| files.contains(p.raw_file.as_str()))
+        .collect();
+    let left_out = n - kept.len();
+    (kept, left_out)
+}
+
 /// The predictions and labels of two files, every column and row multiplied by `scale`
-/// (negative "no point" values stay), checked one to one (each labelled frame predicted once).
+/// (negative "no point" values stay), checked one to one (each labelled frame predicted once;
+/// with `labelled_only` the predictions of frames the ground truth does not list are left out
+/// first, [`labelled_only`], and counted in the third value).
 pub fn read_scaled(
     pred_path: &Path,
     gt_path: &Path,
     scale: f64,
-) -> Result<(Vec<TuSimpleRecord>, Vec<TuSimpleRecord>)> {
+    labelled_only: bool,
+) -> Result<(Vec<TuSimpleRecord>, Vec<TuSimpleRecord>, usize)> {
     let mut gts = read_labels(gt_path)?;
     let mut preds = read_predictions(pred_path)?;
     if scale != 1.0 {
@@ -587,8 +614,13 @@ pub fn read_scaled(
             r.scale_pixels(scale);
         }
     }
+    let (preds, left_out) = if labelled_only {
+        self::labelled_only(preds, &gts)
+    } else {
+        (preds, 0)
+    };
     check_one_to_one(&preds, &gts).with_context(|| scoring(pred_path, gt_path))?;
-    Ok((preds, gts))
+    Ok((preds, gts, left_out))
 }
 
 #[cfg(test)]

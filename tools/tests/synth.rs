@@ -369,6 +369,9 @@ fn cli_writes_frames_and_ground_truth() {
             .output()
             .unwrap();
         assert_success(&out);
+        // The labels fit the default camera: no warning.
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!err.contains("outside"), "{err}");
         std::fs::read(d.join(format!("{name}.jsonl"))).unwrap()
     };
     let a = gen("a", "4");
@@ -390,6 +393,21 @@ fn cli_writes_frames_and_ground_truth() {
         .output()
         .unwrap();
     assert_failure_mentions(&bad, "/nonexistent/labels.json");
+    // TuSimple's 1280x720 labels through a 1640x590 camera: their rows below 590 are outside
+    // its image, which the user is told.
+    let other = stjpdacf()
+        .args(["synth", "--clips", "3", "--camera", "culane", "--labels"])
+        .arg(&labels)
+        .arg("--out")
+        .arg(d.join("culane.jsonl"))
+        .output()
+        .unwrap();
+    assert_success(&other);
+    let err = String::from_utf8_lossy(&other.stderr);
+    assert!(
+        err.contains("label points lie outside the 1640x590 image of --camera culane"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&d).unwrap();
 }
 

@@ -152,6 +152,49 @@ fn eval_cli_reports_bad_inputs() {
 }
 
 #[test]
+fn labelled_only_scores_the_labelled_frames_and_counts_the_others() {
+    // Predictions of the 10 labelled frames plus two unlabelled ones (as `track` writes for
+    // every synth frame while `synth --gt` labels the last ones): refused as the official scorer
+    // does, with the way out named; scored as the 10 alone with --labelled-only.
+    let dir = temp_dir("labelled-only");
+    let gts = labels();
+    let mut preds = as_predictions(&gts);
+    for k in 0..2 {
+        let mut p = preds[k].clone();
+        p.raw_file = format!("unlabelled/{k}.jpg");
+        for lane in &mut p.lanes {
+            for x in lane.iter_mut().filter(|x| **x >= 0.0) {
+                *x += 100.0;
+            }
+        }
+        preds.push(p);
+    }
+    let pred = dir.join("pred.json");
+    write_records(&pred, &preds).unwrap();
+    let out = eval_cli(&pred, &labels_path(), true);
+    let err = assert_failure_mentions(&out, "2 of the 12 predictions");
+    assert!(err.contains("--labelled-only"), "{err}");
+    let out = stjpdacf()
+        .args(["eval", "--json", "--labelled-only", "--pred"])
+        .arg(&pred)
+        .arg("--gt")
+        .arg(labels_path())
+        .output()
+        .unwrap();
+    assert_success(&out);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["Accuracy"], 1.0, "{v}");
+    assert_eq!(v["frames"], 10, "{v}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("2 of unlabelled frames left out"), "{err}");
+    // A labelled frame without a prediction is still refused.
+    let (kept, left_out) = metric::labelled_only(preds[1..].to_vec(), &gts);
+    assert_eq!((kept.len(), left_out), (9, 2));
+    assert!(metric::check_one_to_one(&kept, &gts).is_err());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn pixel_scale_scores_512_files_at_1280() {
     // Every labelled point moved 15 px right at 512×288: within the 20 px threshold as is, but
     // 37.5 px at TuSimple's 1280×720, beyond 20 / cos θ for every lane less steep than 58°.
