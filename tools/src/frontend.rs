@@ -1759,8 +1759,9 @@ fn fit_and_detect(
 /// `raw_file` = its path relative to `dir`, `clip` = that path's folder, `t` from the file's
 /// frame number and [`FrontendParams::fps`] (TuSimple's `n.jpg`: (n − 1) × 0.05 s), or the
 /// image's index in its folder / `fps`,
-/// `h_samples` from `labels` when one has the same `raw_file`. `camera`: `None` = the TuSimple
-/// camera scaled to each image. `progress` is called after each image.
+/// `h_samples` from `labels` when one has the same `raw_file`, `camera` the camera its points were
+/// found with. `camera`: `None` = the TuSimple camera scaled to each image. `progress` is called
+/// after each image.
 pub fn run_dir(
     dir: &Path,
     camera: Option<&Camera>,
@@ -1961,11 +1962,9 @@ pub fn run_dir_cameras(
             points,
             raw_file: Some(raw_file),
             h_samples,
-            camera: matches!(
-                mode,
-                CameraMode::Estimate(_) | CameraMode::EstimateShared { .. } | CameraMode::Refine(_)
-            )
-            .then_some(cam),
+            // Always the camera the points were found with (calibrated ones too): `track` maps
+            // the frames with it, so a 512×288 file needs no --scale and cannot get the wrong one.
+            camera: Some(cam),
         };
         // What `track` checks (`Frame::check`): a time its microsecond clock holds (a file
         // named by a nanosecond time stamp is frame 10¹⁸ or so, beyond it).

@@ -142,6 +142,12 @@ enum Command {
         /// before it is published (`PersistConfig::newcomer_wait`, default 2; 0 = no wait).
         #[arg(long, value_name = "FRAMES", conflicts_with = "no_newcomer_wait")]
         newcomer_wait: Option<u8>,
+        /// The within-frame row-noise scale of the known-lane stage
+        /// (`PersistConfig::row_noise_scale`, docs/design.md §11.12; default 0.043, fitted to the
+        /// bundled labels under the default tables): for a hyperparameter file of your own
+        /// (--hyper), `stjpdacf row-noise --hyper` fits it.
+        #[arg(long, value_name = "SCALE")]
+        row_noise_scale: Option<f32>,
         /// Also draw each frame's tracked lanes on its image into this folder (one PNG per frame
         /// whose `raw_file` names an image under --images: the image in grey, the points red,
         /// each lane in its id's colour, solid where observed, dotted where extrapolated, with
@@ -459,6 +465,7 @@ fn main() -> Result<()> {
             no_own_pd,
             no_newcomer_wait,
             newcomer_wait,
+            row_noise_scale,
             overlay,
             images,
             labels,
@@ -484,10 +491,19 @@ fn main() -> Result<()> {
                 "--lane-width must be finite and ≥ 0 (metres; 0 publishes every line structure), \
                  not {lane_width}"
             );
+            if let Some(r) = row_noise_scale {
+                anyhow::ensure!(
+                    r > 0.0 && r.is_finite(),
+                    "--row-noise-scale must be a finite number > 0, not {r:?}"
+                );
+            }
             let cam = Camera::from_spec(&camera)?;
             let cam = match scale {
                 Some(s) => {
-                    anyhow::ensure!(s > 0.0 && s.is_finite(), "--scale must be > 0");
+                    anyhow::ensure!(
+                        s > 0.0 && s.is_finite(),
+                        "--scale must be a finite number > 0, not {s:?}"
+                    );
                     cam.scaled(s)
                 }
                 None => cam,
@@ -524,11 +540,31 @@ fn main() -> Result<()> {
                 .iter()
                 .filter(|f| f.h_samples.is_none() || f.raw_file.is_none())
                 .count();
+            // The frames' own camera when they all carry one and the same (`frontend` with a
+            // calibration): it maps them, whatever --camera and --scale say.
+            let own_camera = frames
+                .first()
+                .and_then(|f| f.camera)
+                .filter(|c| frames.iter().all(|f| f.camera == Some(*c)));
+            if let Some(c) = own_camera.filter(|c| *c != cam) {
+                if scale.is_some() || camera != "tusimple" {
+                    eprintln!(
+                        "note: the frames carry the camera their points were found with \
+                         ({}x{}, horizon row {:.1}, written by `frontend`): they are mapped with \
+                         it, not with --camera / --scale",
+                        c.width, c.height, c.vp_row
+                    );
+                }
+            }
             anyhow::ensure!(
-                export_points.is_none() || frames.iter().all(|f| f.camera.is_none()),
-                "--export-points writes one camera for all frames; these frames carry their own \
-                 (from `frontend --camera estimate`): track them without --export-points"
+                export_points.is_none()
+                    || own_camera.is_some()
+                    || frames.iter().all(|f| f.camera.is_none()),
+                "--export-points writes one camera for all frames; these frames carry cameras \
+                 that differ (from `frontend --camera estimate` or --refine-horizon): track them \
+                 without --export-points"
             );
+            let cam = own_camera.unwrap_or(cam);
             let bar = indicatif::ProgressBar::new(frames.len() as u64);
             let space = match space {
                 SpaceArg::Image => stjpdacf_tools::track::Space::Image,
@@ -586,6 +622,7 @@ fn main() -> Result<()> {
                             } else {
                                 newcomer_wait.unwrap_or(d.persist.newcomer_wait)
                             },
+                            row_noise_scale: row_noise_scale.unwrap_or(d.persist.row_noise_scale),
                             ..d.persist
                         },
                         ..d
@@ -650,6 +687,37 @@ fn main() -> Result<()> {
                      give as many ids a clip as lanes a frame)",
                     stats.lane_ids as f64 / stats.clips.max(1) as f64,
                     stats.published_lanes as f64 / stats.frames as f64,
+                );
+            }
+            let n_points: usize = frames.iter().map(|f| f.points.len()).sum();
+            if 2 * stats.unmapped_points > n_points {
+                eprintln!(
+                    "warning: {} of the {n_points} points lie at or above the horizon of the \
+                     camera they were tracked with ({}x{}, horizon row {:.1}, unless a frame \
+                     carries its own): points of a smaller image need --scale (0.4 for 512x288 \
+                     frames of TuSimple's camera), points of another camera its --camera, and \
+                     BEV points (metres, [x, u]) --space bev",
+                    stats.unmapped_points, cam.width, cam.height, cam.vp_row
+                );
+            }
+            if 2 * stats.outside_window_points > n_points {
+                eprintln!(
+                    "warning: {} of the {n_points} points lie outside the tracker's window \
+                     ({:.0}–{:.0} m ahead), so it ignores them: BEV points are [x lateral, u \
+                     ahead] in metres (--space bev), image points [column, row] in pixels \
+                     (--space image, the default)",
+                    stats.outside_window_points, tables.hyper.u_min, tables.hyper.u_max
+                );
+            }
+            if stats.over_budget_points > 0 {
+                eprintln!(
+                    "({} points on {} frames left out to fit the core's budgets of {} points a \
+                     frame and {} a BEV row after preprocessing: in the fullest rows, those \
+                     farthest from the car laterally; `track::fit_budget`)",
+                    stats.over_budget_points,
+                    stats.over_budget_frames,
+                    stjpdacf_tools::track::POINT_BUDGET,
+                    stjpdacf_tools::track::ROW_BUDGET
                 );
             }
             if stats.outside_image_points > 0 {
@@ -794,6 +862,7 @@ fn main() -> Result<()> {
             let mut frames = Vec::new();
             for p in &labels {
                 frames.extend(stjpdacf_tools::train::read_labels(p)?);
+                warn_labels_off_camera(p, &camera);
             }
             let lanes = rownoise::label_lanes(&frames, &camera, &tables);
             let fit = rownoise::fit(&rownoise::RowModel::from_tables(&tables), &lanes)?;
@@ -818,6 +887,9 @@ fn main() -> Result<()> {
                 Some(p) => Camera::from_spec(&p.to_string_lossy())?,
                 None => Camera::tusimple(),
             };
+            for p in &a.labels {
+                warn_labels_off_camera(p, &camera);
+            }
             let (out, report, restarts) = (a.out, a.report, a.restarts);
             let opts = trainrun::TrainOptions {
                 labels: a.labels,
@@ -909,26 +981,10 @@ fn main() -> Result<()> {
                 recs.truncate(k);
             }
             anyhow::ensure!(!recs.is_empty(), "{}: no labels", labels.display());
-            // The labels are mapped to the road through `--camera`: points outside its image
-            // mean labels drawn in another camera or image size.
-            let label_points: Vec<[f64; 2]> = recs
-                .iter()
-                .flat_map(|r| {
-                    r.lanes
-                        .iter()
-                        .flat_map(|l| r.points_of(l).map(|(c, w)| [c, w]))
-                })
-                .collect();
-            let outside = stjpdacf_tools::track::outside_image(&label_points, &cam);
-            if outside > 0 {
-                eprintln!(
-                    "warning: {outside} of the {} label points lie outside the {}x{} image of \
-                     --camera {camera}: it is the camera the labels were drawn in (tusimple for \
-                     TuSimple's 1280x720 labels)",
-                    label_points.len(),
-                    cam.width,
-                    cam.height
-                );
+            if let Some(w) =
+                stjpdacf_tools::track::labels_off_camera_warning(&recs, &cam, "--camera")
+            {
+                eprintln!("{w}");
             }
             let bar = indicatif::ProgressBar::new(recs.len() as u64);
             let o = synth::synthesize_with_progress(&recs, &params, &cam, seed, || bar.inc(1))
@@ -1114,7 +1170,9 @@ fn main() -> Result<()> {
                 wall_ms / frames.len() as f64,
                 out.display()
             );
-            print_estimated_cameras(&frames, share != ShareArg::Image, refine_horizon);
+            if camera == "estimate" || refine_horizon {
+                print_estimated_cameras(&frames, share != ShareArg::Image, refine_horizon);
+            }
         }
         Command::Demo {
             out,
@@ -1175,6 +1233,17 @@ fn main() -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Warns when the labels of `path` do not fit `camera` (`track::labels_off_camera`); a file
+/// the TuSimple reader refuses is left to the command's own reader to report.
+fn warn_labels_off_camera(path: &std::path::Path, camera: &Camera) {
+    let Ok(recs) = tusimple::read_labels(path) else {
+        return;
+    };
+    if let Some(w) = stjpdacf_tools::track::labels_off_camera_warning(&recs, camera, "--camera") {
+        eprintln!("{}: {w}", path.display());
+    }
 }
 
 /// For `frontend --camera estimate`: the estimated cameras in one line (median and range of the

@@ -86,6 +86,13 @@ pub struct TrackStats {
     pub lane_ids: usize,
     /// Lanes published (seen within [`MAX_REPORT_MISSES`] frames), summed over the frames.
     pub published_lanes: usize,
+    /// Points that mapped to the road but lie outside the tracker's BEV window (nearer than its
+    /// first row or beyond its last, [`outside_window`]): [`preprocess`] drops them.
+    pub outside_window_points: usize,
+    /// Preprocessed points left out by [`fit_budget`] (frames over the core's budgets).
+    pub over_budget_points: usize,
+    /// Frames [`fit_budget`] left points out of.
+    pub over_budget_frames: usize,
 }
 
 impl TrackStats {
@@ -259,20 +266,16 @@ pub fn preprocess_with(
     tables: &ReferenceTables,
     min_support_fraction: f64,
 ) -> Vec<[f32; 2]> {
-    let h = &tables.hyper;
-    let (u0, u1) = (f64::from(h.u_min), f64::from(h.u_max));
-    let rows = 15 * 4;
-    let du = (u1 - u0) / rows as f64;
+    let (u0, du, rows) = window(tables);
     let mut bins: Vec<Vec<f64>> = vec![Vec::new(); rows + 1];
     let mut urows: Vec<Vec<f64>> = vec![Vec::new(); rows + 1];
     for &(u, x) in points {
         if !(u.is_finite() && x.is_finite()) {
             continue;
         }
-        let r = ((u - u0) / du).round();
-        if r >= 0.0 && r <= rows as f64 {
-            bins[r as usize].push(x);
-            urows[r as usize].push(u);
+        if let Some(r) = row_of(u, (u0, du, rows)) {
+            bins[r].push(x);
+            urows[r].push(u);
         }
     }
     let mut out = Vec::new();
@@ -293,6 +296,95 @@ pub fn preprocess_with(
         }
     }
     out
+}
+
+/// The most points the [`ReferenceTracker`] takes in a frame (its `MEAS`; the core keeps the first
+/// ones and counts the rest, `StepReport::over_budget_points`).
+pub const POINT_BUDGET: usize = 256;
+
+/// The most points the [`ReferenceTracker`] takes in one BEV row (its `PER_ROW`; the core keeps
+/// the first ones in input order and counts the rest as the row being full).
+pub const ROW_BUDGET: usize = 16;
+
+/// Fits a frame of preprocessed points ([`preprocess`]: rows near to far, `x` ascending within a
+/// row) to the core's budgets, [`ROW_BUDGET`] a row and [`POINT_BUDGET`] a frame, and returns
+/// how many points it left out. Within the budgets it changes nothing. Over them, the core
+/// would keep the first points in input order: a full row would lose its right-hand markings
+/// and a full frame its far rows, every lane's far end. Instead a row keeps the points nearest
+/// the car laterally (`|x|` ascending: the markings of the car's own and next lanes before the
+/// outer ones and the clutter beyond them), and the frame's budget is shared out over its rows
+/// max-min fairly: every row keeps `min(n_r, ℓ)` points for the largest level `ℓ` that fits,
+/// and the rest of the budget goes one point each to the fullest rows' next points, the
+/// nearest rows first. The kept points stay in their input order. No threshold is chosen here:
+/// the budgets are the core's capacities.
+pub fn fit_budget(points: &mut Vec<[f32; 2]>) -> usize {
+    fit_budget_to(points, ROW_BUDGET, POINT_BUDGET)
+}
+
+/// [`fit_budget`] with given budgets.
+pub fn fit_budget_to(points: &mut Vec<[f32; 2]>, per_row: usize, budget: usize) -> usize {
+    // The rows: runs of equal u, each with its points' indices by |x| ascending (ties: input
+    // order), cut to the row budget.
+    let mut rows: Vec<Vec<usize>> = Vec::new();
+    let mut start = 0;
+    for i in 1..=points.len() {
+        if i == points.len() || points[i][0].to_bits() != points[start][0].to_bits() {
+            let mut idx: Vec<usize> = (start..i).collect();
+            idx.sort_by(|&a, &b| points[a][1].abs().total_cmp(&points[b][1].abs()));
+            idx.truncate(per_row);
+            rows.push(idx);
+            start = i;
+        }
+    }
+    let total: usize = rows.iter().map(Vec::len).sum();
+    if total > budget {
+        // The largest level ℓ with Σ min(n_r, ℓ) ≤ budget, then one more point for the first
+        // rows over it while the budget lasts.
+        let kept_at = |l: usize| rows.iter().map(|r| r.len().min(l)).sum::<usize>();
+        let mut level = 0;
+        while level < per_row && kept_at(level + 1) <= budget {
+            level += 1;
+        }
+        let mut spare = budget - kept_at(level);
+        for r in &mut rows {
+            let extra = usize::from(spare > 0 && r.len() > level);
+            spare -= extra;
+            r.truncate(level + extra);
+        }
+    }
+    let mut keep = vec![false; points.len()];
+    for &i in rows.iter().flatten() {
+        keep[i] = true;
+    }
+    let before = points.len();
+    let mut k = keep.iter();
+    points.retain(|_| k.next().copied().unwrap_or(false));
+    before - points.len()
+}
+
+/// How many of `points` (BEV `(u, x)`) lie outside the tracker's window: their row, as
+/// [`preprocess`] bins them, nearer than the first or beyond the last.
+pub fn outside_window(points: &[(f64, f64)], tables: &ReferenceTables) -> usize {
+    let w = window(tables);
+    points
+        .iter()
+        .filter(|(u, _)| row_of(*u, w).is_none())
+        .count()
+}
+
+/// The tracker's BEV rows as [`preprocess`] bins to them: the first row's `u`, the spacing and
+/// the last row's index (K = 4 rows per index interval).
+fn window(tables: &ReferenceTables) -> (f64, f64, usize) {
+    let h = &tables.hyper;
+    let (u0, u1) = (f64::from(h.u_min), f64::from(h.u_max));
+    let rows = 15 * 4;
+    (u0, (u1 - u0) / rows as f64, rows)
+}
+
+/// The row of a point `u` metres ahead ([`window`]), `None` outside the window.
+fn row_of(u: f64, (u0, du, rows): (f64, f64, usize)) -> Option<usize> {
+    let r = ((u - u0) / du).round();
+    (r >= 0.0 && r <= rows as f64).then_some(r as usize)
 }
 
 /// Number of distinct values (feature rows) among a BEV row's `u`s.
@@ -508,6 +600,49 @@ pub fn outside_image(points: &[[f64; 2]], cam: &Camera) -> usize {
         .iter()
         .filter(|p| !(inside(p[0], cam.width) && inside(p[1], cam.height)))
         .count()
+}
+
+/// How many of the labelled points of `labels` the camera they are to be read with cannot map
+/// to the road (outside its image, or at or above its horizon), and how many there are: labels
+/// drawn in another camera or image size (512×288 labels read with TuSimple's 1280×720 camera
+/// have their upper half above its horizon) when the first is not 0.
+pub fn labels_off_camera(labels: &[TuSimpleRecord], cam: &Camera) -> (usize, usize) {
+    let points: Vec<[f64; 2]> = labels
+        .iter()
+        .flat_map(|r| {
+            r.lanes
+                .iter()
+                .flat_map(|l| r.points_of(l).map(|(c, w)| [c, w]))
+        })
+        .collect();
+    let off = outside_image(&points, cam)
+        + points
+            .iter()
+            .filter(|p| (0.0..=cam.width).contains(&p[0]) && (0.0..=cam.height).contains(&p[1]))
+            .filter(|p| cam.to_bev(p[0], p[1]).is_none())
+            .count();
+    (off, points.len())
+}
+
+/// The warning for [`labels_off_camera`]'s count when it is more than a tenth of the points,
+/// else `None`; `flag` names the option that gives the camera. (TuSimple's own train labels
+/// with its camera have 0.8–1.6 % of their points at or above its horizon, on crests of the
+/// road; a 512×288 label file read with that camera 81 %.)
+pub fn labels_off_camera_warning(
+    labels: &[TuSimpleRecord],
+    cam: &Camera,
+    flag: &str,
+) -> Option<String> {
+    let (off, n) = labels_off_camera(labels, cam);
+    (10 * off > n).then(|| {
+        format!(
+            "warning: {off} of the {n} label points lie outside the {}x{} image of {flag} or at \
+             or above its horizon (row {:.1}), so they cannot be mapped to the road: {flag} is \
+             the camera the labels were drawn in (tusimple for TuSimple's 1280x720 labels; a \
+             camera file of their size for resized ones)",
+            cam.width, cam.height, cam.vp_row
+        )
+    })
 }
 
 /// TuSimple's label rows (160–710 px every 10 px of a 720-row image) scaled to an image
@@ -833,7 +968,11 @@ pub fn track_with(
         if space == Space::Image {
             stats.outside_image_points += outside_image(&f.points, cam);
         }
-        let pts = preprocess(&bev_pts, tables);
+        stats.outside_window_points += outside_window(&bev_pts, tables);
+        let mut pts = preprocess(&bev_pts, tables);
+        let left_out = fit_budget(&mut pts);
+        stats.over_budget_points += left_out;
+        stats.over_budget_frames += usize::from(left_out > 0);
         let step_start = ThreadTime::now();
         let res = tr.step(Instant::from_micros(frame_micros(f)), &pts);
         stats.add_step(&mut times, step_start.elapsed().as_secs_f64() * 1e3);

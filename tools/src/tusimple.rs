@@ -122,8 +122,9 @@ pub struct Frame {
     /// Image rows at which to report the lanes, when a prediction is to be written.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub h_samples: Option<Vec<f64>>,
-    /// The camera the image points were found with (an estimated camera, per image); `None`:
-    /// the camera the tracker is given.
+    /// The camera the image points were found with (`stjpdacf frontend` writes it on every
+    /// frame: the calibration scaled to the image, or an estimated camera); `None`: the camera
+    /// `track` is given (`--camera`, `--scale`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<crate::camera::Camera>,
 }

@@ -146,6 +146,16 @@ fn row_noise_command_fits_and_refuses_empty_labels() {
         "{s}"
     );
     assert_eq!(v["profile"].as_array().unwrap().len(), 21);
+    // The bundled labels fit TuSimple's camera; the 512×288 frames' labels do not (most of
+    // their points lie above its horizon), which the user is told.
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));
+    let small = stjpdacf_tools::repo_root().join("data/tusimple/sample_512x288/label_data.json");
+    let out = row_noise(&["--labels".as_ref(), small.as_os_str()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("972 of the 1195 label points lie outside the 1280x720 image"),
+        "{err}"
+    );
     let empty = dir.join("empty.json");
     std::fs::write(
         &empty,

@@ -405,7 +405,7 @@ fn cli_writes_frames_and_ground_truth() {
     assert_success(&other);
     let err = String::from_utf8_lossy(&other.stderr);
     assert!(
-        err.contains("label points lie outside the 1640x590 image of --camera culane"),
+        err.contains("label points lie outside the 1640x590 image of --camera"),
         "{err}"
     );
     std::fs::remove_dir_all(&d).unwrap();

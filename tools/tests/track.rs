@@ -1118,3 +1118,157 @@ fn label_rows_outside_the_image_are_counted_and_warned() {
     assert!(!String::from_utf8_lossy(&o.stderr).contains(warning));
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// `fit_budget`'s budgets are the `ReferenceTracker`'s: one point more than `POINT_BUDGET` in a
+/// frame is counted over budget by the core, one more than `ROW_BUDGET` in a row as the row full.
+#[test]
+fn fit_budget_budgets_are_the_cores() {
+    use stjpdacf::time::Instant;
+    use stjpdacf::tracker::ReferenceTracker;
+    use stjpdacf_tools::track::{POINT_BUDGET, ROW_BUDGET};
+    let rows: Vec<f32> = (0..=60).map(|r| 3.0 + r as f32 * (77.0 / 60.0)).collect();
+    // POINT_BUDGET + 1 points, at most 8 a row (distinct rows of the window).
+    let frame: Vec<[f32; 2]> = (0..=POINT_BUDGET)
+        .map(|i| [rows[i % rows.len()], -8.0 + (i / rows.len()) as f32])
+        .collect();
+    let mut t = Box::new(ReferenceTracker::new(&DEFAULT));
+    let out = t.step(Instant::from_micros(1), &frame).unwrap();
+    assert_eq!(out.report.over_budget_points, 1);
+    assert_eq!(out.report.spatial.rejected_row_full, 0);
+    let row: Vec<[f32; 2]> = (0..=ROW_BUDGET).map(|i| [20.0, i as f32 * 0.5]).collect();
+    let mut t = Box::new(ReferenceTracker::new(&DEFAULT));
+    let out = t.step(Instant::from_micros(1), &row).unwrap();
+    assert_eq!(out.report.spatial.rejected_row_full, 1);
+}
+
+#[test]
+fn fit_budget_keeps_the_nearest_points_of_a_row_and_shares_the_frame_fairly() {
+    use stjpdacf_tools::track::{fit_budget, fit_budget_to};
+    // Within the budgets: unchanged.
+    let mut pts = vec![[5.0, -1.0], [5.0, 2.0], [6.0, 0.5]];
+    let before = pts.clone();
+    assert_eq!(fit_budget(&mut pts), 0);
+    assert_eq!(pts, before);
+    // A row of 5 over a row budget of 3: the 3 nearest |x| stay, in input order.
+    let mut pts = vec![
+        [5.0, -6.0],
+        [5.0, -1.5],
+        [5.0, 0.5],
+        [5.0, 2.0],
+        [5.0, 7.0],
+        [6.0, 9.0],
+    ];
+    assert_eq!(fit_budget_to(&mut pts, 3, 100), 2);
+    assert_eq!(pts, vec![[5.0, -1.5], [5.0, 0.5], [5.0, 2.0], [6.0, 9.0]]);
+    // Rows of 1, 4 and 6 points under a frame budget of 7: level 3 (1 + 3 + 3 = 7), every
+    // row's far points dropped evenly, none of the single point's row.
+    let row = |u: f32, n: usize| (0..n).map(move |i| [u, i as f32]);
+    let mut pts: Vec<[f32; 2]> = row(5.0, 1).chain(row(6.0, 4)).chain(row(7.0, 6)).collect();
+    assert_eq!(fit_budget_to(&mut pts, 16, 7), 4);
+    let mut want: Vec<[f32; 2]> = row(5.0, 1).chain(row(6.0, 3)).chain(row(7.0, 3)).collect();
+    assert_eq!(pts, want);
+    // Budget 8: level 3 leaves one spare point, for the nearest row over the level.
+    let mut pts: Vec<[f32; 2]> = row(5.0, 1).chain(row(6.0, 4)).chain(row(7.0, 6)).collect();
+    assert_eq!(fit_budget_to(&mut pts, 16, 8), 3);
+    want = row(5.0, 1).chain(row(6.0, 4)).chain(row(7.0, 3)).collect();
+    assert_eq!(pts, want);
+}
+
+/// Five markings over the whole window (305 points, over the 256 budget): the core alone would
+/// keep the first 256, the near rows, and lose every lane's far end; fitted to the budget every
+/// row keeps its four markings nearest the car, and the far rows stay.
+#[test]
+fn fit_budget_keeps_the_far_rows_of_a_full_frame() {
+    use stjpdacf_tools::track::{fit_budget, POINT_BUDGET};
+    let mut pts: Vec<[f32; 2]> = (0..=60)
+        .flat_map(|r| {
+            let u = 3.0 + r as f32 * (77.0 / 60.0);
+            [-5.4f32, -1.8, 1.8, 5.4, 9.0].map(|x| [u, x])
+        })
+        .collect();
+    assert_eq!(fit_budget(&mut pts), 305 - POINT_BUDGET);
+    assert_eq!(pts.len(), POINT_BUDGET);
+    let far = pts.iter().map(|p| p[0]).fold(0.0f32, f32::max);
+    assert_eq!(far, 80.0);
+    // Level 4 (244 points) and 12 spare: the 12 nearest rows keep their fifth marking too.
+    assert_eq!(pts.iter().filter(|p| p[1] == 9.0).count(), 12);
+    assert_eq!(pts.iter().filter(|p| p[1] == -5.4).count(), 61);
+}
+
+/// What `track` tells a user whose points do not fit what it was told: BEV points `[u, x]` (the
+/// core's order) where it wants `[x, u]` lie outside the window, BEV points read as image pixels
+/// lie above the horizon, and a frame of five markings over the whole window is fitted to the
+/// core's budget (and said so).
+#[test]
+fn track_says_when_the_points_do_not_fit() {
+    let d = temp_dir("misfit");
+    let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
+    let run = |frames: &[Frame], space: &str| {
+        let f = d.join("f.jsonl");
+        write_frames(&f, frames).unwrap();
+        let out = stjpdacf()
+            .args(["track", "--space", space, "--frames"])
+            .arg(&f)
+            .arg("--out")
+            .arg(d.join("p.jsonl"))
+            .output()
+            .unwrap();
+        assert_success(&out);
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let good = bev_clip(&[-1.8, 1.8], 80.0, 3, &rows);
+    let err = run(&good, "bev");
+    assert!(!err.contains("warning"), "{err}");
+    assert!(!err.contains("left out to fit"), "{err}");
+    let swapped: Vec<Frame> = good
+        .iter()
+        .map(|f| Frame {
+            points: f.points.iter().map(|p| [p[1], p[0]]).collect(),
+            ..f.clone()
+        })
+        .collect();
+    let err = run(&swapped, "bev");
+    assert!(err.contains("outside the tracker's window"), "{err}");
+    let err = run(&good, "image");
+    assert!(err.contains("at or above the horizon"), "{err}");
+    let five = bev_clip(&[-5.4, -1.8, 1.8, 5.4, 9.0], 80.0, 3, &rows);
+    let err = run(&five, "bev");
+    assert!(
+        err.contains("147 points on 3 frames left out to fit"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&d).unwrap();
+}
+
+/// `--row-noise-scale` reaches the tracker: the default's value gives the default's lanes, another
+/// value other lanes.
+#[test]
+fn row_noise_scale_flag_reaches_the_tracker() {
+    let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
+    let (d, f, _) = two_lane_clip_file("row-noise", 6, &rows);
+    let lanes = |extra: &[&str]| {
+        let p = d.join("p.jsonl");
+        let out = stjpdacf()
+            .args(["track", "--space", "bev", "--frames"])
+            .arg(&f)
+            .arg("--out")
+            .arg(&p)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert_success(&out);
+        read_predictions(&p).unwrap()[0].lanes.clone()
+    };
+    let default = lanes(&[]);
+    assert_eq!(lanes(&["--row-noise-scale", "0.043"]), default);
+    assert_ne!(lanes(&["--row-noise-scale", "5"]), default);
+    let out = stjpdacf()
+        .args(["track", "--row-noise-scale", "0", "--frames"])
+        .arg(&f)
+        .arg("--out")
+        .arg(d.join("x.jsonl"))
+        .output()
+        .unwrap();
+    assert_failure_mentions(&out, "--row-noise-scale must be a finite number > 0");
+    std::fs::remove_dir_all(&d).unwrap();
+}
