@@ -329,6 +329,38 @@ impl Default for FrontendParams {
 }
 
 impl FrontendParams {
+    /// The names [`FrontendParams::set`] takes (`stjpdacf frontend --param NAME=VALUE`).
+    pub const SETTABLE: [&'static str; 28] = [
+        "u_min",
+        "u_max",
+        "x_max",
+        "dx",
+        "yellow_gain",
+        "white_max_sat",
+        "yellow_min_sat",
+        "marking_width",
+        "min_px",
+        "ridge_threshold",
+        "road_tolerance",
+        "noise_k",
+        "dark_threshold",
+        "dark_exclusion",
+        "lane_support",
+        "lane_tol",
+        "max_slope",
+        "max_curvature",
+        "fill_gap",
+        "bright_support",
+        "line_spacing",
+        "refit_exponent",
+        "lane_gap",
+        "gap_ratio",
+        "gap_contrast",
+        "fps",
+        "support_rows",
+        "support",
+    ];
+
     /// Set the parameter called `name` (a field name; `yellow_hue` is not settable) to `v`
     /// (rounded for the integer fields). Errors: an unknown name.
     pub fn set(&mut self, name: &str, v: f64) -> Result<()> {
@@ -372,7 +404,10 @@ impl FrontendParams {
                 }
                 return Ok(());
             }
-            _ => bail!("unknown front-end parameter {name}"),
+            _ => bail!(
+                "unknown front-end parameter {name} (one of: {})",
+                Self::SETTABLE.join(", ")
+            ),
         };
         *f = v;
         Ok(())
@@ -528,11 +563,14 @@ fn check_size(img: &RgbImage, cam: &Camera) -> Result<()> {
     ensure!(
         (cam.width - f64::from(img.width())).abs() < 0.5
             && (cam.height - f64::from(img.height())).abs() < 0.5,
-        "camera is {}×{} but the image is {}×{}",
+        "camera is {}×{} but the image is {}×{} (give the camera of this image size: \
+         --scale {:.4} if the images are the camera's resized, else a camera file, or \
+         --camera estimate)",
         cam.width,
         cam.height,
         img.width(),
-        img.height()
+        img.height(),
+        f64::from(img.width()) / cam.width
     );
     Ok(())
 }
@@ -2161,6 +2199,20 @@ pub fn score(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every name the unknown-parameter message lists is one `set` takes, and each sets a
+    /// different field.
+    #[test]
+    fn settable_names_are_the_ones_set_takes() {
+        let base = FrontendParams::default();
+        for name in FrontendParams::SETTABLE {
+            let mut p = base.clone();
+            p.set(name, 7.0).unwrap();
+            assert_ne!(format!("{p:?}"), format!("{base:?}"), "{name}");
+        }
+        let e = base.clone().set("nope", 1.0).unwrap_err();
+        assert!(format!("{e}").contains("(one of: u_min, u_max,"), "{e}");
+    }
 
     /// Lines through the vanishing point at lateral offsets `xs` (m) seen from height `h`, as
     /// (slope x/h, weight).

@@ -770,7 +770,7 @@ fn main() -> Result<()> {
         } => {
             anyhow::ensure!(
                 pixel_scale > 0.0 && pixel_scale.is_finite(),
-                "--pixel-scale must be > 0"
+                "--pixel-scale must be a finite number > 0, not {pixel_scale:?}"
             );
             // Read and checked once for the score and both lists.
             let (preds, gts, left_out) =
@@ -978,6 +978,7 @@ fn main() -> Result<()> {
             }
             let mut recs = tusimple::read_labels(&labels)?;
             if let Some(k) = clips {
+                anyhow::ensure!(k > 0, "--clips must be at least 1 (one clip a label)");
                 recs.truncate(k);
             }
             anyhow::ensure!(!recs.is_empty(), "{}: no labels", labels.display());
@@ -1045,7 +1046,10 @@ fn main() -> Result<()> {
             let scaled = |c: Camera| -> Result<Camera> {
                 Ok(match scale {
                     Some(s) => {
-                        anyhow::ensure!(s > 0.0 && s.is_finite(), "--scale must be > 0");
+                        anyhow::ensure!(
+                            s > 0.0 && s.is_finite(),
+                            "--scale must be a finite number > 0, not {s:?}"
+                        );
                         c.scaled(s)
                     }
                     None => c,
