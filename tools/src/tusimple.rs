@@ -360,7 +360,11 @@ pub fn check_sequence(frames: &[(usize, Frame)], source: &str) -> Result<()> {
         clip_end.insert(f.clip.as_str(), *n);
         if let (Some(raw), Some(_)) = (&f.raw_file, &f.h_samples) {
             if let Some(first) = predicted.insert(raw.as_str(), *n) {
-                bail!("{source}:{n}: raw_file {raw} already asks for a prediction at line {first}");
+                bail!(
+                    "{source}:{n}: raw_file {raw} already asks for a prediction at line {first} \
+                     (a frame with h_samples asks for one; the scorer pairs predictions with \
+                     labels by raw_file, so each such frame needs its own)"
+                );
             }
         }
         prev = Some(item);
