@@ -142,6 +142,13 @@ enum Command {
         /// before it is published (`PersistConfig::newcomer_wait`, default 2; 0 = no wait).
         #[arg(long, value_name = "FRAMES", conflicts_with = "no_newcomer_wait")]
         newcomer_wait: Option<u8>,
+        /// Write the per-frame baseline's predictions instead of the tracker's: the sequential
+        /// RANSAC fit of BEV quadratics to each frame's preprocessed points on its own, no
+        /// tracking (`stjpdacf_tools::baseline`, the baseline of the demo's robustness and
+        /// held-out rows), to compare the two on your own data with `eval`. `--baseline 4` caps
+        /// it at 4 lanes (the better of the two on the held-out check).
+        #[arg(long, value_name = "MAX_LANES", num_args = 0..=1, default_missing_value = "0")]
+        baseline: Option<usize>,
         /// The within-frame row-noise scale of the known-lane stage
         /// (`PersistConfig::row_noise_scale`, docs/design.md §11.12; default 0.043, fitted to the
         /// bundled labels under the default tables): for a hyperparameter file of your own
@@ -466,6 +473,7 @@ fn main() -> Result<()> {
             no_newcomer_wait,
             newcomer_wait,
             row_noise_scale,
+            baseline,
             overlay,
             images,
             labels,
@@ -570,6 +578,43 @@ fn main() -> Result<()> {
                 SpaceArg::Image => stjpdacf_tools::track::Space::Image,
                 SpaceArg::Bev => stjpdacf_tools::track::Space::Bev,
             };
+            if let Some(max_lanes) = baseline {
+                anyhow::ensure!(
+                    frames.iter().all(|f| f.camera.is_none()) || own_camera.is_some(),
+                    "--baseline maps every frame with one camera; these frames carry cameras \
+                     that differ (from `frontend --camera estimate` or --refine-horizon)"
+                );
+                anyhow::ensure!(
+                    export_points.is_none() && overlay.is_none() && lanes.is_none(),
+                    "--baseline writes predictions only (no --export-points, --overlay, --lanes)"
+                );
+                let d = stjpdacf_tools::baseline::BaselineParams::default();
+                let params = stjpdacf_tools::baseline::BaselineParams {
+                    max_lanes: if max_lanes == 0 {
+                        d.max_lanes
+                    } else {
+                        max_lanes
+                    },
+                    ..d
+                };
+                let (preds, stats) =
+                    stjpdacf_tools::baseline::track(&frames, tables, &cam, space, &params, |k| {
+                        bar.set_position(k as u64 + 1)
+                    })?;
+                bar.finish_and_clear();
+                tusimple::write_records(&out, &preds)?;
+                eprintln!(
+                    "{} frames in {} clips, {} predictions of the per-frame RANSAC baseline (no \
+                     tracking) to {}; fit {:.3} ms mean, {:.3} ms max of CPU time",
+                    stats.frames,
+                    stats.clips,
+                    stats.predictions,
+                    out.display(),
+                    stats.step_mean_ms,
+                    stats.step_max_ms
+                );
+                return Ok(());
+            }
             let mut export = match &export_points {
                 Some(p) => {
                     let mut w = std::io::BufWriter::new(stjpdacf_tools::create_output(p)?);

@@ -1272,3 +1272,70 @@ fn row_noise_scale_flag_reaches_the_tracker() {
     assert_failure_mentions(&out, "--row-noise-scale must be a finite number > 0");
     std::fs::remove_dir_all(&d).unwrap();
 }
+
+/// `track --baseline` writes the per-frame RANSAC fit's predictions (the library's
+/// `baseline::track` on the same frames, lane for lane), `--baseline 4` the capped fit's.
+#[test]
+fn baseline_flag_writes_the_per_frame_fit() {
+    use stjpdacf_tools::baseline::{self, BaselineParams};
+    let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
+    let d = temp_dir("baseline");
+    let frames = bev_clip(&[-5.4, -1.8, 1.8, 5.4, 9.0], 80.0, 3, &rows);
+    let f = d.join("f.jsonl");
+    write_frames(&f, &frames).unwrap();
+    let cli = |extra: &[&str]| {
+        let p = d.join("p.jsonl");
+        let out = stjpdacf()
+            .args(["track", "--space", "bev", "--frames"])
+            .arg(&f)
+            .arg("--out")
+            .arg(&p)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert_success(&out);
+        read_predictions(&p)
+            .unwrap()
+            .into_iter()
+            .map(|r| r.lanes)
+            .collect::<Vec<_>>()
+    };
+    let lib = |max_lanes: usize| {
+        let params = BaselineParams {
+            max_lanes,
+            ..BaselineParams::default()
+        };
+        // The frames as the CLI reads them (JSON floats may come back an ulp apart).
+        let read = stjpdacf_tools::tusimple::read_frames(&f).unwrap();
+        let (preds, _) = baseline::track(
+            &read,
+            &DEFAULT,
+            &Camera::tusimple(),
+            Space::Bev,
+            &params,
+            |_| {},
+        )
+        .unwrap();
+        preds.into_iter().map(|r| r.lanes).collect::<Vec<_>>()
+    };
+    // The predictions file's floats come back within an ulp (serde_json's parser).
+    let same = |a: &Vec<Vec<Vec<f64>>>, b: &Vec<Vec<Vec<f64>>>| {
+        assert_eq!(a.len(), b.len());
+        for (fa, fb) in a.iter().zip(b) {
+            assert_eq!(fa.len(), fb.len());
+            for (la, lb) in fa.iter().zip(fb) {
+                assert_eq!(la.len(), lb.len());
+                for (x, y) in la.iter().zip(lb) {
+                    assert!((x - y).abs() <= 1e-9 * x.abs().max(1.0), "{x} vs {y}");
+                }
+            }
+        }
+    };
+    let all = cli(&["--baseline"]);
+    same(&all, &lib(BaselineParams::default().max_lanes));
+    assert_eq!(all[0].len(), 5);
+    let capped = cli(&["--baseline", "4"]);
+    same(&capped, &lib(4));
+    assert_eq!(capped[0].len(), 4);
+    std::fs::remove_dir_all(&d).unwrap();
+}
