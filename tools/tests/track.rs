@@ -1240,25 +1240,35 @@ fn track_says_when_the_points_do_not_fit() {
     std::fs::remove_dir_all(&d).unwrap();
 }
 
+/// `stjpdacf track --space bev --frames frames --out out extra…`: the lanes of each prediction.
+fn track_bev_lanes(
+    frames: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> Vec<Vec<Vec<f64>>> {
+    let o = stjpdacf()
+        .args(["track", "--space", "bev", "--frames"])
+        .arg(frames)
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert_success(&o);
+    read_predictions(out)
+        .unwrap()
+        .into_iter()
+        .map(|r| r.lanes)
+        .collect()
+}
+
 /// `--row-noise-scale` reaches the tracker: the default's value gives the default's lanes, another
 /// value other lanes.
 #[test]
 fn row_noise_scale_flag_reaches_the_tracker() {
     let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
     let (d, f, _) = two_lane_clip_file("row-noise", 6, &rows);
-    let lanes = |extra: &[&str]| {
-        let p = d.join("p.jsonl");
-        let out = stjpdacf()
-            .args(["track", "--space", "bev", "--frames"])
-            .arg(&f)
-            .arg("--out")
-            .arg(&p)
-            .args(extra)
-            .output()
-            .unwrap();
-        assert_success(&out);
-        read_predictions(&p).unwrap()[0].lanes.clone()
-    };
+    let lanes = |extra: &[&str]| track_bev_lanes(&f, &d.join("p.jsonl"), extra)[0].clone();
     let default = lanes(&[]);
     assert_eq!(lanes(&["--row-noise-scale", "0.043"]), default);
     assert_ne!(lanes(&["--row-noise-scale", "5"]), default);
@@ -1283,23 +1293,7 @@ fn baseline_flag_writes_the_per_frame_fit() {
     let frames = bev_clip(&[-5.4, -1.8, 1.8, 5.4, 9.0], 80.0, 3, &rows);
     let f = d.join("f.jsonl");
     write_frames(&f, &frames).unwrap();
-    let cli = |extra: &[&str]| {
-        let p = d.join("p.jsonl");
-        let out = stjpdacf()
-            .args(["track", "--space", "bev", "--frames"])
-            .arg(&f)
-            .arg("--out")
-            .arg(&p)
-            .args(extra)
-            .output()
-            .unwrap();
-        assert_success(&out);
-        read_predictions(&p)
-            .unwrap()
-            .into_iter()
-            .map(|r| r.lanes)
-            .collect::<Vec<_>>()
-    };
+    let cli = |extra: &[&str]| track_bev_lanes(&f, &d.join("p.jsonl"), extra);
     let lib = |max_lanes: usize| {
         let params = BaselineParams {
             max_lanes,

@@ -30,12 +30,20 @@ fn temp_dir(tag: &str) -> PathBuf {
 }
 
 fn eval_cli(pred: &Path, gt: &Path, json: bool) -> std::process::Output {
-    let mut c = stjpdacf();
-    c.arg("eval").arg("--pred").arg(pred).arg("--gt").arg(gt);
-    if json {
-        c.arg("--json");
-    }
-    c.output().unwrap()
+    eval_with(pred, gt, if json { &["--json"] } else { &[] })
+}
+
+/// `stjpdacf eval --pred pred --gt gt args…`.
+fn eval_with(pred: &Path, gt: &Path, args: &[&str]) -> std::process::Output {
+    stjpdacf()
+        .arg("eval")
+        .arg("--pred")
+        .arg(pred)
+        .arg("--gt")
+        .arg(gt)
+        .args(args)
+        .output()
+        .unwrap()
 }
 
 #[test]
@@ -174,13 +182,7 @@ fn labelled_only_scores_the_labelled_frames_and_counts_the_others() {
     let out = eval_cli(&pred, &labels_path(), true);
     let err = assert_failure_mentions(&out, "2 of the 12 predictions");
     assert!(err.contains("--labelled-only"), "{err}");
-    let out = stjpdacf()
-        .args(["eval", "--json", "--labelled-only", "--pred"])
-        .arg(&pred)
-        .arg("--gt")
-        .arg(labels_path())
-        .output()
-        .unwrap();
+    let out = eval_with(&pred, &labels_path(), &["--json", "--labelled-only"]);
     assert_success(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["Accuracy"], 1.0, "{v}");
@@ -216,13 +218,7 @@ fn pixel_scale_scores_512_files_at_1280() {
     // Measured 0.563 accuracy, 0.475 FN (the steep outer lanes still match).
     assert!(full.accuracy < 0.7 && full.fn_ > 0.3, "{full:?}");
     // The same through the CLI.
-    let out = stjpdacf()
-        .args(["eval", "--json", "--pixel-scale", "2.5", "--pred"])
-        .arg(&pred)
-        .arg("--gt")
-        .arg(labels_path())
-        .output()
-        .unwrap();
+    let out = eval_with(&pred, &labels_path(), &["--json", "--pixel-scale", "2.5"]);
     assert_success(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["Accuracy"].as_f64(), Some(full.accuracy));
