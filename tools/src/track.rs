@@ -306,8 +306,7 @@ pub const POINT_BUDGET: usize = 256;
 /// the first ones in input order and counts the rest as the row being full).
 pub const ROW_BUDGET: usize = 16;
 
-/// Fits a frame of preprocessed points ([`preprocess`]: rows near to far, `x` ascending within a
-/// row) to the core's budgets, [`ROW_BUDGET`] a row and [`POINT_BUDGET`] a frame, and returns
+/// Fits a frame of preprocessed points ([`preprocess`]: one `u` a row) to the core's budgets, [`ROW_BUDGET`] a row and [`POINT_BUDGET`] a frame, and returns
 /// how many points it left out. Within the budgets it changes nothing. Over them, the core
 /// would keep the first points in input order: a full row would lose its right-hand markings
 /// and a full frame its far rows, every lane's far end. Instead a row keeps the points nearest
@@ -323,19 +322,20 @@ pub fn fit_budget(points: &mut Vec<[f32; 2]>) -> usize {
 
 /// [`fit_budget`] with given budgets.
 pub fn fit_budget_to(points: &mut Vec<[f32; 2]>, per_row: usize, budget: usize) -> usize {
-    // The rows: runs of equal u, each with its points' indices by |x| ascending (ties: input
-    // order), cut to the row budget.
-    let mut rows: Vec<Vec<usize>> = Vec::new();
-    let mut start = 0;
-    for i in 1..=points.len() {
-        if i == points.len() || points[i][0].to_bits() != points[start][0].to_bits() {
-            let mut idx: Vec<usize> = (start..i).collect();
+    // The rows (points of equal u), nearest first, each with its points' indices by |x|
+    // ascending (ties: input order), cut to the row budget.
+    let mut by_u: std::collections::BTreeMap<OrderedU, Vec<usize>> = Default::default();
+    for (i, p) in points.iter().enumerate() {
+        by_u.entry(OrderedU(p[0])).or_default().push(i);
+    }
+    let mut rows: Vec<Vec<usize>> = by_u
+        .into_values()
+        .map(|mut idx| {
             idx.sort_by(|&a, &b| points[a][1].abs().total_cmp(&points[b][1].abs()));
             idx.truncate(per_row);
-            rows.push(idx);
-            start = i;
-        }
-    }
+            idx
+        })
+        .collect();
     let total: usize = rows.iter().map(Vec::len).sum();
     if total > budget {
         // The largest level ℓ with Σ min(n_r, ℓ) ≤ budget, then one more point for the first
@@ -360,6 +360,30 @@ pub fn fit_budget_to(points: &mut Vec<[f32; 2]>, per_row: usize, budget: usize) 
     let mut k = keep.iter();
     points.retain(|_| k.next().copied().unwrap_or(false));
     before - points.len()
+}
+
+/// A row's `u` as a map key, in `f32::total_cmp` order.
+#[derive(Clone, Copy)]
+struct OrderedU(f32);
+
+impl PartialEq for OrderedU {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == std::cmp::Ordering::Equal
+    }
+}
+
+impl Eq for OrderedU {}
+
+impl PartialOrd for OrderedU {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for OrderedU {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&other.0)
+    }
 }
 
 /// How many of `points` (BEV `(u, x)`) lie outside the tracker's window: their row, as

@@ -1,0 +1,56 @@
+#!/usr/bin/env python3
+"""Runs gen3's conditions through `stjpdacf track` (the tracker), `track --baseline` and
+`track --baseline 4` (the per-frame RANSAC fit, uncapped and capped at 4 lanes), scores each
+with `stjpdacf eval --labelled-only` and prints a Markdown table: the mean over the seeds and
+the margin of the tracker over the better baseline (mean and worst seed).
+
+    cargo build --release -p stjpdacf-tools
+    python3 tools/gen3/run.py --out /tmp/gen3            # all conditions, seeds 1-3 (~10 min)
+    python3 tools/gen3/run.py --out /tmp/gen3 --conds reference,clutter --seeds 1
+
+Python 3 standard library only, like gen3.py.
+"""
+import argparse, json, os, subprocess, sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+CONDS = ['clean', 'reference', 'clutter', 'structures', 'curvy', 'dense', 'fps10', 'lanechange']
+
+
+def score(cli, d, name, extra):
+    pred = os.path.join(d, name + '.jsonl')
+    p = subprocess.run([cli, 'track', '--frames', os.path.join(d, 'frames.jsonl'), '--out', pred] + extra,
+                       capture_output=True, text=True, env=dict(os.environ, RUST_BACKTRACE='0'))
+    if p.returncode != 0:
+        sys.exit(f'{name} on {d} failed:\n{p.stderr}')
+    e = subprocess.run([cli, 'eval', '--pred', pred, '--gt', os.path.join(d, 'gt.jsonl'), '--labelled-only', '--json'],
+                       capture_output=True, text=True, check=True)
+    return json.loads(e.stdout.strip().splitlines()[-1])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument('--cli', default=os.path.join(HERE, '..', '..', 'target', 'release', 'stjpdacf'))
+    ap.add_argument('--out', required=True, help='folder for the generated frames and predictions')
+    ap.add_argument('--conds', default=','.join(CONDS))
+    ap.add_argument('--seeds', default='1,2,3')
+    a = ap.parse_args()
+    seeds = [int(s) for s in a.seeds.split(',')]
+    print('| condition | tracker accuracy / FP / FN | RANSAC | RANSAC ≤ 4 lanes | margin over the better (worst seed) |')
+    print('|---|---|---|---|---|')
+    for cond in a.conds.split(','):
+        runs = []
+        for seed in seeds:
+            d = os.path.join(a.out, f'{cond}_s{seed}')
+            subprocess.run([sys.executable, os.path.join(HERE, 'gen3.py'), '--cond', cond, '--seed', str(seed),
+                            '--out-dir', d], check=True, capture_output=True)
+            runs.append({name: score(a.cli, d, name, extra) for name, extra in
+                         [('tracker', []), ('base', ['--baseline']), ('base4', ['--baseline', '4'])]})
+        mean = lambda name, k: sum(r[name][k] for r in runs) / len(runs)
+        fmt = lambda name: ' / '.join(f'{mean(name, k):.3f}' for k in ('Accuracy', 'FP', 'FN'))
+        margins = [r['tracker']['Accuracy'] - max(r['base']['Accuracy'], r['base4']['Accuracy']) for r in runs]
+        print(f'| {cond} | {fmt("tracker")} | {fmt("base")} | {fmt("base4")} | '
+              f'{sum(margins) / len(margins):+.3f} ({min(margins):+.3f}) |', flush=True)
+
+
+if __name__ == '__main__':
+    main()
