@@ -7,6 +7,7 @@ the margin of the tracker over the better baseline (mean and worst seed).
     cargo build --release -p stjpdacf-tools
     python3 tools/gen3/run.py --out /tmp/gen3            # all conditions, seeds 1-3 (~10 min)
     python3 tools/gen3/run.py --out /tmp/gen3 --conds reference,clutter --seeds 1
+    python3 tools/gen3/run.py --out /tmp/gen3 --model small   # the model of the MCU / C API
 
 Python 3 standard library only, like gen3.py.
 """
@@ -17,6 +18,7 @@ CONDS = ['clean', 'reference', 'clutter', 'structures', 'curvy', 'dense', 'fps10
 
 
 def score(cli, d, name, extra):
+    """`track` with `extra` on condition folder `d`, scored; its predictions in `d/name.jsonl`."""
     pred = os.path.join(d, name + '.jsonl')
     p = subprocess.run([cli, 'track', '--frames', os.path.join(d, 'frames.jsonl'), '--out', pred] + extra,
                        capture_output=True, text=True, env=dict(os.environ, RUST_BACKTRACE='0'))
@@ -33,6 +35,7 @@ def main():
     ap.add_argument('--out', required=True, help='folder for the generated frames and predictions')
     ap.add_argument('--conds', default=','.join(CONDS))
     ap.add_argument('--seeds', default='1,2,3')
+    ap.add_argument('--model', default='reference', help="the tracker's model (track --model)")
     a = ap.parse_args()
     seeds = [int(s) for s in a.seeds.split(',')]
     print('| condition | tracker accuracy / FP / FN | RANSAC | RANSAC ≤ 4 lanes | margin over the better (worst seed) |')
@@ -44,7 +47,7 @@ def main():
             subprocess.run([sys.executable, os.path.join(HERE, 'gen3.py'), '--cond', cond, '--seed', str(seed),
                             '--out-dir', d], check=True, capture_output=True)
             runs.append({name: score(a.cli, d, name, extra) for name, extra in
-                         [('tracker', []), ('base', ['--baseline']), ('base4', ['--baseline', '4'])]})
+                         [('tracker', ['--model', a.model]), ('base', ['--baseline']), ('base4', ['--baseline', '4'])]})
         mean = lambda name, k: sum(r[name][k] for r in runs) / len(runs)
         fmt = lambda name: ' / '.join(f'{mean(name, k):.3f}' for k in ('Accuracy', 'FP', 'FN'))
         margins = [r['tracker']['Accuracy'] - max(r['base']['Accuracy'], r['base4']['Accuracy']) for r in runs]
