@@ -43,6 +43,9 @@ enum ModelArg {
     /// The smallest model: uncoupled tables, Gram rank 4, LBP on every row (C
     /// `stjpdacf_small_init`; Rust `Rank4Tracker` on `UNCOUPLED`).
     Small,
+    /// The cheapest model the firmware measures: uncoupled tables, Gram rank 3, LBP on every
+    /// row (Rust `Rank3Tracker` on `UNCOUPLED`; `bench/firmware/budget-rank3.json`).
+    Rank3,
 }
 
 /// Which images share one camera estimate (`frontend --camera estimate --share`).
@@ -86,8 +89,8 @@ enum Command {
         #[arg(long)]
         hyper: Option<PathBuf>,
         /// The model to run, as the firmware and the C API offer it: the same lanes, bit for
-        /// bit, as the tracker compiled for it (`small` uses the built-in uncoupled tables, so
-        /// not with --hyper).
+        /// bit, as the tracker compiled for it (`small` and `rank3` use the built-in uncoupled
+        /// tables, so not with --hyper).
         #[arg(long, value_enum, default_value_t = ModelArg::Reference)]
         model: ModelArg,
         /// Camera: `tusimple` (1280x720), `culane` (a 1640x590 guess) or a camera JSON file
@@ -485,10 +488,15 @@ fn main() -> Result<()> {
                 ModelArg::Reference => stjpdacf_tools::track::Model::Reference,
                 ModelArg::Rank5 => stjpdacf_tools::track::Model::Rank5,
                 ModelArg::Small => stjpdacf_tools::track::Model::Small,
+                ModelArg::Rank3 => stjpdacf_tools::track::Model::Rank3,
             };
             anyhow::ensure!(
-                hyper.is_none() || model != stjpdacf_tools::track::Model::Small,
-                "--model small runs the built-in uncoupled tables: leave out --hyper"
+                hyper.is_none()
+                    || !matches!(
+                        model,
+                        stjpdacf_tools::track::Model::Small | stjpdacf_tools::track::Model::Rank3
+                    ),
+                "--model small and rank3 run the built-in uncoupled tables: leave out --hyper"
             );
             let tables: &'static stjpdacf::tables::ReferenceTables = model.tables(match hyper {
                 Some(p) => stjpdacf_tools::track::tables_from_hyper(&HyperFile::load(&p)?)?,

@@ -180,26 +180,32 @@ pub enum Model {
     /// The smallest model measured on the MCU, `Rank4Tracker` on the built-in uncoupled tables
     /// with LBP on every known-lane row (C: `stjpdacf_small_init`); it ignores the given tables.
     Small,
+    /// The cheapest model the firmware measures (`bench/firmware/budget-rank3.json`):
+    /// `Rank3Tracker` on the built-in uncoupled tables with LBP on every known-lane row (no C
+    /// init of its own); it ignores the given tables.
+    Rank3,
 }
 
 impl Model {
     /// The tables the model runs: `base` (the default or a hyperparameter file's), truncated to
-    /// the model's rank, or the uncoupled tables at rank 4 for [`Model::Small`]. A truncated
+    /// the model's rank, or the uncoupled tables at rank 4 for [`Model::Small`] and 3 for
+    /// [`Model::Rank3`]. A truncated
     /// copy is leaked to `'static` (2.6 KB a call: a command-line run makes one).
     pub fn tables(self, base: &'static ReferenceTables) -> &'static ReferenceTables {
         match self {
             Model::Reference => base,
             Model::Rank5 => Box::leak(Box::new(truncated(base, 5))),
             Model::Small => Box::leak(Box::new(truncated(&stjpdacf::tables::UNCOUPLED, 4))),
+            Model::Rank3 => Box::leak(Box::new(truncated(&stjpdacf::tables::UNCOUPLED, 3))),
         }
     }
 
     /// The configuration the model runs: `base`, with LBP on every known-lane row for
-    /// [`Model::Small`].
+    /// [`Model::Small`] and [`Model::Rank3`].
     pub fn config(self, base: TrackerConfig) -> TrackerConfig {
         match self {
             Model::Reference | Model::Rank5 => base,
-            Model::Small => TrackerConfig {
+            Model::Small | Model::Rank3 => TrackerConfig {
                 persist: stjpdacf::persist::PersistConfig {
                     association: stjpdacf::spatial::row::Association::Lbp,
                     ..base.persist

@@ -753,7 +753,7 @@ fn track_cli_lanes_file_carries_ids() {
 #[test]
 fn models_run_as_the_trackers_compiled_for_them() {
     use stjpdacf::tables::UNCOUPLED;
-    use stjpdacf::tracker::{Instant, Rank4Tracker, Rank5Tracker, StepOutput};
+    use stjpdacf::tracker::{Instant, Rank3Tracker, Rank4Tracker, Rank5Tracker, StepOutput};
     use stjpdacf_tools::track::{frame_micros, Model};
     let typical = stjpdacf_tools::fwscenario::scenarios().unwrap().remove(0);
     let frames: Vec<Frame> = typical
@@ -791,10 +791,11 @@ fn models_run_as_the_trackers_compiled_for_them() {
         let s: Vec<_> = o.smoothed.iter().map(lane).collect();
         (f, s)
     };
-    for model in [Model::Rank5, Model::Small] {
+    for model in [Model::Rank5, Model::Small, Model::Rank3] {
         let config = model.config(TrackerConfig::DEFAULT);
         let mut rank5 = Box::new(Rank5Tracker::with_config(&DEFAULT, config));
         let mut rank4 = Box::new(Rank4Tracker::with_config(&UNCOUPLED, config));
+        let mut rank3 = Box::new(Rank3Tracker::with_config(&UNCOUPLED, config));
         let (mut lanes, mut differs_from_reference) = (0, false);
         let mut reference = Box::new(stjpdacf::tracker::ReferenceTracker::new(&DEFAULT));
         let tables = model.tables(&DEFAULT);
@@ -802,6 +803,7 @@ fn models_run_as_the_trackers_compiled_for_them() {
             let at = Instant::from_micros(frame_micros(v.frame));
             let want = match model {
                 Model::Small => rank4.step(at, v.points),
+                Model::Rank3 => rank3.step(at, v.points),
                 _ => rank5.step(at, v.points),
             }
             .unwrap();
@@ -817,8 +819,8 @@ fn models_run_as_the_trackers_compiled_for_them() {
     }
 }
 
-/// `track --model`: the rank-5 and small models find the clip's two lanes, with their own
-/// numbers (not the reference model's); `small` refuses a hyperparameter file.
+/// `track --model`: the rank-5, small and rank-3 models find the clip's two lanes, with their
+/// own numbers (not the reference model's); `small` refuses a hyperparameter file.
 #[test]
 fn track_cli_models() {
     let rows: Vec<f64> = (0..56).map(|i| 160.0 + 10.0 * f64::from(i)).collect();
@@ -842,7 +844,7 @@ fn track_cli_models() {
         recs.last().unwrap().lanes.clone()
     };
     let reference = last_lanes("reference");
-    for model in ["rank5", "small"] {
+    for model in ["rank5", "small", "rank3"] {
         let lanes = last_lanes(model);
         assert_eq!(lanes.len(), 2, "{model}: {lanes:?}");
         for (lane, x) in lanes.iter().zip([-1.8, 1.8]) {
