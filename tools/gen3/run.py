@@ -5,9 +5,10 @@ with `stjpdacf eval --labelled-only` and prints a Markdown table: the mean over 
 the margin of the tracker over the better baseline (mean and worst seed).
 
     cargo build --release -p stjpdacf-tools
-    python3 tools/gen3/run.py --out /tmp/gen3            # all conditions, seeds 1-3 (~10 min)
+    python3 tools/gen3/run.py --out /tmp/gen3            # all conditions, seeds 1-3 (~2 min)
     python3 tools/gen3/run.py --out /tmp/gen3 --conds reference,clutter --seeds 1
     python3 tools/gen3/run.py --out /tmp/gen3 --model small   # the model of the MCU / C API
+    python3 tools/gen3/run.py --out /tmp/gen3 --curve         # the robustness curve (CURVE below)
 
 Python 3 standard library only, like gen3.py.
 """
@@ -15,6 +16,15 @@ import argparse, json, os, subprocess, sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CONDS = ['clean', 'reference', 'clutter', 'structures', 'curvy', 'dense', 'fps10', 'lanechange']
+# The robustness curve (--curve): gen3's reference condition (30 uniform clutter points a frame,
+# 3 px column noise) with its clutter × 1 … × 8, with clutter blobs, and with its noise × 2 and × 4.
+CURVE = [('clutter ×1', ['--cond', 'reference']),
+         ('clutter ×2', ['--cond', 'reference', '--clutter', '60']),
+         ('clutter ×4', ['--cond', 'reference', '--clutter', '120']),
+         ('clutter ×8', ['--cond', 'reference', '--clutter', '240']),
+         ('clutter ×1 + 6 blobs', ['--cond', 'reference', '--blobs', '6']),
+         ('clutter ×1, noise ×2', ['--cond', 'reference', '--noise', '6']),
+         ('clutter ×1, noise ×4', ['--cond', 'reference', '--noise', '12'])]
 
 
 def score(cli, d, name, extra):
@@ -36,16 +46,20 @@ def main():
     ap.add_argument('--conds', default=','.join(CONDS))
     ap.add_argument('--seeds', default='1,2,3')
     ap.add_argument('--model', default='reference', help="the tracker's model (track --model)")
+    ap.add_argument('--curve', action='store_true',
+                    help='the robustness curve (clutter × 1 … × 8, blobs, noise × 2 and × 4) instead of --conds')
     a = ap.parse_args()
     seeds = [int(s) for s in a.seeds.split(',')]
+    runs_of = CURVE if a.curve else [(c, ['--cond', c]) for c in a.conds.split(',')]
     print('| condition | tracker accuracy / FP / FN | RANSAC | RANSAC ≤ 4 lanes | margin over the better (worst seed) |')
     print('|---|---|---|---|---|')
-    for cond in a.conds.split(','):
+    for cond, args in runs_of:
         runs = []
         for seed in seeds:
-            d = os.path.join(a.out, f'{cond}_s{seed}')
-            subprocess.run([sys.executable, os.path.join(HERE, 'gen3.py'), '--cond', cond, '--seed', str(seed),
-                            '--out-dir', d], check=True, capture_output=True)
+            tag = '_'.join(x.lstrip('-') for x in args)
+            d = os.path.join(a.out, f'{tag}_s{seed}')
+            subprocess.run([sys.executable, os.path.join(HERE, 'gen3.py'), '--seed', str(seed),
+                            '--out-dir', d] + args, check=True, capture_output=True)
             runs.append({name: score(a.cli, d, name, extra) for name, extra in
                          [('tracker', ['--model', a.model]), ('base', ['--baseline']), ('base4', ['--baseline', '4'])]})
         mean = lambda name, k: sum(r[name][k] for r in runs) / len(runs)

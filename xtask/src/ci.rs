@@ -1,5 +1,5 @@
 //! `cargo xtask ci`: every check CI runs, in order, stopping at the first failure. `.ci/run`
-//! installs the tools first (rustup targets and components, qemu-system-arm, gcc-arm-none-eabi,
+//! installs the tools first (rustup targets and components, qemu-system-arm, gcc-arm-none-eabi, python3,
 //! flip-link, cbindgen, cargo-fuzz), then runs this.
 
 use std::process::Command;
@@ -161,6 +161,22 @@ pub fn run() -> Result<()> {
 
     step("README command 1: the demo on bundled data");
     cargo(&["run", "--release", "-p", "stjpdacf-tools", "--", "demo"])?;
+
+    step("the third generator (tools/gen3, Python): one condition, one seed, through the CLI");
+    run_in(
+        ".",
+        &[],
+        "python3",
+        &[
+            "tools/gen3/run.py",
+            "--out",
+            "target/gen3-ci",
+            "--conds",
+            "clutter",
+            "--seeds",
+            "1",
+        ],
+    )?;
 
     step("README command 2: tests");
     cargo(&["test", "--workspace"])?;
