@@ -1112,25 +1112,30 @@ pub struct LineInfo {
 /// frames are written: by folder, then by numeric file stem (TuSimple's `1.jpg … 20.jpg`), then
 /// by name.
 pub fn find_images(dir: &Path) -> Result<Vec<PathBuf>> {
-    fn walk(d: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+    find_files(dir, |path| {
+        path.extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "jpg" | "jpeg" | "png"))
+    })
+}
+
+/// The files under `dir`, recursively, that `keep` accepts, in [`find_images`]' order.
+pub fn find_files(dir: &Path, keep: impl Fn(&Path) -> bool) -> Result<Vec<PathBuf>> {
+    fn walk(d: &Path, keep: &dyn Fn(&Path) -> bool, out: &mut Vec<PathBuf>) -> Result<()> {
         for e in std::fs::read_dir(d).with_context(|| format!("reading folder {}", d.display()))? {
             let path = e
                 .with_context(|| format!("reading folder {}", d.display()))?
                 .path();
             if path.is_dir() {
-                walk(&path, out)?;
-            } else if path
-                .extension()
-                .and_then(|e| e.to_str())
-                .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "jpg" | "jpeg" | "png"))
-            {
+                walk(&path, keep, out)?;
+            } else if keep(&path) {
                 out.push(path);
             }
         }
         Ok(())
     }
     let mut out = Vec::new();
-    walk(dir, &mut out)?;
+    walk(dir, &keep, &mut out)?;
     let key = |p: &PathBuf| {
         (
             p.parent().map(Path::to_path_buf),
@@ -1142,9 +1147,11 @@ pub fn find_images(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(out)
 }
 
-/// The frame number of an image file named by one (`20.jpg`, `00030.png`).
-fn frame_number(path: &Path) -> Option<u64> {
-    path.file_stem()?.to_str()?.parse().ok()
+/// The frame number of a file named by one up to its first dot (`20.jpg`, `00030.png`,
+/// `00030.lines.txt`).
+pub fn frame_number(path: &Path) -> Option<u64> {
+    let name = path.file_name()?.to_str()?;
+    name.split('.').next()?.parse().ok()
 }
 
 /// `path` relative to `dir`, with `/` separators (a TuSimple `raw_file`).

@@ -16,6 +16,7 @@
 
 pub mod baseline;
 pub mod camera;
+pub mod culane;
 pub mod demo;
 pub mod frontend;
 pub mod fwscenario;

@@ -220,6 +220,52 @@ enum Command {
         #[arg(long)]
         labelled_only: bool,
     },
+    /// Convert CULane-style lane files (`*.lines.txt` beside each image: a lane a line, `x y`
+    /// pairs in pixels; CULane, CurveLanes, many detectors' outputs) to TuSimple ground truth
+    /// for `eval`, `train` and `synth` and to frames of points for `track`, or TuSimple records
+    /// (`track`'s predictions) back to lane files for CULane's own evaluator.
+    Convert {
+        /// A folder of lane files, searched recursively: write its TuSimple records (every
+        /// --row-step rows over the rows each image's lanes cover; linear interpolation between
+        /// a lane's points) to --out.
+        #[arg(
+            long,
+            value_name = "DIR",
+            conflicts_with = "to_culane",
+            required_unless_present = "to_culane"
+        )]
+        culane: Option<PathBuf>,
+        /// TuSimple records (JSON lines: predictions or labels): write each as a lane file
+        /// `<--out>/<raw_file without extension>.lines.txt`.
+        #[arg(long, value_name = "FILE")]
+        to_culane: Option<PathBuf>,
+        /// With --culane: the TuSimple records (JSON lines). With --to-culane: the folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// With --culane: also write the lanes as frames of feature points for `track` (every
+        /// image row between a lane's points; clip = the image's folder; t = the file's frame
+        /// number / --fps), to track labels as a perfect detector's output or a per-frame
+        /// detector's lane files over time.
+        #[arg(long, value_name = "FILE")]
+        frames: Option<PathBuf>,
+        /// With --frames: TuSimple labels (e.g. `convert --culane` of the label files) whose rows
+        /// the frames carry, so that `track` predicts each labelled image at its labels' rows
+        /// and `eval` scores it (frames of unlabelled images get none); without it, each
+        /// frame carries its own lanes' rows.
+        #[arg(long, value_name = "FILE", requires = "frames")]
+        labels: Option<PathBuf>,
+        /// Rows between the records' h_samples, pixels (CULane labels a point every 10 rows).
+        #[arg(long, default_value_t = 10.0)]
+        row_step: f64,
+        /// Frame rate the files' frame numbers count (CULane's `00030.jpg`: frame 30 of a 30 fps
+        /// video, 1 s after `00000.jpg`).
+        #[arg(long, default_value_t = 30.0)]
+        fps: f64,
+        /// The camera written on the frames (`track` maps their points with it): `culane` (a
+        /// 1640x590 guess), `tusimple` or a camera JSON file.
+        #[arg(long, default_value = "culane")]
+        camera: String,
+    },
     /// The demo on bundled data: replay clips (three noise levels, coupled B and diag(B)) and the
     /// 10 real frames through the front end → tracker → official TuSimple metric; prints the
     /// results table and writes overlays and plots.
@@ -995,6 +1041,66 @@ fn main() -> Result<()> {
                 let cmd = std::env::args().collect::<Vec<_>>().join(" ");
                 trainrun::write_report(&dir, &outcome, &cmd)?;
                 eprintln!("report in {}", dir.display());
+            }
+        }
+        Command::Convert {
+            culane,
+            to_culane,
+            out,
+            frames,
+            labels,
+            row_step,
+            fps,
+            camera,
+        } => {
+            if let Some(dir) = culane {
+                let cam = Camera::from_spec(&camera)?;
+                let records = stjpdacf_tools::culane::read_dir(&dir, row_step)?;
+                tusimple::write_records(&out, &records)?;
+                let lanes: usize = records.iter().map(|r| r.lanes.len()).sum();
+                eprintln!(
+                    "{} images, {lanes} lanes from {} to {}",
+                    records.len(),
+                    dir.display(),
+                    out.display()
+                );
+                if let Some(f) = frames {
+                    let labels: Option<Vec<tusimple::TuSimpleRecord>> =
+                        labels.as_deref().map(tusimple::read_jsonl).transpose()?;
+                    let fr =
+                        stjpdacf_tools::culane::frames(&records, fps, &cam, labels.as_deref())?;
+                    if let Some(l) = &labels {
+                        let n = fr.iter().filter(|f| f.h_samples.is_some()).count();
+                        eprintln!(
+                            "{n} of the {} frames labelled in the {} labels",
+                            fr.len(),
+                            l.len()
+                        );
+                    }
+                    tusimple::write_frames(&f, &fr)?;
+                    eprintln!(
+                        "{} frames of label points to {} (track them: stjpdacf track --frames {} --out pred.json)",
+                        fr.len(),
+                        f.display(),
+                        f.display()
+                    );
+                }
+            } else if let Some(file) = to_culane {
+                anyhow::ensure!(
+                    frames.is_none(),
+                    "--frames goes with --culane (lane files to frames), not --to-culane"
+                );
+                let records: Vec<tusimple::TuSimpleRecord> = tusimple::read_jsonl(&file)?;
+                for r in &records {
+                    let path = stjpdacf_tools::culane::lane_file_of(&out, &r.raw_file)?;
+                    if let Some(d) = path.parent() {
+                        std::fs::create_dir_all(d)
+                            .with_context(|| format!("creating folder {}", d.display()))?;
+                    }
+                    std::fs::write(&path, stjpdacf_tools::culane::lines_text(r))
+                        .with_context(|| format!("writing {}", path.display()))?;
+                }
+                eprintln!("{} lane files under {}", records.len(), out.display());
             }
         }
         Command::Synth {

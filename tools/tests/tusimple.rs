@@ -285,3 +285,97 @@ fn per_frame_scores_average_to_the_score_and_list_the_worst_first() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `convert`: the bundled 1280×720 train labels to CULane-style lane files and back give the
+/// same columns at every labelled row; the frames it writes of them at another row step
+/// (label points as a detector's lane files, TuSimple's camera) carry the labels' rows, track,
+/// and score against the converted labels; a missing folder is refused.
+#[test]
+fn cli_converts_culane_lane_files_both_ways_and_tracks_them() {
+    let d = temp_dir("culane");
+    let labels_720 = stjpdacf_tools::repo_root().join("data/tusimple/train_subset.json");
+    let lanes_dir = d.join("lanes");
+    let o = stjpdacf()
+        .args(["convert", "--to-culane"])
+        .arg(&labels_720)
+        .arg("--out")
+        .arg(&lanes_dir)
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let gts = read_labels(&labels_720).unwrap();
+    let first = stjpdacf_tools::culane::lane_file_of(&lanes_dir, &gts[0].raw_file).unwrap();
+    assert!(first.is_file(), "{} not written", first.display());
+    let (gt, frames, pred) = (
+        d.join("gt.json"),
+        d.join("frames.jsonl"),
+        d.join("pred.json"),
+    );
+    let o = stjpdacf()
+        .args(["convert", "--culane"])
+        .arg(&lanes_dir)
+        .arg("--out")
+        .arg(&gt)
+        .output()
+        .unwrap();
+    assert_success(&o);
+    // The same files as a detector's output, sampled every 4 rows, as frames predicted at the
+    // labels' rows.
+    let o = stjpdacf()
+        .args(["convert", "--culane"])
+        .arg(&lanes_dir)
+        .arg("--out")
+        .arg(d.join("det.json"))
+        .arg("--frames")
+        .arg(&frames)
+        .arg("--labels")
+        .arg(&gt)
+        .args(["--camera", "tusimple", "--row-step", "4"])
+        .output()
+        .unwrap();
+    assert_success(&o);
+    // Back again: every labelled point of a lane with two or more points, at its row (TuSimple
+    // labels every 10 rows, the default row step).
+    let back: Vec<TuSimpleRecord> = tusimple::read_jsonl(&gt).unwrap();
+    assert_eq!(back.len(), gts.len());
+    let mut compared = 0;
+    for b in &back {
+        let g = gts.iter().find(|g| g.raw_file == b.raw_file).unwrap();
+        let lanes: Vec<&Vec<f64>> = g
+            .lanes
+            .iter()
+            .filter(|l| g.points_of(l).count() >= 2)
+            .collect();
+        assert_eq!(lanes.len(), b.lanes.len(), "{}", g.raw_file);
+        for (lg, lb) in lanes.iter().zip(&b.lanes) {
+            for (x, h) in g.points_of(lg) {
+                let i = b.h_samples.iter().position(|&r| r == h).unwrap();
+                assert_relative_eq!(lb[i], x, epsilon = 0.01);
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared > 4000, "{compared} points compared");
+    let o = stjpdacf()
+        .args(["track", "--frames"])
+        .arg(&frames)
+        .arg("--out")
+        .arg(&pred)
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let (preds, gts2, _) = metric::read_scaled(&pred, &gt, 1.0, false).unwrap();
+    let (s, _) = metric::score_frames(&preds, &gts2, (&pred, &gt)).unwrap();
+    assert_eq!(s.frames, gts.len());
+    // One cold-started frame a clip, label points as the detector: as the demo's label row.
+    assert!(s.accuracy > 0.9, "accuracy {}", s.accuracy);
+    let o = stjpdacf()
+        .args(["convert", "--culane"])
+        .arg(d.join("nothing"))
+        .arg("--out")
+        .arg(d.join("x.json"))
+        .output()
+        .unwrap();
+    assert_failure_mentions(&o, "reading folder");
+    std::fs::remove_dir_all(&d).unwrap();
+}
