@@ -17,14 +17,17 @@ import argparse, json, os, subprocess, sys
 HERE = os.path.dirname(os.path.abspath(__file__))
 CONDS = ['clean', 'reference', 'clutter', 'structures', 'curvy', 'dense', 'fps10', 'lanechange']
 # The robustness curve (--curve): gen3's reference condition (30 uniform clutter points a frame,
-# 3 px column noise) with its clutter × 1 … × 8, with clutter blobs, and with its noise × 2 and × 4.
+# 3 px column noise, 20 fps) with its clutter × 1 … × 8, with clutter blobs, with its noise × 2
+# and × 4, and at 5 and 1 fps (CULane's sequences: every 30th frame of a 30 fps video).
 CURVE = [('clutter ×1', ['--cond', 'reference']),
          ('clutter ×2', ['--cond', 'reference', '--clutter', '60']),
          ('clutter ×4', ['--cond', 'reference', '--clutter', '120']),
          ('clutter ×8', ['--cond', 'reference', '--clutter', '240']),
          ('clutter ×1 + 6 blobs', ['--cond', 'reference', '--blobs', '6']),
          ('clutter ×1, noise ×2', ['--cond', 'reference', '--noise', '6']),
-         ('clutter ×1, noise ×4', ['--cond', 'reference', '--noise', '12'])]
+         ('clutter ×1, noise ×4', ['--cond', 'reference', '--noise', '12']),
+         ('clutter ×1, 5 fps', ['--cond', 'reference', '--fps', '5']),
+         ('clutter ×1, 1 fps', ['--cond', 'reference', '--fps', '1'])]
 
 
 def score(cli, d, name, extra):
@@ -47,7 +50,7 @@ def main():
     ap.add_argument('--seeds', default='1,2,3')
     ap.add_argument('--model', default='reference', help="the tracker's model (track --model)")
     ap.add_argument('--curve', action='store_true',
-                    help='the robustness curve (clutter × 1 … × 8, blobs, noise × 2 and × 4) instead of --conds')
+                    help='the robustness curve (clutter × 1 … × 8, blobs, noise × 2 and × 4, 5 and 1 fps) instead of --conds')
     a = ap.parse_args()
     seeds = [int(s) for s in a.seeds.split(',')]
     runs_of = CURVE if a.curve else [(c, ['--cond', c]) for c in a.conds.split(',')]

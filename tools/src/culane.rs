@@ -7,8 +7,9 @@
 //! rows `h_samples`), so:
 //!
 //! - [`read_dir`] turns a folder of lane files into records: each image's rows are every
-//!   `row_step` pixels over the rows its lanes cover, a lane's column at a row is interpolated
-//!   linearly between its two nearest points (no point beyond its ends: `-2`);
+//!   `row_step` pixels over the rows its lanes cover (or a labels file's rows for the same
+//!   image), a lane's column at a row is interpolated linearly between its two nearest points
+//!   (no point beyond its ends, or outside the camera's image: `-2`);
 //! - [`frames`] turns those records into frames of points for `stjpdacf track` (every image row
 //!   between a lane's points, like the demo's "label points" row): labels as a perfect detector,
 //!   or a per-frame detector's own lane files, tracked over time;
@@ -29,10 +30,12 @@ pub const SUFFIX: &str = ".lines.txt";
 /// A lane: its points `[x, y]` (column, row; image pixels).
 pub type Lane = Vec<[f64; 2]>;
 
-/// Parses one lane file: a lane a non-empty line, `x y` pairs separated by white space. A line
-/// with an odd count of numbers, a value that is not a finite number, or a lane of one point is
-/// an error naming the line.
+/// Parses one lane file: a lane a non-empty line, `x y` pairs separated by white space (a
+/// byte-order mark at the start is skipped). A line with an odd count of numbers or a value
+/// that is not a finite number is an error naming the line. A lane of one point is returned
+/// (CULane's evaluator cannot draw it; [`to_record`] leaves it out).
 pub fn parse_lines(text: &str) -> Result<Vec<Lane>> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lanes = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let v: Vec<f64> = line
@@ -41,15 +44,22 @@ pub fn parse_lines(text: &str) -> Result<Vec<Lane>> {
                 w.parse::<f64>()
                     .ok()
                     .filter(|x| x.is_finite())
-                    .with_context(|| format!("line {}: {w:?} is not a finite number", i + 1))
+                    .with_context(|| {
+                        let hint = if w.contains(',') || w.contains(';') {
+                            " (values are separated by spaces: `x y x y …`)"
+                        } else {
+                            ""
+                        };
+                        format!("line {}: {w:?} is not a finite number{hint}", i + 1)
+                    })
             })
             .collect::<Result<_>>()?;
         if v.is_empty() {
             continue;
         }
         ensure!(
-            v.len() % 2 == 0 && v.len() >= 4,
-            "line {}: {} numbers; a lane is at least two `x y` pairs",
+            v.len() % 2 == 0,
+            "line {}: {} numbers; a lane is `x y` pairs",
             i + 1,
             v.len()
         );
@@ -58,36 +68,109 @@ pub fn parse_lines(text: &str) -> Result<Vec<Lane>> {
     Ok(lanes)
 }
 
-/// The TuSimple record of an image's lanes: `h_samples` every `row_step` pixels (multiples of
-/// it) from the topmost to the bottommost row any lane covers; each lane's column at each of
-/// them, interpolated linearly between the two points around the row (in the row order of the
-/// lane's points), [`NO_POINT`] outside the lane's rows. `row_step` must be positive.
-pub fn to_record(raw_file: String, lanes: &[Lane], row_step: f64) -> TuSimpleRecord {
-    let rows = || lanes.iter().flatten().map(|p| p[1]);
-    let (top, bottom) = rows().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| {
-        (a.min(y), b.max(y))
-    });
-    let h_samples: Vec<f64> = if top <= bottom {
-        let first = (top / row_step).ceil() as i64;
-        let last = (bottom / row_step).floor() as i64;
-        (first..=last).map(|k| k as f64 * row_step).collect()
-    } else {
-        Vec::new()
+/// The rows a record is sampled at.
+#[derive(Debug, Clone, Copy)]
+pub enum Rows<'a> {
+    /// Every `step` pixels (multiples of it) from the topmost to the bottommost row the lanes
+    /// cover inside the image; an image without such lanes gets the multiples of `step` from
+    /// the camera's horizon down, so that it has rows to be scored at.
+    Step(f64),
+    /// These rows (a label's `h_samples`).
+    Given(&'a [f64]),
+}
+
+/// What [`to_record`] left out.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Dropped {
+    /// Lane points outside the camera's image (columns `< 0` or `≥ width`, rows `< 0` or
+    /// `> height`): a lane is sampled only inside it.
+    pub outside_points: usize,
+    /// Lanes with fewer than two points, or without a point at any of the rows.
+    pub lanes: usize,
+}
+
+/// The TuSimple record of an image's lanes, sampled at `rows` (see [`Rows`]): each lane's
+/// column at each row, interpolated linearly between the two points around the row (in the row
+/// order of the lane's points), [`NO_POINT`] outside the lane's rows or outside `camera`'s
+/// image. Lanes with fewer than two points, or no point at any row, are left out; what was
+/// left out is counted in the second value.
+pub fn to_record(
+    raw_file: String,
+    lanes: &[Lane],
+    rows: Rows,
+    camera: &Camera,
+) -> (TuSimpleRecord, Dropped) {
+    let inside_x = |x: f64| (0.0..camera.width).contains(&x);
+    // Row `height` is the bottom edge (CULane labels its 590-row images at row 590).
+    let inside_y = |y: f64| (0.0..=camera.height).contains(&y);
+    let mut dropped = Dropped {
+        outside_points: lanes
+            .iter()
+            .flatten()
+            .filter(|p| !(inside_x(p[0]) && inside_y(p[1])))
+            .count(),
+        lanes: 0,
     };
-    let lanes = lanes
-        .iter()
-        .map(|lane| {
-            let mut pts = lane.clone();
-            pts.sort_by(|a, b| a[1].total_cmp(&b[1]));
-            h_samples.iter().map(|&h| column_at(&pts, h)).collect()
-        })
-        .collect();
-    TuSimpleRecord {
+    let grid = |top: f64, bottom: f64, step: f64| -> Vec<f64> {
+        let first = (top / step).ceil() as i64;
+        let last = (bottom / step).floor() as i64;
+        (first..=last).map(|k| k as f64 * step).collect()
+    };
+    let h_samples: Vec<f64> = match rows {
+        Rows::Given(h) => h.to_vec(),
+        Rows::Step(step) => {
+            let (top, bottom) = lanes
+                .iter()
+                .filter(|l| l.len() >= 2)
+                .flatten()
+                .map(|p| p[1].clamp(0.0, camera.height))
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| {
+                    (a.min(y), b.max(y))
+                });
+            let rows = if top <= bottom {
+                grid(top, bottom, step)
+            } else {
+                Vec::new()
+            };
+            if rows.is_empty() {
+                grid(camera.vp_row.max(0.0), camera.height - 1.0, step)
+            } else {
+                rows
+            }
+        }
+    };
+    let mut out = Vec::with_capacity(lanes.len());
+    for lane in lanes {
+        let mut pts = lane.clone();
+        pts.sort_by(|a, b| a[1].total_cmp(&b[1]));
+        let xs: Vec<f64> = h_samples
+            .iter()
+            .map(|&h| {
+                let x = if pts.len() >= 2 && inside_y(h) {
+                    column_at(&pts, h)
+                } else {
+                    NO_POINT
+                };
+                if inside_x(x) {
+                    x
+                } else {
+                    NO_POINT
+                }
+            })
+            .collect();
+        if xs.iter().any(|&x| x >= 0.0) {
+            out.push(xs);
+        } else {
+            dropped.lanes += 1;
+        }
+    }
+    let record = TuSimpleRecord {
         raw_file,
-        lanes,
+        lanes: out,
         h_samples,
         run_time: None,
-    }
+    };
+    (record, dropped)
 }
 
 /// The column of a lane (points sorted by row) at row `h`, [`NO_POINT`] outside its rows.
@@ -104,11 +187,36 @@ fn column_at(pts: &[[f64; 2]], h: f64) -> f64 {
         })
 }
 
+/// What [`read_dir`] read and left out.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ReadReport {
+    /// Lane files read (images).
+    pub files: usize,
+    /// Lanes kept.
+    pub lanes: usize,
+    /// Summed over the files ([`to_record`]).
+    pub dropped: Dropped,
+    /// With labels: the lane files whose image the labels name.
+    pub labelled: usize,
+    /// With labels: the first lane file's image the labels do not name.
+    pub unlabelled_example: Option<String>,
+    /// With labels: the first labelled image without a lane file here, and how many there are.
+    pub missing_example: Option<(String, usize)>,
+}
+
 /// The records of every lane file under `dir` (recursively), in the order `frontend` reads
 /// images: by folder, then by frame number, then by name. `raw_file` is the image's path
-/// relative to `dir` (the lane file's with `.jpg` for `.lines.txt`). An empty lane file is an
-/// image without lanes; a folder without lane files is an error.
-pub fn read_dir(dir: &Path, row_step: f64) -> Result<Vec<TuSimpleRecord>> {
+/// relative to `dir` (the lane file's, with the extension of an image beside it, `.jpg` when
+/// there is none). Each is sampled every `row_step` rows ([`Rows::Step`]) or, with `labels`,
+/// at the rows of the label of the same `raw_file` (an image the labels do not name: its own
+/// rows), inside `camera`'s image. An empty lane file is an image without lanes; a folder
+/// without lane files is an error.
+pub fn read_dir(
+    dir: &Path,
+    row_step: f64,
+    camera: &Camera,
+    labels: Option<&[TuSimpleRecord]>,
+) -> Result<(Vec<TuSimpleRecord>, ReadReport)> {
     ensure!(
         row_step.is_finite() && row_step > 0.0,
         "the row step must be a positive number of pixels, not {row_step}"
@@ -121,24 +229,56 @@ pub fn read_dir(dir: &Path, row_step: f64) -> Result<Vec<TuSimpleRecord>> {
     if files.is_empty() {
         bail!("no *{SUFFIX} lane files under {}", dir.display());
     }
-    files
-        .iter()
-        .map(|f| {
-            let text = std::fs::read_to_string(f)
-                .with_context(|| format!("reading lane file {}", f.display()))?;
-            let lanes = parse_lines(&text).with_context(|| format!("{}", f.display()))?;
-            Ok(to_record(image_of(dir, f), &lanes, row_step))
-        })
-        .collect()
+    let mut rep = ReadReport::default();
+    let mut records = Vec::with_capacity(files.len());
+    for f in &files {
+        let text = std::fs::read_to_string(f)
+            .with_context(|| format!("reading lane file {}", f.display()))?;
+        let lanes = parse_lines(&text).with_context(|| format!("{}", f.display()))?;
+        let raw_file = image_of(dir, f);
+        let label = labels.and_then(|l| l.iter().find(|l| l.raw_file == raw_file));
+        match (labels, label) {
+            (Some(_), Some(_)) => rep.labelled += 1,
+            (Some(_), None) if rep.unlabelled_example.is_none() => {
+                rep.unlabelled_example = Some(raw_file.clone())
+            }
+            _ => {}
+        }
+        let rows = label.map_or(Rows::Step(row_step), |l| Rows::Given(&l.h_samples));
+        let (r, d) = to_record(raw_file, &lanes, rows, camera);
+        rep.files += 1;
+        rep.lanes += r.lanes.len();
+        rep.dropped.outside_points += d.outside_points;
+        rep.dropped.lanes += d.lanes;
+        records.push(r);
+    }
+    if let Some(labels) = labels {
+        let missing: Vec<&TuSimpleRecord> = labels
+            .iter()
+            .filter(|l| !records.iter().any(|r| r.raw_file == l.raw_file))
+            .collect();
+        rep.missing_example = missing.first().map(|l| (l.raw_file.clone(), missing.len()));
+    }
+    Ok((records, rep))
 }
 
-/// The image a lane file belongs to, relative to `dir` (`a/00030.lines.txt` → `a/00030.jpg`).
+/// The image a lane file belongs to, relative to `dir` (`a/00030.lines.txt` → `a/00030.jpg`,
+/// or the extension of an image with that stem beside it: `png`, `jpeg`, any case).
 fn image_of(dir: &Path, lane_file: &Path) -> String {
     let raw = raw_file_of(dir, lane_file);
-    match raw.strip_suffix(SUFFIX) {
-        Some(stem) => format!("{stem}.jpg"),
-        None => raw,
-    }
+    let Some(stem) = raw.strip_suffix(SUFFIX) else {
+        return raw;
+    };
+    let name = lane_file
+        .file_name()
+        .and_then(|n| n.to_str())
+        .and_then(|n| n.strip_suffix(SUFFIX))
+        .unwrap_or_default();
+    let ext = ["jpg", "png", "jpeg", "JPG", "PNG", "JPEG"]
+        .into_iter()
+        .find(|e| lane_file.with_file_name(format!("{name}.{e}")).is_file())
+        .unwrap_or("jpg");
+    format!("{stem}.{ext}")
 }
 
 /// The lane file of a record's image, under `dir` (`a/00030.jpg` → `dir/a/00030.lines.txt`).
@@ -165,26 +305,30 @@ pub fn lane_file_of(dir: &Path, raw_file: &str) -> Result<PathBuf> {
 /// in the folder / `fps` for other names, `raw_file` the record's, `camera` the given one.
 /// `h_samples` (the rows `track` writes a prediction at): with `labels`, those of the label of
 /// the same `raw_file` (none without one: no prediction), else the record's own. Times must
-/// increase within a folder.
+/// increase within a folder. Also returns how many files had no frame number (timed by their
+/// order).
 pub fn frames(
     records: &[TuSimpleRecord],
     fps: f64,
     camera: &Camera,
     labels: Option<&[TuSimpleRecord]>,
-) -> Result<Vec<Frame>> {
+) -> Result<(Vec<Frame>, usize)> {
     ensure!(
         fps.is_finite() && fps > 0.0,
         "fps must be a positive number, not {fps}"
     );
     let mut out: Vec<Frame> = Vec::with_capacity(records.len());
     let mut index = 0usize;
+    let mut unnumbered = 0usize;
     for r in records {
         let mut f = crate::demo::label_points_frame(r);
         index = match out.last() {
             Some(prev) if prev.clip == f.clip => index + 1,
             _ => 0,
         };
-        f.t = frame_number(Path::new(&r.raw_file)).map_or(index as f64, |n| n as f64) / fps;
+        let number = frame_number(Path::new(&r.raw_file));
+        unnumbered += usize::from(number.is_none());
+        f.t = number.map_or(index as f64, |n| n as f64) / fps;
         f.camera = Some(*camera);
         if let Some(labels) = labels {
             f.h_samples = labels
@@ -193,20 +337,25 @@ pub fn frames(
                 .map(|l| l.h_samples.clone());
         }
         if let Some(prev) = out.last().filter(|prev| prev.clip == f.clip) {
+            let prev_file = prev.raw_file.as_deref().unwrap_or_default();
             ensure!(
                 f.t > prev.t,
-                "{}: time {} s is not after {}'s {} s: a file named by a number n is frame n, \
-                 other names are numbered in order, so a folder must not mix them",
+                "{}: time {} s is not after {prev_file}'s {} s: {}",
                 r.raw_file,
                 f.t,
-                prev.raw_file.as_deref().unwrap_or_default(),
-                prev.t
+                prev.t,
+                if number.is_some() && number == frame_number(Path::new(prev_file)) {
+                    "two files of one folder have the same frame number"
+                } else {
+                    "a file named by a number n is frame n, other names are numbered in order, \
+                     so a folder must not mix them"
+                }
             );
         }
         f.check().with_context(|| r.raw_file.clone())?;
         out.push(f);
     }
-    Ok(out)
+    Ok((out, unnumbered))
 }
 
 /// A record's lanes as a CULane lane file: a lane a line, its points (`x ≥ 0`) as `x y` pairs
@@ -233,40 +382,63 @@ mod tests {
 
     #[test]
     fn parses_lanes_and_refuses_broken_lines() {
-        let lanes = parse_lines("100.5 590 110 580 120 570 \n\n600 590 590 580\n").unwrap();
+        let lanes = parse_lines("\u{feff}100.5 590 110 580 120 570 \r\n\n600 590\n").unwrap();
         assert_eq!(lanes.len(), 2);
         assert_eq!(
             lanes[0],
             vec![[100.5, 590.0], [110.0, 580.0], [120.0, 570.0]]
         );
+        assert_eq!(lanes[1], vec![[600.0, 590.0]]);
         let e = parse_lines("1 2 3\n").unwrap_err().to_string();
         assert!(e.contains("line 1") && e.contains("3 numbers"), "{e}");
         let e = parse_lines("1 2 3 4\n1 x 3 4").unwrap_err().to_string();
         assert!(e.contains("line 2") && e.contains("\"x\""), "{e}");
+        let e = parse_lines("1,2 3,4").unwrap_err().to_string();
+        assert!(e.contains("separated by spaces"), "{e}");
         assert!(parse_lines("1 2 NaN 4").is_err());
-        assert!(parse_lines("1 2").is_err());
     }
 
     #[test]
-    fn samples_lanes_at_shared_rows_between_their_points() {
-        // Lane 0 from (100, 595) up to (130, 565); lane 1 from (600, 590) to (580, 580).
+    fn samples_lanes_at_shared_rows_inside_the_image() {
+        let cam = Camera::culane(); // 1640 × 590
+                                    // Lane 0 from (100, 585) up to (130, 555); lane 1 from (600, 580) to (580, 570); lane
+                                    // 2 leaves the image on the left (as CULane's labels do); lane 3 has one point.
         let lanes = vec![
-            vec![[100.0, 595.0], [130.0, 565.0]],
-            vec![[600.0, 590.0], [580.0, 580.0]],
+            vec![[100.0, 585.0], [130.0, 555.0]],
+            vec![[600.0, 580.0], [580.0, 570.0]],
+            vec![[5.0, 580.0], [-15.0, 560.0]],
+            vec![[800.0, 580.0]],
         ];
-        let r = to_record("a/1.jpg".into(), &lanes, 10.0);
-        assert_eq!(r.h_samples, vec![570.0, 580.0, 590.0]);
+        let (r, d) = to_record("a/1.jpg".into(), &lanes, Rows::Step(10.0), &cam);
+        assert_eq!(r.h_samples, vec![560.0, 570.0, 580.0]);
         assert_eq!(r.lanes[0], vec![125.0, 115.0, 105.0]);
         assert_eq!(r.lanes[1], vec![NO_POINT, 580.0, 600.0]);
+        assert_eq!(r.lanes[2], vec![NO_POINT, NO_POINT, 5.0]);
+        assert_eq!(r.lanes.len(), 3);
+        assert_eq!(
+            d,
+            Dropped {
+                outside_points: 1,
+                lanes: 1
+            }
+        );
         r.check_shape().unwrap();
+        // At given rows; a row below the image gives no point.
+        let (g, _) = to_record("a/1.jpg".into(), &lanes, Rows::Given(&[575.0, 600.0]), &cam);
+        assert_eq!(g.lanes[0], vec![110.0, NO_POINT]);
+        // An image without lanes still has rows (to be scored at): from the horizon down.
+        let (e, _) = to_record("a/2.jpg".into(), &[], Rows::Step(10.0), &cam);
+        assert!(e.lanes.is_empty());
+        assert_eq!(e.h_samples.first(), Some(&240.0));
+        assert_eq!(e.h_samples.last(), Some(&580.0));
         // Back to a lane file: bottom up, the lanes' sampled points.
         assert_eq!(
             lines_text(&r),
-            "105.00 590 115.00 580 125.00 570\n600.00 590 580.00 580\n"
+            "105.00 580 115.00 570 125.00 560\n600.00 580 580.00 570\n"
         );
         assert_eq!(
             parse_lines(&lines_text(&r)).unwrap()[1],
-            vec![[600.0, 590.0], [580.0, 580.0]]
+            vec![[600.0, 580.0], [580.0, 570.0]]
         );
     }
 
@@ -275,38 +447,62 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("stjpdacf-culane-{}", std::process::id()));
         let clip = dir.join("driver_1/clip.MP4");
         std::fs::create_dir_all(&clip).unwrap();
-        // Frame numbers sort as numbers (30 before 120), not as names.
-        std::fs::write(clip.join("120.lines.txt"), "100 590 110 580\n").unwrap();
-        std::fs::write(clip.join("30.lines.txt"), "90 590 100 580\n").unwrap();
-        std::fs::write(clip.join("30.jpg"), "not read").unwrap();
-        let recs = read_dir(&dir, 10.0).unwrap();
+        // Frame numbers sort as numbers (30 before 120), not as names; an image beside its
+        // lane file names the extension.
+        std::fs::write(clip.join("120.lines.txt"), "100 580 110 570\n").unwrap();
+        std::fs::write(clip.join("30.lines.txt"), "90 580 100 570\n").unwrap();
+        std::fs::write(clip.join("30.png"), "not read").unwrap();
+        let cam = Camera::culane();
+        let (recs, rep) = read_dir(&dir, 10.0, &cam, None).unwrap();
         let names: Vec<&str> = recs.iter().map(|r| r.raw_file.as_str()).collect();
         assert_eq!(
             names,
-            ["driver_1/clip.MP4/30.jpg", "driver_1/clip.MP4/120.jpg"]
+            ["driver_1/clip.MP4/30.png", "driver_1/clip.MP4/120.jpg"]
         );
+        assert_eq!((rep.files, rep.lanes), (2, 2));
         assert_eq!(
             lane_file_of(&dir, &recs[1].raw_file).unwrap(),
             clip.join("120.lines.txt")
         );
         assert!(lane_file_of(&dir, "../x.jpg").is_err());
         assert!(lane_file_of(&dir, "/tmp/x.jpg").is_err());
-        let cam = Camera::culane();
-        let fr = frames(&recs, 30.0, &cam, None).unwrap();
+        let (fr, unnumbered) = frames(&recs, 30.0, &cam, None).unwrap();
+        assert_eq!(unnumbered, 0);
         assert_eq!(fr[0].clip, "driver_1/clip.MP4");
         assert_eq!((fr[0].t, fr[1].t), (1.0, 4.0));
-        // Every image row from 580 to 590: 11 points.
+        // Every image row from 570 to 580: 11 points.
         assert_eq!(fr[1].points.len(), 11);
         assert_eq!(fr[1].camera, Some(cam));
-        assert_eq!(fr[1].h_samples, Some(vec![580.0, 590.0]));
-        // With labels: their rows, and none for an image they do not label.
+        assert_eq!(fr[1].h_samples, Some(vec![570.0, 580.0]));
+        // With labels: their rows, and none for an image they do not label; the mismatches
+        // are reported.
         let mut label = recs[1].clone();
-        label.h_samples = vec![500.0, 590.0];
-        let fr = frames(&recs, 30.0, &cam, Some(&[label])).unwrap();
+        label.h_samples = vec![500.0, 575.0];
+        let mut other = label.clone();
+        other.raw_file = "driver_2/x/1.jpg".into();
+        let labels = [label, other];
+        let (recs, rep) = read_dir(&dir, 10.0, &cam, Some(&labels)).unwrap();
+        assert_eq!(recs[1].h_samples, vec![500.0, 575.0]);
+        assert_eq!(recs[1].lanes[0], vec![NO_POINT, 105.0]);
+        assert_eq!(rep.labelled, 1);
+        assert_eq!(
+            rep.unlabelled_example.as_deref(),
+            Some("driver_1/clip.MP4/30.png")
+        );
+        assert_eq!(
+            rep.missing_example,
+            Some(("driver_2/x/1.jpg".to_string(), 1))
+        );
+        let (fr, _) = frames(&recs, 30.0, &cam, Some(&labels)).unwrap();
         assert_eq!(fr[0].h_samples, None);
-        assert_eq!(fr[1].h_samples, Some(vec![500.0, 590.0]));
-        assert!(read_dir(&dir.join("driver_1/none"), 10.0).is_err());
-        assert!(read_dir(&dir, 0.0).is_err());
+        assert_eq!(fr[1].h_samples, Some(vec![500.0, 575.0]));
+        // Two files of one frame number.
+        std::fs::write(clip.join("030.lines.txt"), "90 580 100 570\n").unwrap();
+        let (recs, _) = read_dir(&dir, 10.0, &cam, None).unwrap();
+        let e = frames(&recs, 30.0, &cam, None).unwrap_err().to_string();
+        assert!(e.contains("same frame number"), "{e}");
+        assert!(read_dir(&dir.join("driver_1/none"), 10.0, &cam, None).is_err());
+        assert!(read_dir(&dir, 0.0, &cam, None).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -224,46 +224,49 @@ enum Command {
     /// pairs in pixels; CULane, CurveLanes, many detectors' outputs) to TuSimple ground truth
     /// for `eval`, `train` and `synth` and to frames of points for `track`, or TuSimple records
     /// (`track`'s predictions) back to lane files for CULane's own evaluator.
+    #[command(group(clap::ArgGroup::new("input").required(true)))]
     Convert {
-        /// A folder of lane files, searched recursively: write its TuSimple records (every
-        /// --row-step rows over the rows each image's lanes cover; linear interpolation between
-        /// a lane's points) to --out.
-        #[arg(
-            long,
-            value_name = "DIR",
-            conflicts_with = "to_culane",
-            required_unless_present = "to_culane"
-        )]
+        /// A folder of lane files, searched recursively: write its TuSimple records to --out
+        /// (`raw_file` = the image's path relative to this folder; every --row-step rows over
+        /// the rows each image's lanes cover, or the rows of --labels; linear interpolation
+        /// between a lane's points; points outside --camera's image left out and counted; an
+        /// empty file is an image without lanes).
+        #[arg(long, value_name = "DIR", group = "input")]
         culane: Option<PathBuf>,
         /// TuSimple records (JSON lines: predictions or labels): write each as a lane file
         /// `<--out>/<raw_file without extension>.lines.txt`.
-        #[arg(long, value_name = "FILE")]
+        #[arg(long, value_name = "FILE", group = "input")]
         to_culane: Option<PathBuf>,
         /// With --culane: the TuSimple records (JSON lines). With --to-culane: the folder.
         #[arg(long)]
         out: PathBuf,
         /// With --culane: also write the lanes as frames of feature points for `track` (every
         /// image row between a lane's points; clip = the image's folder; t = the file's frame
-        /// number / --fps), to track labels as a perfect detector's output or a per-frame
-        /// detector's lane files over time.
-        #[arg(long, value_name = "FILE")]
+        /// number / --fps, files without one 1 / --fps apart in name order), to track labels
+        /// as a perfect detector's output or a per-frame detector's lane files over time.
+        #[arg(long, value_name = "FILE", requires = "culane")]
         frames: Option<PathBuf>,
-        /// With --frames: TuSimple labels (e.g. `convert --culane` of the label files) whose rows
-        /// the frames carry, so that `track` predicts each labelled image at its labels' rows
-        /// and `eval` scores it (frames of unlabelled images get none); without it, each
-        /// frame carries its own lanes' rows.
-        #[arg(long, value_name = "FILE", requires = "frames")]
+        /// With --culane: TuSimple labels (`convert --culane` of the label files, with its
+        /// folder at the same level as this one so that `raw_file`s match). The records are
+        /// then sampled at the labels' rows and written as predictions (`run_time` 0: not
+        /// timed), so `eval --pred OUT --gt LABELS` scores the lane files as they are, and the
+        /// frames carry those rows, so `track` predicts each labelled image where `eval` scores
+        /// it (frames of images the labels do not name get no prediction).
+        #[arg(long, value_name = "FILE", requires = "culane")]
         labels: Option<PathBuf>,
-        /// Rows between the records' h_samples, pixels (CULane labels a point every 10 rows).
-        #[arg(long, default_value_t = 10.0)]
+        /// Rows between the records' h_samples, pixels (multiples of it; CULane labels a point
+        /// every 10 rows).
+        #[arg(long, default_value_t = 10.0, requires = "culane")]
         row_step: f64,
         /// Frame rate the files' frame numbers count (CULane's `00030.jpg`: frame 30 of a 30 fps
         /// video, 1 s after `00000.jpg`).
-        #[arg(long, default_value_t = 30.0)]
+        #[arg(long, default_value_t = 30.0, requires = "frames")]
         fps: f64,
-        /// The camera written on the frames (`track` maps their points with it): `culane` (a
-        /// 1640x590 guess), `tusimple` or a camera JSON file.
-        #[arg(long, default_value = "culane")]
+        /// The camera of the images: `culane` (a 1640x590 guess), `tusimple` (1280x720) or a
+        /// camera JSON file (any other size: width, height, vp_col, vp_row, height_m,
+        /// focal_px). Lane points outside its image are left out; the frames carry it, and
+        /// `track` maps their points with it.
+        #[arg(long, default_value = "culane", requires = "culane")]
         camera: String,
     },
     /// The demo on bundled data: replay clips (three noise levels, coupled B and diag(B)) and the
@@ -612,8 +615,8 @@ fn main() -> Result<()> {
                 if scale.is_some() || camera != "tusimple" {
                     eprintln!(
                         "note: the frames carry the camera their points were found with \
-                         ({}x{}, horizon row {:.1}, written by `frontend`): they are mapped with \
-                         it, not with --camera / --scale",
+                         ({}x{}, horizon row {:.1}, written by `frontend` or `convert`): they are \
+                         mapped with it, not with --camera / --scale (write them again to change it)",
                         c.width, c.height, c.vp_row
                     );
                 }
@@ -789,6 +792,28 @@ fn main() -> Result<()> {
                 );
             }
             let n_points: usize = frames.iter().map(|f| f.points.len()).sum();
+            if stats.published_lanes == 0 && n_points > 0 {
+                let need = usize::from(
+                    stjpdacf::tracker::TrackerConfig::DEFAULT
+                        .identity
+                        .min_common
+                        .max(1),
+                );
+                let step = f64::from(tables.index_u[1] - tables.index_u[0]);
+                // The frames' own camera when they carry one (`frontend`, `convert`).
+                let cam = own_camera.unwrap_or(cam);
+                if let Some((row, u)) = stjpdacf_tools::track::lane_reach_needed(&cam, tables, need)
+                {
+                    eprintln!(
+                        "warning: no lane was published. A lane is tracked from {need} index \
+                         points up (every {:.1} m from {} m ahead): seen from the bottom of the \
+                         {}x{} image of this camera, a lane must reach row {row:.0} ({u:.1} m \
+                         ahead). Check that the lanes' points reach that far and that the camera \
+                         is the images' (horizon row {:.1})",
+                        step, tables.hyper.u_min, cam.width, cam.height, cam.vp_row
+                    );
+                }
+            }
             if 2 * stats.unmapped_points > n_points {
                 eprintln!(
                     "warning: {} of the {n_points} points lie at or above the horizon of the \
@@ -824,7 +849,9 @@ fn main() -> Result<()> {
                     "warning: {} image points lie outside the image of the camera they were \
                      tracked with ({}x{} unless a frame carries its own): they were found with \
                      another camera or image size, so their road positions are wrong (give \
-                     `track` the front end's --camera, and --scale for a resized image)",
+                     `track` the front end's --camera, and --scale for a resized image; frames \
+                     that carry a camera, from `frontend` or `convert`, are mapped with it: \
+                     write them again with the right --camera)",
                     stats.outside_image_points, cam.width, cam.height
                 );
             }
@@ -1054,42 +1081,16 @@ fn main() -> Result<()> {
             camera,
         } => {
             if let Some(dir) = culane {
-                let cam = Camera::from_spec(&camera)?;
-                let records = stjpdacf_tools::culane::read_dir(&dir, row_step)?;
-                tusimple::write_records(&out, &records)?;
-                let lanes: usize = records.iter().map(|r| r.lanes.len()).sum();
-                eprintln!(
-                    "{} images, {lanes} lanes from {} to {}",
-                    records.len(),
-                    dir.display(),
-                    out.display()
-                );
-                if let Some(f) = frames {
-                    let labels: Option<Vec<tusimple::TuSimpleRecord>> =
-                        labels.as_deref().map(tusimple::read_jsonl).transpose()?;
-                    let fr =
-                        stjpdacf_tools::culane::frames(&records, fps, &cam, labels.as_deref())?;
-                    if let Some(l) = &labels {
-                        let n = fr.iter().filter(|f| f.h_samples.is_some()).count();
-                        eprintln!(
-                            "{n} of the {} frames labelled in the {} labels",
-                            fr.len(),
-                            l.len()
-                        );
-                    }
-                    tusimple::write_frames(&f, &fr)?;
-                    eprintln!(
-                        "{} frames of label points to {} (track them: stjpdacf track --frames {} --out pred.json)",
-                        fr.len(),
-                        f.display(),
-                        f.display()
-                    );
-                }
+                convert_culane(
+                    &dir,
+                    &out,
+                    frames.as_deref(),
+                    labels.as_deref(),
+                    row_step,
+                    fps,
+                    &camera,
+                )?;
             } else if let Some(file) = to_culane {
-                anyhow::ensure!(
-                    frames.is_none(),
-                    "--frames goes with --culane (lane files to frames), not --to-culane"
-                );
                 let records: Vec<tusimple::TuSimpleRecord> = tusimple::read_jsonl(&file)?;
                 for r in &records {
                     let path = stjpdacf_tools::culane::lane_file_of(&out, &r.raw_file)?;
@@ -1462,4 +1463,114 @@ fn print_estimated_cameras(frames: &[tusimple::Frame], shared: bool, refined: bo
             "the guess's"
         },
     );
+}
+
+/// `convert --culane`: lane files to TuSimple records (and frames), with what was left out and
+/// how the files were matched and timed said on stderr.
+fn convert_culane(
+    dir: &std::path::Path,
+    out: &std::path::Path,
+    frames: Option<&std::path::Path>,
+    labels: Option<&std::path::Path>,
+    row_step: f64,
+    fps: f64,
+    camera: &str,
+) -> Result<()> {
+    use stjpdacf_tools::culane;
+    // Every argument checked before anything is written.
+    let cam = Camera::from_spec(camera)?;
+    anyhow::ensure!(
+        fps.is_finite() && fps > 0.0,
+        "--fps must be a positive number, not {fps}"
+    );
+    let labels: Option<Vec<tusimple::TuSimpleRecord>> =
+        labels.map(tusimple::read_labels).transpose()?;
+    let (mut records, rep) = culane::read_dir(dir, row_step, &cam, labels.as_deref())?;
+    if let Some(l) = &labels {
+        anyhow::ensure!(
+            rep.labelled > 0,
+            "none of the {} images under {} is in the {} labels (e.g. {} is not): a raw_file \
+             is the image's path relative to the folder given to --culane, so convert the \
+             labels and these files from folders at the same level (labels/driver_x/… and \
+             detections/driver_x/…)",
+            rep.files,
+            dir.display(),
+            l.len(),
+            records.first().map_or("", |r| r.raw_file.as_str())
+        );
+        if let Some(e) = &rep.unlabelled_example {
+            eprintln!(
+                "note: {} of the {} images are not in the labels (e.g. {e}): their frames get \
+                 no prediction",
+                rep.files - rep.labelled,
+                rep.files
+            );
+        }
+        if let Some((e, n)) = &rep.missing_example {
+            eprintln!(
+                "warning: {n} labelled images have no lane file here (e.g. {e}): `eval` \
+                 refuses predictions that miss a labelled image; an image without lanes needs \
+                 an empty lane file"
+            );
+        }
+        for r in &mut records {
+            if l.iter().any(|l| l.raw_file == r.raw_file) {
+                r.run_time = Some(0.0);
+            }
+        }
+    }
+    let written: Vec<&tusimple::TuSimpleRecord> = records
+        .iter()
+        .filter(|r| labels.is_none() || r.run_time.is_some())
+        .collect();
+    tusimple::write_jsonl(out, &written)?;
+    eprintln!(
+        "{} images, {} lanes from {} to {}{}",
+        rep.files,
+        rep.lanes,
+        dir.display(),
+        out.display(),
+        if labels.is_some() {
+            " (the labelled images, at the labels' rows, as predictions for `eval`)"
+        } else {
+            ""
+        }
+    );
+    let n_points: usize = rep.dropped.outside_points;
+    if n_points > 0 || rep.dropped.lanes > 0 {
+        eprintln!(
+            "{n_points} lane points outside the {}x{} image of --camera left out, {} lanes \
+             with fewer than two points or none inside it left out{}",
+            cam.width,
+            cam.height,
+            rep.dropped.lanes,
+            if rep.lanes == 0 || rep.dropped.lanes > rep.lanes {
+                " (most of the lanes: is --camera the camera of these images?)"
+            } else {
+                ""
+            }
+        );
+    }
+    if let Some(f) = frames {
+        let (fr, unnumbered) = culane::frames(&records, fps, &cam, labels.as_deref())?;
+        tusimple::write_frames(f, &fr)?;
+        eprintln!(
+            "{} frames of lane points to {} ({}x{} camera, t = frame number / {fps} fps{}); \
+             track them: stjpdacf track --frames {} --out pred.jsonl",
+            fr.len(),
+            f.display(),
+            cam.width,
+            cam.height,
+            if unnumbered > 0 {
+                format!(
+                    "; {unnumbered} files without a frame number are 1 / {fps} s apart in \
+                     name order"
+                )
+            } else {
+                String::new()
+            },
+            f.display()
+        );
+    }
+    Ok(())
 }

@@ -304,6 +304,26 @@ pub fn preprocess_with(
     out
 }
 
+/// How far up the image a lane must be seen to be tracked at all: the row at which a lane seen
+/// from the bottom of `cam`'s image covers `need` of the tables' index points (a lane is started
+/// from at least [`stjpdacf::temporal::identity::IdentityConfig::min_common`] of them), and the
+/// distance ahead there, metres. `None` when the bottom row is at or above the horizon or the
+/// window has fewer index points beyond it.
+pub fn lane_reach_needed(
+    cam: &Camera,
+    tables: &ReferenceTables,
+    need: usize,
+) -> Option<(f64, f64)> {
+    let (u0, _) = cam.to_bev(cam.vp_col, cam.height - 1.0)?;
+    let u = tables
+        .index_u
+        .iter()
+        .map(|&u| f64::from(u))
+        .filter(|&u| u >= u0)
+        .nth(need.checked_sub(1)?)?;
+    Some((cam.row_at(u)?, u))
+}
+
 /// The most points the [`ReferenceTracker`] takes in a frame (its `MEAS`; the core keeps the first
 /// ones and counts the rest, `StepReport::over_budget_points`).
 pub const POINT_BUDGET: usize = 256;

@@ -316,6 +316,7 @@ fn cli_converts_culane_lane_files_both_ways_and_tracks_them() {
         .arg(&lanes_dir)
         .arg("--out")
         .arg(&gt)
+        .args(["--camera", "tusimple"])
         .output()
         .unwrap();
     assert_success(&o);
@@ -369,6 +370,61 @@ fn cli_converts_culane_lane_files_both_ways_and_tracks_them() {
     assert_eq!(s.frames, gts.len());
     // One cold-started frame a clip, label points as the detector: as the demo's label row.
     assert!(s.accuracy > 0.9, "accuracy {}", s.accuracy);
+    // The lane files as they are, at the labels' rows, are predictions `eval` scores: the
+    // labels' own lanes, every point matched.
+    let det = d.join("det.json");
+    let (preds, gts2, _) = metric::read_scaled(&det, &gt, 1.0, false).unwrap();
+    let (s, _) = metric::score_frames(&preds, &gts2, (&det, &gt)).unwrap();
+    assert_eq!((s.accuracy, s.fp, s.fn_), (1.0, 0.0, 0.0));
+    // The default camera (CULane's 1640×590) leaves the rows below 590 out and says so.
+    let o = stjpdacf()
+        .args(["convert", "--culane"])
+        .arg(&lanes_dir)
+        .arg("--out")
+        .arg(d.join("g590.json"))
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("outside the 1640x590 image"), "{err}");
+    // Lanes seen only up to row 420 of CULane's camera (11 m ahead) are too short to track:
+    // `track` publishes none and says how far up they must reach.
+    let short = d.join("short");
+    std::fs::create_dir_all(short.join("clip")).unwrap();
+    for k in 0..5 {
+        let line = |x0: f64| {
+            (0..18)
+                .map(|i| format!("{:.1} {}", x0 + 3.0 * f64::from(i), 590 - 10 * i))
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        let text = format!("{}\n{}\n", line(300.0), line(1300.0));
+        std::fs::write(short.join(format!("clip/{:05}.lines.txt", 30 * k)), text).unwrap();
+    }
+    let sf = d.join("short.jsonl");
+    let o = stjpdacf()
+        .args(["convert", "--culane"])
+        .arg(&short)
+        .arg("--out")
+        .arg(d.join("short_gt.json"))
+        .arg("--frames")
+        .arg(&sf)
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let o = stjpdacf()
+        .args(["track", "--frames"])
+        .arg(&sf)
+        .arg("--out")
+        .arg(d.join("short_pred.json"))
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("no lane was published") && err.contains("must reach row 343"),
+        "{err}"
+    );
     let o = stjpdacf()
         .args(["convert", "--culane"])
         .arg(d.join("nothing"))
