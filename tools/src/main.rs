@@ -321,7 +321,8 @@ enum Command {
         /// Hyperparameter file of the tables [default: the checkout's data/hyper/default.json].
         #[arg(long)]
         hyper: Option<PathBuf>,
-        /// Camera of the labels, a JSON file with the fields of `Camera` (default: TuSimple).
+        /// Camera of the labels: `tusimple` (the default), `culane` (a 1640x590 guess) or a camera
+        /// JSON file with the fields of `Camera` (width, height, vp_col, vp_row, height_m, focal_px).
         #[arg(long)]
         camera: Option<PathBuf>,
         /// Also write the fit (scale, log-likelihoods, profile) as JSON here.
@@ -477,7 +478,8 @@ struct TrainArgs {
     /// Cut temporal series where labelled clips are further apart than this, seconds.
     #[arg(long, default_value_t = 10.0)]
     max_gap: f64,
-    /// Camera of the labels, a JSON file with the fields of `Camera` (default: TuSimple).
+    /// Camera of the labels: `tusimple` (the default), `culane` (a 1640x590 guess) or a camera
+    /// JSON file with the fields of `Camera` (width, height, vp_col, vp_row, height_m, focal_px).
     #[arg(long)]
     camera: Option<PathBuf>,
     /// Write a report (B heat map PNG, summary.json, summary.md) into this folder.
