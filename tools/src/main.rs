@@ -794,7 +794,10 @@ fn main() -> Result<()> {
                 );
             }
             let n_points: usize = frames.iter().map(|f| f.points.len()).sum();
-            if stats.published_lanes == 0 && n_points > 0 {
+            if stats.published_lanes == 0
+                && n_points > 0
+                && space == stjpdacf_tools::track::Space::Image
+            {
                 let need = usize::from(
                     stjpdacf::tracker::TrackerConfig::DEFAULT
                         .identity
@@ -802,8 +805,6 @@ fn main() -> Result<()> {
                         .max(1),
                 );
                 let step = f64::from(tables.index_u[1] - tables.index_u[0]);
-                // The frames' own camera when they carry one (`frontend`, `convert`).
-                let cam = own_camera.unwrap_or(cam);
                 if let Some((row, u)) = stjpdacf_tools::track::lane_reach_needed(&cam, tables, need)
                 {
                     eprintln!(
