@@ -1109,8 +1109,8 @@ pub struct LineInfo {
 }
 
 /// Image files (`*.jpg`, `*.jpeg`, `*.png`, any case) under `dir`, recursively, in the order
-/// frames are written: by folder, then by numeric file stem (TuSimple's `1.jpg … 20.jpg`), then
-/// by name.
+/// frames are written: by folder, then by frame number ([`frame_number`]: TuSimple's `1.jpg …
+/// 20.jpg`), then by name.
 pub fn find_images(dir: &Path) -> Result<Vec<PathBuf>> {
     find_files(dir, |path| {
         path.extension()

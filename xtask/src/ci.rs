@@ -1,6 +1,6 @@
 //! `cargo xtask ci`: every check CI runs, in order, stopping at the first failure. `.ci/run`
-//! installs the tools first (rustup targets and components, qemu-system-arm, gcc-arm-none-eabi, python3,
-//! flip-link, cbindgen, cargo-fuzz), then runs this.
+//! installs the tools first (rustup targets and components, qemu-system-arm, gcc-arm-none-eabi,
+//! python3, flip-link, cbindgen, cargo-fuzz), then runs this.
 
 use std::process::Command;
 
