@@ -49,11 +49,14 @@ def main():
     ap.add_argument('--conds', default=','.join(CONDS))
     ap.add_argument('--seeds', default='1,2,3')
     ap.add_argument('--model', default='reference', help="the tracker's model (track --model)")
+    ap.add_argument('--min-margin', type=float, default=None,
+                    help="exit 1 when a condition's mean margin over the better fit is below this (a regression check)")
     ap.add_argument('--curve', action='store_true',
                     help='the robustness curve (clutter × 1 … × 8, blobs, noise × 2 and × 4, 5 and 1 fps) instead of --conds')
     a = ap.parse_args()
     seeds = [int(s) for s in a.seeds.split(',')]
     runs_of = CURVE if a.curve else [(c, ['--cond', c]) for c in a.conds.split(',')]
+    below = []
     print('| condition | tracker accuracy / FP / FN | RANSAC | RANSAC ≤ 4 lanes | margin over the better (worst seed) |')
     print('|---|---|---|---|---|')
     for cond, args in runs_of:
@@ -70,6 +73,10 @@ def main():
         margins = [r['tracker']['Accuracy'] - max(r['base']['Accuracy'], r['base4']['Accuracy']) for r in runs]
         print(f'| {cond} | {fmt("tracker")} | {fmt("base")} | {fmt("base4")} | '
               f'{sum(margins) / len(margins):+.3f} ({min(margins):+.3f}) |', flush=True)
+        if a.min_margin is not None and sum(margins) / len(margins) < a.min_margin:
+            below.append(cond)
+    if below:
+        sys.exit(f'margin over the per-frame fit below {a.min_margin:+.3f} on: {", ".join(below)}')
 
 
 if __name__ == '__main__':

@@ -162,6 +162,8 @@ pub fn run() -> Result<()> {
     step("README command 1: the demo on bundled data");
     cargo(&["run", "--release", "-p", "stjpdacf-tools", "--", "demo"])?;
 
+    // The tracker stays ahead of the per-frame fit on data it was not developed on (+0.081
+    // on this condition and seed at stop 75; the guard leaves room for model changes).
     step("the third generator (tools/gen3, Python): one condition, one seed, through the CLI");
     run_in(
         ".",
@@ -175,6 +177,8 @@ pub fn run() -> Result<()> {
             "clutter",
             "--seeds",
             "1",
+            "--min-margin",
+            "0.05",
         ],
     )?;
 
