@@ -376,6 +376,180 @@ pub fn lines_text(r: &TuSimpleRecord) -> String {
     s
 }
 
+/// CULane's metric over a set of images: lanes drawn `width` px wide (30 in CULane's evaluator)
+/// on the image, a predicted and a labelled lane match when the intersection over union of
+/// their pixels exceeds `iou` (0.5), predictions and labels paired one to one for the largest
+/// summed IoU (Hungarian); true positives, false positives and misses summed over the images.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct F1Score {
+    /// Predicted lanes matched to a labelled one.
+    pub tp: usize,
+    /// Predicted lanes not matched.
+    pub fp: usize,
+    /// Labelled lanes not matched.
+    #[serde(rename = "fn")]
+    pub fn_: usize,
+    /// `tp / (tp + fp)` (1 without predictions).
+    pub precision: f64,
+    /// `tp / (tp + fn)` (1 without labels).
+    pub recall: f64,
+    /// Harmonic mean of precision and recall (0 when both are 0).
+    pub f1: f64,
+}
+
+/// The pixels of an image `size = (columns, rows)` within `width / 2` of a lane's polyline
+/// (its points at their integer pixel, as CULane's evaluators draw them), as a bit set.
+fn lane_mask(points: &[(f64, f64)], width: f64, size: (usize, usize)) -> Vec<u64> {
+    let (w, h) = size;
+    let mut bits = vec![0u64; (w * h).div_ceil(64)];
+    let r = width / 2.0;
+    let pts: Vec<(f64, f64)> = points
+        .iter()
+        .map(|&(x, y)| (x.trunc(), y.trunc()))
+        .collect();
+    let segments: Vec<((f64, f64), (f64, f64))> = if pts.len() == 1 {
+        vec![(pts[0], pts[0])]
+    } else {
+        pts.windows(2).map(|s| (s[0], s[1])).collect()
+    };
+    for ((x0, y0), (x1, y1)) in segments {
+        let (dx, dy) = (x1 - x0, y1 - y0);
+        let len2 = dx * dx + dy * dy;
+        let clip = |v: f64, n: usize| v.clamp(0.0, n as f64 - 1.0) as usize;
+        let (cx0, cx1) = (clip(x0.min(x1) - r, w), clip(x0.max(x1) + r, w));
+        let (cy0, cy1) = (clip(y0.min(y1) - r, h), clip(y0.max(y1) + r, h));
+        for py in cy0..=cy1 {
+            for px in cx0..=cx1 {
+                let (qx, qy) = (px as f64 - x0, py as f64 - y0);
+                let t = if len2 > 0.0 {
+                    ((qx * dx + qy * dy) / len2).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let (ex, ey) = (qx - t * dx, qy - t * dy);
+                if ex * ex + ey * ey <= r * r {
+                    let k = py * w + px;
+                    bits[k / 64] |= 1 << (k % 64);
+                }
+            }
+        }
+    }
+    bits
+}
+
+/// Intersection over union of two pixel sets (0 when both are empty).
+fn iou_of(a: &[u64], b: &[u64]) -> f64 {
+    let (mut inter, mut union) = (0u64, 0u64);
+    for (x, y) in a.iter().zip(b) {
+        inter += u64::from((x & y).count_ones());
+        union += u64::from((x | y).count_ones());
+    }
+    if union == 0 {
+        0.0
+    } else {
+        inter as f64 / union as f64
+    }
+}
+
+/// The lanes of one image matched by [`F1Score`]'s rule: `(tp, fp, fn)`.
+fn match_image(
+    pred: &[Vec<(f64, f64)>],
+    gt: &[Vec<(f64, f64)>],
+    width: f64,
+    iou: f64,
+    size: (usize, usize),
+) -> Result<(usize, usize, usize)> {
+    if pred.is_empty() || gt.is_empty() {
+        return Ok((0, pred.len(), gt.len()));
+    }
+    let pm: Vec<Vec<u64>> = pred.iter().map(|l| lane_mask(l, width, size)).collect();
+    let gm: Vec<Vec<u64>> = gt.iter().map(|l| lane_mask(l, width, size)).collect();
+    // Rows the smaller set (the solver assigns every row), IoU in millionths.
+    let (rows, cols) = if pm.len() <= gm.len() {
+        (&pm, &gm)
+    } else {
+        (&gm, &pm)
+    };
+    let ious: Vec<Vec<f64>> = rows
+        .iter()
+        .map(|a| cols.iter().map(|b| iou_of(a, b)).collect())
+        .collect();
+    let weights = pathfinding::matrix::Matrix::from_rows(ious.iter().map(|r| {
+        r.iter()
+            .map(|v| (v * 1e6).round() as i64)
+            .collect::<Vec<_>>()
+    }))
+    .map_err(|e| anyhow::anyhow!("the IoU matrix: {e:?}"))?;
+    let (_, assignment) = pathfinding::kuhn_munkres::kuhn_munkres(&weights);
+    let tp = assignment
+        .iter()
+        .enumerate()
+        .filter(|&(r, &c)| ious[r][c] > iou)
+        .count();
+    Ok((tp, pred.len() - tp, gt.len() - tp))
+}
+
+/// [`F1Score`] of predictions against labels (one prediction a labelled image, as
+/// [`crate::metric::read_scaled`] checks): each record's lanes are the polylines through their
+/// points at `h_samples` (`x ≥ 0`), drawn on an image of `size = (columns, rows)`. CULane's
+/// evaluator draws cubic splines through the points; on lanes sampled every 10 rows the
+/// polyline is within a pixel of them.
+pub fn f1_score(
+    preds: &[TuSimpleRecord],
+    gts: &[TuSimpleRecord],
+    width: f64,
+    iou: f64,
+    size: (usize, usize),
+) -> Result<F1Score> {
+    let lanes = |r: &TuSimpleRecord| -> Vec<Vec<(f64, f64)>> {
+        r.lanes
+            .iter()
+            .map(|l| r.points_of(l).collect::<Vec<_>>())
+            .filter(|l: &Vec<(f64, f64)>| !l.is_empty())
+            .collect()
+    };
+    let (mut tp, mut fp, mut fn_) = (0, 0, 0);
+    for g in gts {
+        let pred = preds
+            .iter()
+            .find(|p| p.raw_file == g.raw_file)
+            .map(|p| {
+                // A prediction's lanes at the label's rows when it names none of its own.
+                let mut p = p.clone();
+                if p.h_samples.is_empty() {
+                    p.h_samples = g.h_samples.clone();
+                }
+                lanes(&p)
+            })
+            .unwrap_or_default();
+        let (t, f, n) = match_image(&pred, &lanes(g), width, iou, size)?;
+        tp += t;
+        fp += f;
+        fn_ += n;
+    }
+    let ratio = |a: usize, b: usize| {
+        if a + b == 0 {
+            1.0
+        } else {
+            a as f64 / (a + b) as f64
+        }
+    };
+    let (precision, recall) = (ratio(tp, fp), ratio(tp, fn_));
+    let f1 = if precision + recall > 0.0 {
+        2.0 * precision * recall / (precision + recall)
+    } else {
+        0.0
+    };
+    Ok(F1Score {
+        tp,
+        fp,
+        fn_,
+        precision,
+        recall,
+        f1,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -504,5 +678,44 @@ mod tests {
         assert!(read_dir(&dir.join("driver_1/none"), 10.0, &cam, None).is_err());
         assert!(read_dir(&dir, 0.0, &cam, None).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn f1_matches_lanes_by_the_iou_of_30_px_strokes() {
+        let size = (1640, 590);
+        let line = |x0: f64| -> Vec<(f64, f64)> {
+            (0..30)
+                .map(|i| (x0 + 2.0 * f64::from(i), 580.0 - 10.0 * f64::from(i)))
+                .collect()
+        };
+        // A lane against itself: IoU 1.
+        let a = lane_mask(&line(300.0), 30.0, size);
+        assert_eq!(iou_of(&a, &a), 1.0);
+        // Shifted sideways by d px, two 30 px strokes overlap by about (30 − d) / (30 + d).
+        for (d, want) in [(10.0, 0.5), (5.0, 25.0 / 35.0), (40.0, 0.0)] {
+            let b = lane_mask(&line(300.0 + d), 30.0, size);
+            let v = iou_of(&a, &b);
+            assert!((v - want).abs() < 0.03, "shift {d}: IoU {v}, about {want}");
+        }
+        // Two labelled lanes; the prediction has one right, one 40 px off, one extra.
+        let rows: Vec<f64> = (0..30).map(|i| 580.0 - 10.0 * f64::from(i)).collect();
+        let rec = |xs: &[f64], time: Option<f64>| TuSimpleRecord {
+            raw_file: "a/1.jpg".into(),
+            lanes: xs
+                .iter()
+                .map(|&x0| (0..30).map(|i| x0 + 2.0 * f64::from(i)).collect())
+                .collect(),
+            h_samples: rows.clone(),
+            run_time: time,
+        };
+        let gt = rec(&[300.0, 900.0], None);
+        let pred = rec(&[940.0, 301.0, 1400.0], Some(0.0));
+        let s = f1_score(&[pred], std::slice::from_ref(&gt), 30.0, 0.5, size).unwrap();
+        assert_eq!((s.tp, s.fp, s.fn_), (1, 2, 1));
+        assert!((s.precision - 1.0 / 3.0).abs() < 1e-12 && (s.recall - 0.5).abs() < 1e-12);
+        assert!((s.f1 - 0.4).abs() < 1e-12);
+        // No prediction for a labelled image: its lanes are misses.
+        let s = f1_score(&[], &[gt], 30.0, 0.5, size).unwrap();
+        assert_eq!((s.tp, s.fp, s.fn_, s.f1), (0, 0, 2, 0.0));
     }
 }

@@ -59,6 +59,13 @@ enum ShareArg {
     All,
 }
 
+/// `eval --metric`.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum MetricArg {
+    Tusimple,
+    Culane,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Generate the static model tables (a Rust source file) from a hyperparameter file.
@@ -219,6 +226,21 @@ enum Command {
         /// --gt` writes them; a labelled frame without a prediction is still an error.
         #[arg(long)]
         labelled_only: bool,
+        /// The metric: `tusimple` (the official TuSimple scorer) or `culane` (CULane's: lanes
+        /// drawn --lane-px wide on an --image-size image, matched one to one when their pixels'
+        /// intersection over union exceeds --iou; TP, FP, FN, precision, recall, F1).
+        #[arg(long, value_enum, default_value = "tusimple")]
+        metric: MetricArg,
+        /// With `--metric culane`: the lanes' stroke width, pixels (CULane's 30).
+        #[arg(long, default_value_t = 30.0, value_name = "PX")]
+        lane_px: f64,
+        /// With `--metric culane`: the IoU a match must exceed (CULane's 0.5; 0.3 is also used).
+        #[arg(long, default_value_t = 0.5)]
+        iou: f64,
+        /// With `--metric culane`: the image size the lanes are drawn on, `WxH` (after
+        /// --pixel-scale).
+        #[arg(long, default_value = "1640x590")]
+        image_size: String,
     },
     /// Convert CULane-style lane files (`*.lines.txt` beside each image: a lane a line, `x y`
     /// pairs in pixels; CULane, CurveLanes, many detectors' outputs) to TuSimple ground truth
@@ -896,6 +918,10 @@ fn main() -> Result<()> {
             per_frame,
             per_lane,
             labelled_only,
+            metric: which,
+            lane_px,
+            iou,
+            image_size,
         } => {
             anyhow::ensure!(
                 pixel_scale > 0.0 && pixel_scale.is_finite(),
@@ -909,6 +935,40 @@ fn main() -> Result<()> {
                     "{} predictions of labelled frames scored, {left_out} of unlabelled frames left out",
                     preds.len()
                 );
+            }
+            if which == MetricArg::Culane {
+                anyhow::ensure!(
+                    per_frame.is_none() && per_lane.is_none(),
+                    "--per-frame and --per-lane list the TuSimple metric's scores: leave them out \
+                     with --metric culane"
+                );
+                anyhow::ensure!(
+                    lane_px > 0.0 && lane_px.is_finite() && (0.0..1.0).contains(&iou),
+                    "--lane-px must be a positive width and --iou in [0, 1)"
+                );
+                let size = image_size
+                    .split_once('x')
+                    .and_then(|(w, h)| Some((w.parse::<usize>().ok()?, h.parse::<usize>().ok()?)))
+                    .filter(|&(w, h)| w > 0 && h > 0 && w * h <= 100_000_000)
+                    .with_context(|| {
+                        format!("--image-size {image_size:?}: give WxH, e.g. 1640x590")
+                    })?;
+                let s = stjpdacf_tools::culane::f1_score(&preds, &gts, lane_px, iou, size)?;
+                if json {
+                    println!("{}", serde_json::to_string(&s)?);
+                } else {
+                    println!(
+                        "CULane metric ({} frames, {lane_px} px lanes, IoU > {iou}, {}x{})",
+                        gts.len(),
+                        size.0,
+                        size.1
+                    );
+                    println!("  TP {}  FP {}  FN {}", s.tp, s.fp, s.fn_);
+                    println!("  Precision {:.6}", s.precision);
+                    println!("  Recall    {:.6}", s.recall);
+                    println!("  F1        {:.6}", s.f1);
+                }
+                return Ok(());
             }
             let (s, mut frames) = metric::score_frames(&preds, &gts, (&pred, &gt))?;
             if let Some(p) = &per_frame {

@@ -376,6 +376,28 @@ fn cli_converts_culane_lane_files_both_ways_and_tracks_them() {
     let (preds, gts2, _) = metric::read_scaled(&det, &gt, 1.0, false).unwrap();
     let (s, _) = metric::score_frames(&preds, &gts2, (&det, &gt)).unwrap();
     assert_eq!((s.accuracy, s.fp, s.fn_), (1.0, 0.0, 0.0));
+    // CULane's metric on them: every lane a true positive (TuSimple's 1280×720 image).
+    let o = stjpdacf()
+        .args([
+            "eval",
+            "--metric",
+            "culane",
+            "--image-size",
+            "1280x720",
+            "--json",
+            "--pred",
+        ])
+        .arg(&det)
+        .arg("--gt")
+        .arg(&gt)
+        .output()
+        .unwrap();
+    assert_success(&o);
+    let f1: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let lanes: usize = gts2.iter().map(|g| g.lanes.len()).sum();
+    assert_eq!(f1["tp"], lanes);
+    assert_eq!((f1["fp"].as_u64(), f1["fn"].as_u64()), (Some(0), Some(0)));
+    assert_eq!(f1["f1"], 1.0);
     // The default camera (CULane's 1640×590) leaves the rows below 590 out and says so.
     let o = stjpdacf()
         .args(["convert", "--culane"])
