@@ -218,8 +218,10 @@ pub fn read_dir(
     labels: Option<&[TuSimpleRecord]>,
 ) -> Result<(Vec<TuSimpleRecord>, ReadReport)> {
     ensure!(
-        row_step.is_finite() && row_step > 0.0,
-        "the row step must be a positive number of pixels, not {row_step}"
+        row_step.is_finite() && row_step > 0.0 && row_step < camera.height,
+        "the row step must be a positive number of pixels under the image's {} rows, not \
+         {row_step}",
+        camera.height
     );
     let files = find_files(dir, |p| {
         p.file_name()
@@ -677,6 +679,7 @@ mod tests {
         assert!(e.contains("same frame number"), "{e}");
         assert!(read_dir(&dir.join("driver_1/none"), 10.0, &cam, None).is_err());
         assert!(read_dir(&dir, 0.0, &cam, None).is_err());
+        assert!(read_dir(&dir, 590.0, &cam, None).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
